@@ -1,0 +1,212 @@
+"""Runtime benchmark: decomposition time, relighting cost per megapixel, peak memory.
+
+    .venv/bin/python benchmarks/bench_runtime.py [--repeats 3] [--sizes 256 512 1024] [--quick]
+
+Uses the default RelightNet config (width 32, depth 4, SH order 4) with seeded
+random weights (timings do not depend on the weight values), exported to fp32
+and fp16 ONNX in a temporary folder. Prints Markdown tables (medians).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _median_time(fn, repeats: int, warmup: bool = True) -> float:
+    if warmup:
+        fn()  # first run at a shape allocates and plans
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _photo(h: int, w: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0.05, 0.9, (h, w, 3)).astype(np.float32)
+
+
+def bench_decompose(models: dict, sizes, repeats: int) -> list[str]:
+    """Decomposition of a size x size photo (working size = photo size). Above 512 px
+    one cold run per cell (a warm-up would double a minute-long measurement)."""
+    from relight.runtime import Relighter
+
+    rows = ["| photo (px) | precision | threads | decompose, mask given (ms) | decompose, no mask: + matte pass at 256 (ms) |",
+            "|---|---|---|---|---|"]
+    for size in sizes:
+        photo = _photo(size, size)
+        mask = np.ones((size, size), np.float32)
+        warm = size <= 512
+        for precision, path in models.items():
+            for threads in (1, 2):
+                r = Relighter(path, threads=threads, working_size=size)
+                with_mask = _median_time(lambda: r.decompose(photo, mask), repeats if warm else 1, warm)
+                without = "-"
+                if precision == "fp32" and threads == 2:
+                    without = f"{_median_time(lambda: r.decompose(photo), repeats if warm else 1, warm) * 1e3:.0f}"
+                rows.append(f"| {size} | {precision} | {threads} | {with_mask * 1e3:.0f} | {without} |")
+                print(rows[-1], flush=True)
+    return rows
+
+
+def _gmac(net, size: int) -> float:
+    """Multiply-accumulates of one forward pass at size x size (convolutions and linear layers)."""
+    import torch
+
+    total = 0
+
+    def hook(module, _inputs, output):
+        nonlocal total
+        if isinstance(module, torch.nn.Conv2d):
+            k = module.kernel_size[0] * module.kernel_size[1]
+            total += output.numel() * module.in_channels * k // module.groups
+        elif isinstance(module, torch.nn.Linear):
+            total += module.in_features * module.out_features
+
+    handles = [m.register_forward_hook(hook) for m in net.modules()]
+    with torch.no_grad():
+        net(torch.zeros(1, 3, size, size))
+    for h in handles:
+        h.remove()
+    return total / 1e9
+
+
+def bench_widths(tmp: Path, widths, size: int, repeats: int) -> list[str]:
+    from export.random_model import export_random_model
+    from relight.runtime import Relighter
+
+    rows = [f"| width | params (M) | GMAC at {size}x{size} | decompose {size}x{size}, mask given, 2 threads (ms) |",
+            "|---|---|---|---|"]
+    photo = _photo(size, size)
+    mask = np.ones((size, size), np.float32)
+    for width in widths:
+        path, _, net = export_random_model(tmp / f"w{width}.onnx", seed=0, width=width)
+        r = Relighter(path, threads=2, working_size=size)
+        t = _median_time(lambda: r.decompose(photo, mask), repeats)
+        params = sum(p.numel() for p in net.parameters()) / 1e6
+        rows.append(f"| {width} | {params:.2f} | {_gmac(net, size):.1f} | {t * 1e3:.0f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def bench_relight(model: Path, repeats: int, big: tuple[int, int]) -> list[str]:
+    from relight.runtime import Relighter
+
+    rows = ["| what | pixels | time (ms) | ms per megapixel |", "|---|---|---|---|"]
+    r = Relighter(model, threads=2, working_size=512)
+    d = r.decompose(_photo(512, 512), np.ones((512, 512), np.float32))
+    L = np.random.default_rng(1).normal(0, 0.3, (25, 3))
+    px = 512 * 512
+    t = _median_time(lambda: d.relight_working(L), repeats * 5)
+    rows.append(f"| dot product rho(T.L')+E.L' at working res (all pixels in matte) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    # reference for a memory-bound loop: copying the arrays the dot product reads
+    src = np.concatenate([d._transport_m, d._residual_m, d._albedo_m], axis=1)
+    dst = np.empty_like(src)
+    t = _median_time(lambda: np.copyto(dst, src), repeats * 5)
+    rows.append(f"| reference: memcpy of T, E, albedo ({src.nbytes / 2**20:.0f} MiB) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    t = _median_time(lambda: d.relight_working(L, rotation_deg=37.0), repeats * 5)
+    rows.append(f"| same, new rotation each call (cached matrix) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    t = _median_time(lambda: d.relight(L), repeats * 5)
+    rows.append(f"| relight() full frame, crop == working size | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    H, W = big
+    photo = _photo(H, W, seed=2)
+    mask = np.ones((H, W), np.float32)
+    d = r.decompose(photo, mask)
+    del mask
+    for detail in (True, False):
+        t = _median_time(lambda: d.relight(L, detail=detail), repeats)
+        rows.append(f"| relight() {W}x{H} photo, working {d.working_size[1]}x{d.working_size[0]}, "
+                    f"detail={detail} | {H * W} | {t * 1e3:.0f} | {t * 1e3 / (H * W / 1e6):.1f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+CHILD = r"""
+import resource, sys, time
+from relight.cli import main
+t0 = time.perf_counter()
+code = main(sys.argv[1:])
+print("SECONDS", time.perf_counter() - t0)
+# VmHWM: this process image's own peak (ru_maxrss keeps the parent's RSS at fork across exec)
+print("PEAK_RSS_KIB", next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1])
+sys.exit(code)
+"""
+
+
+def bench_memory(model: Path, tmp: Path, big: tuple[int, int]) -> list[str]:
+    from PIL import Image
+
+    H, W = big
+    rgb = (_photo(H, W, seed=3) * 255).astype(np.uint8)
+    Image.fromarray(rgb).save(tmp / "big.jpg", quality=90)
+    del rgb
+    rows = ["| command | wall (s) | peak RSS (MiB) |", "|---|---|---|"]
+    for extra in ([], ["--quality", "best"]):
+        argv = ["image", str(tmp / "big.jpg"), "--light", "studio", "--model", str(model),
+                "--out", str(tmp / "big_relit.png"), *extra]
+        res = subprocess.run([sys.executable, "-c", CHILD, *argv], capture_output=True, text=True,
+                             cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+        if res.returncode != 0:
+            raise SystemExit(res.stderr)
+        secs = float(res.stdout.split("SECONDS")[1].split()[0])
+        peak = int(res.stdout.split("PEAK_RSS_KIB")[1].split()[0]) / 1024
+        rows.append(f"| relight image {W}x{H} JPEG -> PNG {' '.join(extra)} | {secs:.1f} | {peak:.0f} |")
+        print(rows[-1], flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512, 1024])
+    parser.add_argument("--quick", action="store_true", help="smaller big photo (2000x1500)")
+    parser.add_argument("--widths", type=int, nargs="*", default=[8, 16, 32],
+                        help="RelightNet widths for the network-cost table at 512 px")
+    parser.add_argument("--skip", nargs="*", default=[], choices=["decompose", "widths", "relight", "memory"])
+    args = parser.parse_args()
+    from export.fp16 import export_fp16
+    from export.random_model import export_random_model
+
+    big = (2000, 1500) if args.quick else (6000, 4000)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        fp32, _, _ = export_random_model(tmp / "default.onnx", seed=0)  # default config
+        fp16, _ = export_fp16(fp32, tmp / "default.fp16.onnx")
+        print(f"# runtime benchmark: {platform.processor() or platform.machine()}, "
+              f"{os.cpu_count()} CPUs, onnxruntime {__import__('onnxruntime').__version__}, "
+              f"model {fp32.stat().st_size / 2**20:.1f} MiB fp32 / {fp16.stat().st_size / 2**20:.1f} MiB fp16; "
+              f"load average at start {os.getloadavg()[0]:.1f}\n")
+        tables = []
+        if "decompose" not in args.skip:
+            tables.append(bench_decompose({"fp32": fp32, "fp16": fp16}, args.sizes, args.repeats))
+        if "widths" not in args.skip and args.widths:
+            tables.append(bench_widths(tmp, args.widths, 512, args.repeats))
+        if "relight" not in args.skip:
+            tables.append(bench_relight(fp32, args.repeats, big))
+        if "memory" not in args.skip:
+            tables.append(bench_memory(fp32, tmp, big))
+        print(f"(load average at end {os.getloadavg()[0]:.1f})")
+        print()
+        for t in tables:
+            print("\n".join(t) + "\n")
+        print(f"(this process: peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""Training throughput of RelightNet (images/s): forward + all losses + backward + AdamW step.
+
+    .venv/bin/python benchmarks/bench_train.py [--size 256] [--batch 4] [--steps 3] [--variants]
+
+Random inputs with the shapes of real samples (the data pipeline is timed
+separately: --data DIR times model.data.TrainingScenes items). Prints a
+markdown table; copy it with the command into docs/benchmarks/model.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import torch
+
+from model.losses import LossWeights, relight_losses
+from model.network import RelightNet
+
+
+def fake_batch(batch: int, size: int, n: int) -> dict:
+    g = torch.Generator().manual_seed(0)
+    r = lambda *s: torch.rand(*s, generator=g)
+    alpha = (r(batch, 1, size, size) > 0.3).float()
+    return {"input": r(batch, 3, size, size) * 2 - 1, "albedo": r(batch, 3, size, size),
+            "transport": r(batch, n, size, size) - 0.5, "light": r(batch, n, 3), "alpha": alpha,
+            "image": r(batch, 3, size, size), "target_light": r(batch, n, 3), "target_image": r(batch, 3, size, size)}
+
+
+def forward_gflop(model: RelightNet, size: int) -> float:
+    """Forward-pass GFLOP (2 per multiply-add) of one size x size image: load-independent."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter, torch.no_grad():
+        model.eval()(torch.zeros(1, 3, size, size))
+    return counter.get_total_flops() / 1e9
+
+
+def time_training(config: dict, batch: int, size: int, steps: int, warmup: int = 1):
+    torch.manual_seed(0)
+    model = RelightNet(**config)
+    gflop = forward_gflop(model, size)
+    model.train()
+    opt = torch.optim.AdamW(model.parameters(), lr=5e-5)
+    data = fake_batch(batch, size, model.n)
+    weights = LossWeights()
+    times = []
+    for i in range(warmup + steps):
+        t0 = time.perf_counter()
+        terms = relight_losses(model(data["input"]), data, weights, decomposition=model.decomposition,
+                               tstar=model.tstar)
+        opt.zero_grad()
+        terms["total"].backward()
+        opt.step()
+        if i >= warmup:
+            times.append(time.perf_counter() - t0)
+    model.eval()
+    with torch.no_grad():
+        model(data["input"][:1])
+        t0 = time.perf_counter()
+        model(data["input"][:1])
+        infer = time.perf_counter() - t0
+    step = sorted(times)[len(times) // 2]
+    return batch / step, infer, sum(p.numel() for p in model.parameters()), gflop
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--steps", type=int, default=3)
+    p.add_argument("--width", type=int, default=32)
+    p.add_argument("--variants", action="store_true", help="also time the ablations")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    p.add_argument("--data", help="also time TrainingScenes items from this dataset folder")
+    args = p.parse_args()
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
+          f"{args.size}x{args.size}, batch {args.batch}, median of {args.steps} steps after 1 warm-up\n")
+    variants = {"full (order 4)": {}}
+    if args.variants:
+        variants.update({"without E": {"with_residual": False}, "without decomposition": {"decomposition": False},
+                         "order 2": {"sh_order": 2}, "T*": {"tstar": True},
+                         "Lambertian (KE-style, order 2)": {"with_residual": False, "decomposition": False,
+                                                             "sh_order": 2}})
+    print("| variant | params (M) | forward GFLOP/image | train images/s | ratio to full | inference s/image |")
+    print("|---|---|---|---|---|---|")
+    base = None
+    for name, flags in variants.items():
+        ips, infer, params, gflop = time_training({"width": args.width, **flags}, args.batch, args.size, args.steps)
+        base = base or ips
+        print(f"| {name} | {params / 1e6:.1f} | {gflop:.1f} | {ips:.3f} | {ips / base:.2f} | {infer:.3f} |",
+              flush=True)
+    if args.data:
+        from model.data import TrainingScenes, find_scenes, preset_training_lights
+        from relight import presets
+
+        ds = TrainingScenes(find_scenes(args.data), args.size, 4, extra_lights=preset_training_lights(4),
+                            held_out=frozenset(presets.HELD_OUT))
+        ds.item(0, 0)  # fills the crop cache for scene 0
+        t0 = time.perf_counter()
+        count = 20
+        for e in range(count):
+            ds.item(0, e + 1)
+        print(f"\ndata: {count / (time.perf_counter() - t0):.1f} samples/s from a cached scene "
+              f"(crop cache hit; a cache miss also reads and resizes the EXR)")
+
+
+if __name__ == "__main__":
+    main()

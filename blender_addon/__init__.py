@@ -1,0 +1,24 @@
+"""Relight Photo: relight a person in a photo from Blender's Image Editor.
+
+The Blender-facing modules (bl_*) are thin; the logic lives in plain-Python
+modules (pipeline, quality, jobs, state, engine, build, manifest) that import
+without bpy, so `python -m blender_addon.build` runs outside Blender.
+"""
+
+_REGISTERED = []
+
+
+def register():
+    from . import bl_ops, bl_props, bl_ui
+
+    for module in (bl_props, bl_ops, bl_ui):
+        module.register()
+        _REGISTERED.append(module)
+
+
+def unregister():
+    from . import state
+
+    while _REGISTERED:
+        _REGISTERED.pop().unregister()
+    state.clear()

@@ -1,0 +1,77 @@
+"""The Image Editor sidebar panel (tab "Relight")."""
+
+from __future__ import annotations
+
+import bpy
+
+from . import state
+
+
+class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
+    bl_label = "Relight Photo"
+    bl_idname = "RELIGHT_PHOTO_PT_panel"
+    bl_space_type = "IMAGE_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "Relight"
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.relight_photo
+        status = context.window_manager.relight_photo_status
+        image = context.space_data.image
+
+        col = layout.column()
+        col.label(text=f"Photo: {image.name}" if image else "Open a photo in this editor",
+                  icon="IMAGE_DATA" if image else "INFO")
+
+        box = layout.box()
+        box.prop(settings, "mask_mode")
+        if settings.mask_mode == "IMAGE":
+            box.template_ID(settings, "mask_image", open="image.open")
+
+        box = layout.box()
+        box.prop(settings, "light_kind")
+        if settings.light_kind == "HDR":
+            box.prop(settings, "hdr_path", text="")
+        elif settings.light_kind == "PRESET":
+            box.prop(settings, "preset", text="")
+        elif settings.light_kind == "IMAGE":
+            box.template_ID(settings, "light_image", open="image.open")
+        elif settings.light_kind == "WORLD":
+            world = context.scene.world
+            box.label(text=f"World: {world.name}" if world else "The scene has no World",
+                      icon="WORLD" if world else "ERROR")
+        col = box.column(align=True)
+        col.prop(settings, "rotation")
+        col.prop(settings, "exposure")
+        col.prop(settings, "strength", slider=True)
+
+        box = layout.box()
+        box.prop(settings, "quality")
+        box.prop(settings, "model_path")
+
+        row = layout.row(align=True)
+        row.scale_y = 1.4
+        row.enabled = not status.running
+        row.operator("relight_photo.relight", icon="LIGHT_SUN")
+        row = layout.row()
+        row.enabled = settings.last_source in state.SESSIONS
+        row.operator("relight_photo.save_layers", icon="FILE_IMAGE")
+
+        if status.running:
+            layout.label(text="Running the network... (Esc cancels)", icon="SORTTIME")
+        elif status.message:
+            layout.label(text=status.message, icon="ERROR" if status.is_error else "CHECKMARK")
+
+
+CLASSES = (RELIGHT_PHOTO_PT_panel,)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister() -> None:
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

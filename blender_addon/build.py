@@ -1,0 +1,246 @@
+"""Build the extension zip that Blender's "Install from Disk" takes.
+
+    python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline]
+
+Bundles the add-on, this project's torch-free core `relight/` (as a wheel,
+with the HDR presets and the shipped ONNX models of relight/models/), and the
+onnxruntime, OpenEXR and Pillow wheels for linux-x64, windows-x64 and macos-arm64 at
+the versions installed here. Wheels are downloaded once with pip into a cache
+outside the repository; numpy is Blender's own. The zip is written
+atomically and its manifest validated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import csv
+import hashlib
+import importlib.metadata
+import io
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+from . import manifest as manifest_rules
+
+ADDON_DIR = Path(__file__).resolve().parent
+REPO_ROOT = ADDON_DIR.parent
+CORE_DIR = REPO_ROOT / "relight"
+CORE_DIST = "fullbody_relight_core"
+PYTHON_TAG = "cp311"          # Blender 4.2 - 5.0 embed Python 3.11
+PYTHON_VERSION = "3.11"
+# (distribution on PyPI, file-name prefix) of the binary wheels bundled per platform
+BINARY_DEPS = (("onnxruntime", "onnxruntime"), ("OpenEXR", "openexr"), ("Pillow", "pillow"))
+# pip --platform tag per Blender platform; pip also accepts older compatible tags
+PLATFORM_TAGS = {
+    "linux-x64": "manylinux_2_28_x86_64",
+    "windows-x64": "win_amd64",
+    "macos-arm64": "macosx_14_0_arm64",
+}
+ADDON_EXCLUDE = {"build.py", "__main__.py"}
+CORE_DATA_SUFFIXES = {".py", ".exr", ".md", ".json", ".onnx", ".sha256"}
+ZIP_DATE = (2024, 1, 1, 0, 0, 0)  # fixed timestamps: same inputs, same zip
+
+
+class BuildError(Exception):
+    """A build failure with a message meant for the user."""
+
+
+def default_cache() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "relight-photo" / "wheels"
+
+
+def installed_version(dist: str) -> str:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        raise BuildError(f"{dist} is not installed here; the add-on bundles the installed version") from None
+
+
+def _wheel_matches(name: str, prefix: str, version: str, platform_tag: str) -> bool:
+    parts = name[:-4].split("-")
+    if len(parts) not in (5, 6) or parts[0].lower() != prefix or parts[1] != version:
+        return False
+    python_tag, platform = parts[-3], parts[-1]
+    if python_tag != PYTHON_TAG:
+        return False
+    if platform_tag.startswith("manylinux"):
+        return "x86_64" in platform and "linux" in platform
+    if platform_tag.startswith("macosx"):
+        return platform.startswith("macosx") and platform.endswith(("arm64", "universal2"))
+    return platform == platform_tag
+
+
+def find_cached_wheel(cache: Path, prefix: str, version: str, platform_tag: str) -> Path | None:
+    for p in sorted(cache.glob("*.whl")):
+        if _wheel_matches(p.name, prefix, version, platform_tag):
+            return p
+    return None
+
+
+def fetch_wheel(cache: Path, dist: str, prefix: str, version: str, platform_tag: str,
+                offline: bool) -> Path:
+    """The cached wheel, downloading it with pip first when needed."""
+    found = find_cached_wheel(cache, prefix, version, platform_tag)
+    if found is not None:
+        return found
+    if offline:
+        raise BuildError(f"{dist}=={version} for {platform_tag} is not in the wheel cache {cache} "
+                         "and --offline forbids downloading it")
+    cache.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
+           "--python-version", PYTHON_VERSION, "--platform", platform_tag,
+           "--disable-pip-version-check", "-q", f"{dist}=={version}", "-d", str(cache)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    found = find_cached_wheel(cache, prefix, version, platform_tag)
+    if done.returncode != 0 or found is None:
+        reason = (done.stderr.strip().splitlines() or ["no wheel for this platform"])[-1]
+        raise BuildError(f"cannot download {dist}=={version} for {platform_tag} (offline? {reason}); "
+                         f"put the wheel into {cache} and run the build again")
+    return found
+
+
+def _record_hash(data: bytes) -> str:
+    digest = hashlib.sha256(data).digest()
+    return "sha256=" + base64.urlsafe_b64encode(digest).rstrip(b"=").decode()
+
+
+def _zip_write(zf: zipfile.ZipFile, arcname: str, data: bytes) -> None:
+    info = zipfile.ZipInfo(arcname, ZIP_DATE)
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = 0o644 << 16
+    zf.writestr(info, data)
+
+
+def core_files(core_dir: Path = CORE_DIR) -> list[Path]:
+    """The files of relight/ that ship: code, HDR presets, licences, shipped models."""
+    files = []
+    for p in sorted(core_dir.rglob("*")):
+        if p.is_file() and "__pycache__" not in p.parts and p.suffix in CORE_DATA_SUFFIXES:
+            files.append(p)
+    return files
+
+
+def build_core_wheel(out_dir: Path, version: str, core_dir: Path = CORE_DIR) -> Path:
+    """A pure-Python wheel of relight/ (PEP 427 layout, RECORD with hashes)."""
+    dist_info = f"{CORE_DIST}-{version}.dist-info"
+    path = out_dir / f"{CORE_DIST}-{version}-py3-none-any.whl"
+    records = []
+    with zipfile.ZipFile(path, "w") as zf:
+        for f in core_files(core_dir):
+            arcname = "relight/" + f.relative_to(core_dir).as_posix()
+            data = f.read_bytes()
+            _zip_write(zf, arcname, data)
+            records.append((arcname, _record_hash(data), str(len(data))))
+        meta = {
+            "METADATA": (f"Metadata-Version: 2.1\nName: {CORE_DIST}\nVersion: {version}\n"
+                         "Summary: Torch-free core of single-image full-body human relighting\n"
+                         "License: Apache-2.0\nRequires-Dist: numpy\nRequires-Dist: onnxruntime\n"
+                         "Requires-Dist: OpenEXR\n"),
+            "WHEEL": "Wheel-Version: 1.0\nGenerator: blender_addon.build\nRoot-Is-Purelib: true\nTag: py3-none-any\n",
+            "top_level.txt": "relight\n",
+        }
+        for name, text in meta.items():
+            data = text.encode()
+            _zip_write(zf, f"{dist_info}/{name}", data)
+            records.append((f"{dist_info}/{name}", _record_hash(data), str(len(data))))
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerows(records)
+        writer.writerow((f"{dist_info}/RECORD", "", ""))
+        _zip_write(zf, f"{dist_info}/RECORD", buf.getvalue().encode())
+    return path
+
+
+def addon_files(addon_dir: Path = ADDON_DIR) -> list[Path]:
+    return sorted(p for p in addon_dir.glob("*.py") if p.name not in ADDON_EXCLUDE)
+
+
+def _rewrite_wheels(manifest_text: str, wheels: list[str]) -> str:
+    pattern = re.compile(r"^wheels\s*=\s*\[.*?\]\s*$\n?", re.S | re.M)
+    replacement = manifest_rules.wheels_toml(wheels)
+    if pattern.search(manifest_text):
+        return pattern.sub(lambda _m: replacement, manifest_text, count=1)
+    return manifest_text.rstrip("\n") + "\n\n" + replacement
+
+
+def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Path:
+    """Build and validate the extension zip; returns its path."""
+    cache = Path(cache) if cache else default_cache()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    manifest_path = ADDON_DIR / "blender_manifest.toml"
+    manifest_text = manifest_path.read_text(encoding="utf-8")
+    manifest = manifest_rules.load(manifest_path)
+    from relight import __version__ as core_version
+
+    platform_wheels = []
+    for dist, prefix in BINARY_DEPS:
+        version = installed_version(dist)
+        for blender_platform in manifest_rules.PLATFORMS:
+            platform_wheels.append(fetch_wheel(cache, dist, prefix, version,
+                                               PLATFORM_TAGS[blender_platform], offline))
+    with tempfile.TemporaryDirectory(prefix="relight_addon_build_") as tmp:
+        stage = Path(tmp)
+        (stage / "wheels").mkdir()
+        core_wheel = build_core_wheel(stage / "wheels", core_version)
+        wheels = [core_wheel] + platform_wheels
+        listed = [f"./wheels/{w.name}" for w in wheels]
+        for w in platform_wheels:
+            (stage / "wheels" / w.name).write_bytes(w.read_bytes())
+        manifest_text = _rewrite_wheels(manifest_text, listed)
+        (stage / "blender_manifest.toml").write_text(manifest_text, encoding="utf-8")
+        final_manifest = manifest_rules.load(stage / "blender_manifest.toml")
+        try:
+            manifest_rules.check(final_manifest, stage)
+        except ValueError as exc:
+            raise BuildError(str(exc)) from None
+        zip_path = out_dir / f"{manifest['id']}-{manifest['version']}.zip"
+        fd, tmp_zip = tempfile.mkstemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=out_dir)
+        os.close(fd)
+        try:
+            with zipfile.ZipFile(tmp_zip, "w") as zf:
+                _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
+                for f in addon_files():
+                    _zip_write(zf, f.name, f.read_bytes())
+                for w in wheels:
+                    info = zipfile.ZipInfo(f"wheels/{w.name}", ZIP_DATE)
+                    info.compress_type = zipfile.ZIP_STORED  # wheels are zips already
+                    info.external_attr = 0o644 << 16
+                    with open(stage / "wheels" / w.name, "rb") as src:
+                        zf.writestr(info, src.read())
+            os.replace(tmp_zip, zip_path)
+        except BaseException:
+            if os.path.exists(tmp_zip):
+                os.unlink(tmp_zip)
+            raise
+    return zip_path
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m blender_addon.build", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", default="dist", help="output folder (default: dist/)")
+    parser.add_argument("--wheel-cache", default=None,
+                        help=f"where downloaded wheels are kept (default: {default_cache()})")
+    parser.add_argument("--offline", action="store_true", help="never download: use the cache only")
+    args = parser.parse_args(argv)
+    try:
+        path = build(Path(args.out), Path(args.wheel_cache) if args.wheel_cache else None, args.offline)
+    except BuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    with zipfile.ZipFile(path) as zf:
+        names = zf.namelist()
+    print(f"{path}  {path.stat().st_size / 1e6:.1f} MB, {len(names)} files, "
+          f"{sum(n.startswith('wheels/') for n in names)} wheels")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+"""A function run on a worker thread, polled from Blender's main thread.
+
+Plain Python (no bpy). onnxruntime releases the GIL during inference, so the
+UI keeps drawing while the network runs. Cancelling cannot interrupt a running
+inference; it marks the job so its result is dropped when the thread ends and
+the caller can return at once.
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+import time
+from typing import Any, Callable
+
+
+class JobState(enum.Enum):
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+class BackgroundJob:
+    """Runs `fn()` once on a daemon thread; `poll()` reports its state without blocking."""
+
+    def __init__(self, fn: Callable[[], Any], label: str = "job"):
+        self.label = label
+        self._fn = fn
+        self._result: Any = None
+        self._error: BaseException | None = None
+        self._cancelled = threading.Event()
+        self._finished = threading.Event()
+        self._started_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"relight-{label}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._result = self._fn()
+        except BaseException as exc:  # reported to the main thread, never raised here
+            self._error = exc
+        finally:
+            self._finished.set()
+
+    def cancel(self) -> None:
+        """Drop the result; the thread finishes in the background."""
+        self._cancelled.set()
+
+    @property
+    def elapsed(self) -> float:
+        return time.monotonic() - self._started_at
+
+    def poll(self) -> JobState:
+        if self._cancelled.is_set():
+            return JobState.CANCELLED
+        if not self._finished.is_set():
+            return JobState.RUNNING
+        return JobState.FAILED if self._error is not None else JobState.DONE
+
+    def wait(self, timeout: float | None = None) -> JobState:
+        """Block until finished or cancelled (used by the synchronous test mode)."""
+        self._finished.wait(timeout)
+        return self.poll()
+
+    @property
+    def result(self) -> Any:
+        if self.poll() is not JobState.DONE:
+            raise RuntimeError(f"{self.label} has no result (state {self.poll().value})")
+        return self._result
+
+    @property
+    def error(self) -> BaseException | None:
+        return self._error

@@ -1,0 +1,101 @@
+"""Checks of blender_manifest.toml against Blender's extension rules (plain Python).
+
+Mirrors what Blender's own `extension validate` requires of this add-on, plus
+this project's policy: only the 'files' permission, the three platforms we
+ship wheels for, and every listed wheel present in the package.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path, PurePosixPath
+
+REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
+            "blender_version_min", "license")
+PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
+ALLOWED_PERMISSIONS = {"files"}
+_VERSION = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
+_ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_TAGLINE_MAX = 64   # Blender's limit for the tagline
+
+
+def load(path: str | Path) -> dict:
+    """Parse a manifest file; ValueError on TOML errors."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
+
+
+def problems(manifest: dict, package_root: str | Path | None = None) -> list[str]:
+    """Every rule the manifest breaks (empty when valid). With `package_root`, wheels must exist there."""
+    errors = []
+    for key in REQUIRED:
+        if key not in manifest:
+            errors.append(f"missing required key '{key}'")
+    for key in ("schema_version", "version", "blender_version_min"):
+        value = manifest.get(key)
+        if value is not None and not (isinstance(value, str) and _VERSION.match(value)):
+            errors.append(f"'{key}' must be a version string like 1.2.3, got {value!r}")
+    if manifest.get("schema_version") not in (None, "1.0.0"):
+        errors.append(f"'schema_version' must be \"1.0.0\", got {manifest.get('schema_version')!r}")
+    ident = manifest.get("id")
+    if ident is not None and not (isinstance(ident, str) and _ID.match(ident)):
+        errors.append(f"'id' must be a Python identifier without leading underscore, got {ident!r}")
+    if manifest.get("type") not in (None, "add-on"):
+        errors.append(f"'type' must be \"add-on\", got {manifest.get('type')!r}")
+    tagline = manifest.get("tagline")
+    if isinstance(tagline, str) and (len(tagline) > _TAGLINE_MAX or tagline.endswith((".", "!", "?"))):
+        errors.append(f"'tagline' must be at most {_TAGLINE_MAX} characters without final punctuation")
+    version_min = manifest.get("blender_version_min")
+    if isinstance(version_min, str) and _VERSION.match(version_min) and \
+            tuple(map(int, version_min.split("."))) < (4, 2, 0):
+        errors.append("'blender_version_min' must be 4.2.0 or later (extensions need it)")
+    licenses = manifest.get("license")
+    if licenses is not None and not (isinstance(licenses, list) and licenses and
+                                     all(isinstance(x, str) and x.startswith("SPDX:") for x in licenses)):
+        errors.append("'license' must be a list of \"SPDX:<identifier>\" strings")
+    permissions = manifest.get("permissions", {})
+    if not isinstance(permissions, dict):
+        errors.append("'permissions' must be a table of reasons")
+    else:
+        extra = set(permissions) - ALLOWED_PERMISSIONS
+        if extra:
+            errors.append(f"only the 'files' permission is allowed, found {sorted(extra)}")
+        for key, reason in permissions.items():
+            if not (isinstance(reason, str) and reason.strip()) or reason.endswith(".") \
+                    or len(reason) > _TAGLINE_MAX:
+                errors.append(f"permission '{key}' needs a reason of at most {_TAGLINE_MAX} "
+                              "characters without final punctuation")
+    platforms = manifest.get("platforms")
+    if platforms is not None and sorted(platforms) != sorted(PLATFORMS):
+        errors.append(f"'platforms' must be {list(PLATFORMS)}, got {platforms}")
+    wheels = manifest.get("wheels", [])
+    if not isinstance(wheels, list):
+        errors.append("'wheels' must be a list of paths")
+        wheels = []
+    for wheel in wheels:
+        p = PurePosixPath(wheel) if isinstance(wheel, str) else None
+        if p is None or "\\" in wheel or not wheel.endswith(".whl") or p.is_absolute() or ".." in p.parts:
+            errors.append(f"wheel path {wheel!r} must be a relative ./path/NAME.whl with forward slashes")
+            continue
+        if not 5 <= len(p.name.split("-")) <= 6:
+            errors.append(f"wheel file name {p.name!r} does not follow NAME-VERSION-PY-ABI-PLATFORM.whl")
+        if package_root is not None and not (Path(package_root) / p).is_file():
+            errors.append(f"wheel {wheel!r} is listed but not in the package")
+    return errors
+
+
+def check(manifest: dict, package_root: str | Path | None = None) -> None:
+    """ValueError listing every problem, if any."""
+    errors = problems(manifest, package_root)
+    if errors:
+        raise ValueError("invalid blender_manifest.toml: " + "; ".join(errors))
+
+
+def wheels_toml(wheels: list[str]) -> str:
+    """The `wheels = [...]` assignment for a manifest."""
+    body = "".join(f'  "{w}",\n' for w in wheels)
+    return f"wheels = [\n{body}]\n"

@@ -1,0 +1,1 @@
+"""Synthetic training data: scene synthesis, transport bake, Cycles ground truth, executors."""

@@ -1,0 +1,242 @@
+"""Command line of the render farm: one parser for `blender -b -P farm/render.py -- ...` and `python -m farm ...`.
+
+Exit codes: 0 every scene finished; 1 the run could not finish (failed scenes,
+unwritable or full output disk, workers that cannot start); 2 bad options;
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+# Limits the runner enforces before any worker starts. Scene indices are
+# written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
+MAX_SCENE_INDEX = 999_999
+KNOWN_PASSES = ("pt", "prt")
+SPECULAR_CHOICES = ("auto", "on", "off")
+LIGHT_POOLS = ("train", "heldout")
+DEFAULT_JOB_MODULE = "farm.scene"
+
+
+class UsageError(ValueError):
+    """A command-line option is missing, malformed or out of range."""
+
+
+class FarmError(RuntimeError):
+    """The run cannot go on (output not writable, disk full, workers cannot start)."""
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    """The per-scene options, mirrored one to one onto farm.scene.SceneOptions."""
+
+    resolution: int = 256
+    lights: int = 4
+    samples: int = 64
+    denoise: bool = True
+    sh_order: int = 4
+    bake_directions: int = 256
+    passes: frozenset = frozenset({"pt", "prt"})
+    specular: str = "auto"
+    light_pool: str = "train"
+
+    def to_json(self) -> dict:
+        """Plain JSON form (passes as a sorted list); workers rebuild SceneOptions from it."""
+        return {
+            "resolution": self.resolution,
+            "lights": self.lights,
+            "samples": self.samples,
+            "denoise": self.denoise,
+            "sh_order": self.sh_order,
+            "bake_directions": self.bake_directions,
+            "passes": sorted(self.passes),
+            "specular": self.specular,
+            "light_pool": self.light_pool,
+        }
+
+    def expected_channels(self) -> int:
+        """Float32 channels a scene EXR holds for these options (docs/ARCHITECTURE.md table)."""
+        n = (self.sh_order + 1) ** 2
+        channels = 1 + 3 + 3 + 3 + 1  # alpha, albedo, normal, material, depth
+        if "prt" in self.passes:
+            channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
+        if "pt" in self.passes:
+            channels += 3 * self.lights  # image.LK
+        return channels
+
+    def path_traced_images(self) -> int:
+        """Path-traced images one scene yields when nothing is skipped."""
+        return self.lights if "pt" in self.passes else 0
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything one farm run needs; built by parse_args."""
+
+    out: Path
+    scenes: int
+    seed: int
+    first: int = 0
+    scene: SceneSettings = field(default_factory=SceneSettings)
+    workers: int = 1
+    recycle: int = 20
+    timeout: float = 1800.0
+    retries: int = 3
+    resume: bool = False
+    ray: str | None = None
+    job_module: str = DEFAULT_JOB_MODULE
+    progress: bool = True
+
+    @property
+    def indices(self) -> range:
+        return range(self.first, self.first + self.scenes)
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a bad command line as one line on stderr and exit code 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse hook
+        raise UsageError(message)
+
+
+def _int_in(name: str, low: int, high: int):
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{name} must be in [{low}, {high}], got {value}")
+        return value
+
+    return convert
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--timeout must be a number of seconds, got {text!r}") from None
+    # A week is far beyond any single scene; the bound also rejects inf and nan.
+    if not (math.isfinite(value) and 0 < value <= 7 * 24 * 3600):
+        raise argparse.ArgumentTypeError(f"--timeout must be in (0, 604800] seconds, got {text}")
+    return value
+
+
+def _passes(text: str) -> frozenset:
+    names = [p.strip() for p in text.split(",") if p.strip()]
+    unknown = sorted(set(names) - set(KNOWN_PASSES))
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"--passes must be a comma list of {','.join(KNOWN_PASSES)}, got {text!r}"
+        )
+    return frozenset(names)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _OneLineParser(
+        prog="farm",
+        description="Render synthetic relighting scenes (EXR + JSON sidecar per scene).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        epilog="Under Blender: blender -b -P farm/render.py -- --out DIR --scenes N --seed S",
+    )
+    p.add_argument("--out", type=Path, required=True, help="output folder (created)")
+    p.add_argument("--scenes", type=_int_in("--scenes", 1, MAX_SCENE_INDEX + 1), required=True,
+                   help="number of scenes to render")
+    p.add_argument("--seed", type=_int_in("--seed", 0, 2**32 - 1), required=True,
+                   help="dataset seed; scene i draws from rng([seed, i])")
+    p.add_argument("--first", type=_int_in("--first", 0, MAX_SCENE_INDEX), default=0,
+                   help="index of the first scene (split a dataset across machines)")
+    s = p.add_argument_group("scene")
+    s.add_argument("--res", type=_int_in("--res", 16, 4096), default=256, help="image side in pixels")
+    s.add_argument("--lights", type=_int_in("--lights", 1, 64), default=4, help="lights K per scene")
+    s.add_argument("--samples", type=_int_in("--samples", 1, 65536), default=64,
+                   help="path-tracing samples per pixel")
+    s.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=True,
+                   help="OIDN-denoise the path-traced images")
+    s.add_argument("--order", type=_int_in("--order", 1, 8), default=4, help="SH order N")
+    s.add_argument("--directions", type=_int_in("--directions", 16, 65536), default=256,
+                   help="transport bake directions per vertex")
+    s.add_argument("--passes", type=_passes, default=",".join(KNOWN_PASSES),
+                   help="comma list: pt (path traced), prt (transport)")
+    s.add_argument("--specular", choices=SPECULAR_CHOICES, default="auto",
+                   help="view-dependent specular bake")
+    s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
+                   help="train maps, or only the held-out maps")
+    r = p.add_argument_group("runner")
+    r.add_argument("--workers", type=_int_in("--workers", 1, 256), default=1,
+                   help="worker processes (local executor)")
+    r.add_argument("--recycle", type=_int_in("--recycle", 1, 100000), default=20,
+                   help="restart a worker after this many scenes")
+    r.add_argument("--timeout", type=_seconds, default=1800.0, help="seconds per scene before kill")
+    r.add_argument("--retries", type=_int_in("--retries", 0, 100), default=3,
+                   help="retries per scene after a failure")
+    r.add_argument("--resume", action="store_true", help="skip finished scenes in --out")
+    r.add_argument("--ray", metavar="auto|ADDRESS", default=None,
+                   help="run on a Ray cluster (extra 'distributed')")
+    r.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    # Module with SceneOptions and render_scene; tests swap in a fault-injecting one.
+    r.add_argument("--job-module", default=DEFAULT_JOB_MODULE, help=argparse.SUPPRESS)
+    return p
+
+
+def parse_args(argv: list[str]) -> RunConfig:
+    """Parse and range-check a farm command line; raises UsageError with one-line text."""
+    a = build_parser().parse_args(argv)
+    if a.first + a.scenes - 1 > MAX_SCENE_INDEX:
+        raise UsageError(f"--first + --scenes - 1 must be <= {MAX_SCENE_INDEX} (six-digit scene names)")
+    if a.ray is not None and not a.ray.strip():
+        raise UsageError("--ray needs 'auto' or a cluster address")
+    if (a.order + 1) ** 2 > a.directions:
+        raise UsageError(
+            f"--directions ({a.directions}) must be >= (order+1)^2 = {(a.order + 1) ** 2} "
+            "to determine the transport coefficients"
+        )
+    scene = SceneSettings(
+        resolution=a.res, lights=a.lights, samples=a.samples, denoise=a.denoise,
+        sh_order=a.order, bake_directions=a.directions, passes=a.passes,
+        specular=a.specular, light_pool=a.light_pool,
+    )
+    return RunConfig(
+        # Absolute: workers run in the repository root, Ray tasks on other nodes.
+        out=Path(os.path.abspath(a.out)), scenes=a.scenes, seed=a.seed, first=a.first, scene=scene,
+        workers=a.workers, recycle=a.recycle, timeout=a.timeout, retries=a.retries,
+        resume=a.resume, ray=a.ray, job_module=a.job_module, progress=a.progress,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the farm; returns the process exit code."""
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        config = parse_args(argv)
+    except UsageError as err:
+        print(f"farm: error: {err}", file=sys.stderr)
+        return 2
+    except SystemExit as exit_:  # --help: a code, not an exception, for Blender's -P
+        return int(exit_.code or 0)
+    try:
+        if config.ray is not None:
+            from farm.ray_executor import run_on_ray
+
+            summary = run_on_ray(config)
+        else:
+            from farm.executors import run_local
+
+            summary = run_local(config)
+    except FarmError as err:
+        print(f"farm: error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("farm: interrupted; finished scenes are kept, rerun with --resume", file=sys.stderr)
+        return 130
+    if not summary.ok:
+        print(f"farm: error: {summary.failed} scenes failed, {summary.not_started} not started; "
+              f"see {config.out / 'farm_runlog.json'}", file=sys.stderr)
+        return 1
+    return 0

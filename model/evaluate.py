@@ -1,0 +1,276 @@
+"""Evaluate a model on scene files: `python -m model.evaluate MODEL --data DIR [--out DIR]`.
+
+MODEL is a .safetensors checkpoint (model.checkpoint) or an .onnx file (run
+with onnxruntime, I/O of docs/ARCHITECTURE.md: input "image", outputs
+"albedo", "transport", "residual", "light", "alpha"). For every pair
+(scene, light a -> light b) of path-traced images the paper's metrics are
+measured over the person's pixels (model.metrics): albedo, shading and image
+L1 (x100), L2 (x100), PSNR, for (a) reconstruction under the predicted light
+and (b) relighting to light b vs the path-traced image under b. Baselines in
+the same run: identity (input as output), exposure-matched identity (input
+scaled per channel by L00_b / L00_a), and --baseline MODEL (e.g. a
+Kanamori-Endo-style model trained with --lambertian --order 2).
+Writes OUT/evaluation.md, OUT/evaluation.json, OUT/contact_sheet.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relight.colour import srgb_encode
+from relight.exr import atomic_write_path
+
+from model import metrics
+from model.data import EvaluationPairs, find_scenes, held_out_light_names
+
+MAPS = ("albedo", "shading", "image")
+OUTPUTS = ("albedo", "transport", "residual", "light", "alpha")
+
+
+class Predictor:
+    """Runs a checkpoint (torch, eval mode) or an ONNX file on [B,3,H,W] float32 inputs."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ValueError(f"model not found: {self.path}")
+        if self.path.suffix == ".onnx":
+            import onnxruntime as ort
+
+            self.session = ort.InferenceSession(str(self.path), providers=["CPUExecutionProvider"])
+            names = [o.name for o in self.session.get_outputs()]
+            missing = [n for n in OUTPUTS if n not in names]
+            if missing:
+                raise ValueError(f"{self.path}: ONNX model lacks outputs {missing}")
+            self.input_name = self.session.get_inputs()[0].name
+            outputs = self.session.get_outputs()
+            n = outputs[names.index("light")].shape[1]
+            t = outputs[names.index("transport")].shape[1]
+            self.n_coeffs = n if isinstance(n, int) else None
+            # the T* ablation exports 3n transport channels (docs/model.md)
+            self.tstar = isinstance(n, int) and isinstance(t, int) and n > 1 and t == 3 * n
+            self.model = None
+        elif self.path.suffix == ".safetensors":
+            from model.checkpoint import load_model
+
+            self.model = load_model(self.path)
+            self.tstar = self.model.tstar
+            self.n_coeffs = self.model.n
+        else:
+            raise ValueError(f"model must be a .safetensors checkpoint or an .onnx file, got {self.path.name}")
+
+    @property
+    def order(self) -> int | None:
+        return None if self.n_coeffs is None else int(round(self.n_coeffs ** 0.5)) - 1
+
+    def __call__(self, image: np.ndarray) -> dict[str, np.ndarray]:
+        if self.model is not None:
+            x = torch.from_numpy(image)
+            self.model.check_input(x)
+            with torch.no_grad():
+                out = self.model(x)
+            return {k: out[k].numpy() for k in OUTPUTS}
+        try:
+            values = self.session.run(list(OUTPUTS), {self.input_name: image.astype(np.float32)})
+        except Exception as exc:  # onnxruntime raises its own types (e.g. a size the graph rejects)
+            raise ValueError(f"{self.path.name} failed on an input of shape {image.shape}: {exc}") from None
+        return dict(zip(OUTPUTS, values))
+
+
+def _hwc(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.moveaxis(x, 0, -1))
+
+
+def shading_np(transport: np.ndarray, light: np.ndarray, tstar: bool) -> np.ndarray:
+    """T . L [H, W, 3] from transport [n or 3n, H, W] and light [n, 3]."""
+    if tstar:
+        n = light.shape[0]
+        return np.einsum("cnhw,nc->hwc", transport.reshape(3, n, *transport.shape[1:]), light)
+    return np.einsum("nhw,nc->hwc", transport, light)
+
+
+def render_np(pred: dict, light: np.ndarray, tstar: bool) -> np.ndarray:
+    if tstar:
+        return shading_np(pred["transport"], light, True)
+    return _hwc(pred["albedo"]) * shading_np(pred["transport"], light, False) + shading_np(pred["residual"], light, False)
+
+
+def evaluate_prediction(pred: dict, sample: dict, tstar: bool) -> dict[str, dict[str, float]]:
+    """Metrics of one prediction: {"reconstruction/albedo": {...}, "relighting/image": {...}, ...}."""
+    mask = _hwc(sample["alpha"])
+    gt_albedo, gt_t = _hwc(sample["albedo"]), sample["transport"]
+    out = {}
+    for setting, light_pred, light_gt, image_gt in (
+            ("reconstruction", pred["light"], sample["light"], sample["image"]),
+            ("relighting", sample["target_light"], sample["target_light"], sample["target_image"])):
+        if not tstar:
+            out[f"{setting}/albedo"] = metrics.all_metrics(_hwc(pred["albedo"]), gt_albedo, mask)
+            out[f"{setting}/shading"] = metrics.all_metrics(shading_np(pred["transport"], light_pred, False),
+                                                            shading_np(gt_t, light_gt, False), mask)
+        out[f"{setting}/image"] = metrics.all_metrics(render_np(pred, light_pred, tstar), _hwc(image_gt), mask)
+    return out
+
+
+def baseline_identity(sample: dict, exposure_matched: bool) -> dict[str, dict[str, float]]:
+    """The input image as the relit result (optionally scaled per channel by L00_b / L00_a)."""
+    image = _hwc(sample["input_linear"])
+    if exposure_matched:
+        la, lb = sample["light"][0], sample["target_light"][0]
+        image = image * np.where(np.abs(la) > 1e-12, lb / np.where(np.abs(la) > 1e-12, la, 1.0), 1.0)
+    mask = _hwc(sample["alpha"])
+    return {"relighting/image": metrics.all_metrics(image, _hwc(sample["target_image"]), mask)}
+
+
+def _mean_table(rows: list[dict]) -> dict[str, dict[str, float]]:
+    acc: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for row in rows:
+        for key, m in row.items():
+            for name, value in m.items():
+                acc[key][name].append(value)
+    return {key: {name: float(np.mean(v)) for name, v in m.items()} for key, m in acc.items()}
+
+
+def markdown_table(results: dict[str, dict], n_pairs: int, data: str) -> str:
+    lines = [f"# Evaluation ({n_pairs} image pairs from `{data}`)", "",
+             "Over the person's pixels (GT alpha-weighted), linear values; L1 and L2 x100, "
+             "PSNR in dB with peak 1.0 (model/metrics.py).", ""]
+    header = "| method | setting | " + " | ".join(f"{m} L1 | {m} L2 | {m} PSNR" for m in MAPS) + " |"
+    lines += [header, "|" + "---|" * (2 + 3 * len(MAPS))]
+    for method, table in results.items():
+        for setting in ("reconstruction", "relighting"):
+            if not any(k.startswith(setting) for k in table):
+                continue
+            cells = []
+            for m in MAPS:
+                v = table.get(f"{setting}/{m}")
+                cells += (["-"] * 3 if v is None else
+                          [f"{100 * v['l1']:.2f}", f"{100 * v['l2']:.3f}", f"{v['psnr']:.2f}"])
+            lines.append(f"| {method} | {setting} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _display(linear_hwc: np.ndarray) -> np.ndarray:
+    return (srgb_encode(np.clip(linear_hwc, 0.0, 1.0)) * 255.0 + 0.5).astype(np.uint8)
+
+
+def contact_sheet(rows: list[list[np.ndarray]]) -> np.ndarray:
+    """Tiles linear [H, W, 3] images: one row per pair, sRGB-encoded, 2 px gutters."""
+    h, w = rows[0][0].shape[:2]
+    cols = max(len(r) for r in rows)
+    sheet = np.full((len(rows) * (h + 2), cols * (w + 2), 3), 255, np.uint8)
+    for i, row in enumerate(rows):
+        for j, img in enumerate(row):
+            sheet[i * (h + 2):i * (h + 2) + h, j * (w + 2):j * (w + 2) + w] = _display(img)
+    return sheet
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = atomic_write_path(path, path.suffix)
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _atomic_write_png(path: Path, pixels: np.ndarray) -> None:
+    from PIL import Image
+
+    tmp = atomic_write_path(path, ".png")
+    try:
+        Image.fromarray(pixels).save(tmp, format="PNG")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_only: bool = False,
+             sheet_rows: int = 4, max_pairs_per_scene: int = 4, order: int | None = None) -> dict:
+    """Run the evaluation and write its files; returns {"methods": ..., "pairs": n}."""
+    ours = Predictor(model_path)
+    base = Predictor(baseline) if baseline else None
+    order = ours.order if ours.order is not None else order
+    if order is None:
+        raise ValueError("ONNX model with a dynamic coefficient count: pass --order")
+    if ours.model is not None and size % ours.model.size_multiple:
+        raise ValueError(f"--size {size} must be a multiple of {ours.model.size_multiple}")
+    scenes = find_scenes(data)
+    pairs = EvaluationPairs(scenes, size, order, held_out_only=held_out_only,
+                            held_out=held_out_light_names(), max_pairs_per_scene=max_pairs_per_scene)
+    base_pairs = None
+    if base is not None and base.order != order:
+        base_pairs = EvaluationPairs(scenes, size, base.order, held_out_only=held_out_only,
+                                     held_out=held_out_light_names(), max_pairs_per_scene=max_pairs_per_scene)
+    rows = defaultdict(list)
+    sheet = []
+    for i in range(len(pairs)):
+        sample = {k: (v.numpy() if isinstance(v, torch.Tensor) else v) for k, v in pairs[i].items()}
+        pred = {k: v[0] for k, v in ours(sample["input"][None]).items()}
+        rows["ours"].append(evaluate_prediction(pred, sample, ours.tstar))
+        rows["identity"].append(baseline_identity(sample, exposure_matched=False))
+        rows["identity, exposure-matched"].append(baseline_identity(sample, exposure_matched=True))
+        if base is not None:
+            bs = sample if base_pairs is None else {k: (v.numpy() if isinstance(v, torch.Tensor) else v)
+                                                    for k, v in base_pairs[i].items()}
+            bpred = {k: v[0] for k, v in base(bs["input"][None]).items()}
+            rows[f"baseline ({Path(baseline).parent.name}/{Path(baseline).name})"].append(evaluate_prediction(bpred, bs, base.tstar))
+        if len(sheet) < sheet_rows:
+            # person maps shown over black (times the GT alpha); ours relit over the GT's background
+            a = _hwc(sample["alpha"])
+            relit = render_np(pred, sample["target_light"], ours.tstar)
+            gt = _hwc(sample["target_image"])
+            error = a * np.abs(relit - gt).mean(axis=-1, keepdims=True) * 4.0
+            residual = a * np.abs(shading_np(pred["residual"], sample["target_light"], False)) * 10.0
+            shading = relit if ours.tstar else shading_np(pred["transport"], sample["target_light"], False)
+            sheet.append([_hwc(sample["input_linear"]), a * relit + (1 - a) * gt, gt, error.repeat(3, -1),
+                          a * _hwc(pred["albedo"]), a * shading, residual])
+    results = {method: _mean_table(r) for method, r in rows.items()}
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _atomic_write_text(out / "evaluation.md", markdown_table(results, len(pairs), str(data)) +
+                       "\nContact sheet columns: input, ours relit (over the GT background), GT, "
+                       "|error| x4, albedo, shading, |residual| x10 (person maps times the GT alpha).\n")
+    _atomic_write_text(out / "evaluation.json", json.dumps(
+        {"model": str(model_path), "baseline": str(baseline) if baseline else None, "pairs": len(pairs),
+         "size": size, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs]}, indent=1) + "\n")
+    _atomic_write_png(out / "contact_sheet.png", contact_sheet(sheet))
+    return {"methods": results, "pairs": len(pairs)}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m model.evaluate", description=__doc__.splitlines()[0])
+    p.add_argument("model", help=".safetensors checkpoint or .onnx file")
+    p.add_argument("--data", required=True, help="dataset folder of finished scenes")
+    p.add_argument("--out", default="evaluation", help="output folder (default: ./evaluation)")
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--baseline", help="a second model to compare (e.g. --lambertian --order 2)")
+    p.add_argument("--held-out-only", action="store_true", help="relight only towards held-out lights")
+    p.add_argument("--order", type=int, help="SH order, only for ONNX models with dynamic shapes")
+    p.add_argument("--sheet-rows", type=int, default=4)
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    args = p.parse_args(argv)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    try:
+        result = evaluate(args.model, args.data, args.out, size=args.size, baseline=args.baseline,
+                          held_out_only=args.held_out_only, sheet_rows=args.sheet_rows, order=args.order)
+    except ValueError as exc:
+        print(f"model.evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    print((Path(args.out) / "evaluation.md").read_text(encoding="utf-8"), end="")
+    print(f"{result['pairs']} pairs; wrote {args.out}/evaluation.md, evaluation.json, contact_sheet.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

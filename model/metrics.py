@@ -1,0 +1,81 @@
+"""Evaluation metrics over the person's pixels: L1, L2 (MSE) and PSNR.
+
+Convention (docs/model.md): metrics compare *linear* values as they are (no
+clipping, no tone mapping); each pixel is weighted by the ground-truth alpha
+(soft coverage) and channels are averaged. PSNR = 10 log10(peak^2 / MSE) with
+peak = 1.0 (the reference radiance of a white Lambertian point is 0.8, so 1.0
+is "a bright lit pixel"); MSE is floored at 1e-10, capping PSNR at 100 dB for
+identical images. Sums run in float64, so values up to ~1e150 stay finite.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PSNR_PEAK = 1.0
+MSE_FLOOR = 1e-10  # PSNR cap: 10 log10(1 / 1e-10) = 100 dB
+
+
+def _prepare(pred, target, mask):
+    p = np.asarray(pred, dtype=np.float64)
+    t = np.asarray(target, dtype=np.float64)
+    if p.shape != t.shape:
+        raise ValueError(f"prediction shape {p.shape} != target shape {t.shape}")
+    if p.ndim != 3:
+        raise ValueError(f"images must be [H, W, C], got shape {p.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(t))):
+        raise ValueError("images contain NaN or Inf")
+    if mask is None:
+        m = np.ones(p.shape[:2])
+    else:
+        m = np.asarray(mask, dtype=np.float64)
+        if m.shape == p.shape[:2] + (1,):
+            m = m[..., 0]
+        if m.shape != p.shape[:2]:
+            raise ValueError(f"mask shape {m.shape} does not match image {p.shape[:2]}")
+        if not np.all(np.isfinite(m)) or m.min() < 0:
+            raise ValueError("mask must be finite and >= 0")
+    total = m.sum()
+    if not total > 0:
+        raise ValueError("mask is empty: no pixel to measure")
+    return p, t, m, total
+
+
+def l1(pred, target, mask=None) -> float:
+    """Alpha-weighted mean absolute error over pixels and channels."""
+    p, t, m, total = _prepare(pred, target, mask)
+    return float((np.abs(p - t) * m[..., None]).sum() / (total * p.shape[2]))
+
+
+def _scaled_mse(pred, target, mask) -> tuple[float, float]:
+    """(m, s) with MSE = m * s^2; dividing by s = max |error| first keeps the squares finite."""
+    p, t, m, total = _prepare(pred, target, mask)
+    diff = p - t
+    scale = float(np.max(np.abs(diff)))
+    if scale == 0.0:
+        return 0.0, 0.0
+    return float(((diff / scale) ** 2 * m[..., None]).sum() / (total * p.shape[2])), scale
+
+
+def l2(pred, target, mask=None) -> float:
+    """Alpha-weighted mean squared error over pixels and channels (inf beyond ~1e154 errors)."""
+    normalized, scale = _scaled_mse(pred, target, mask)
+    with np.errstate(over="ignore"):
+        return float(np.float64(normalized) * scale * scale)
+
+
+def psnr(pred, target, mask=None, peak: float = PSNR_PEAK) -> float:
+    """10 log10(peak^2 / max(MSE, 1e-10)) in dB, computed in the log domain: finite for any finite input."""
+    normalized, scale = _scaled_mse(pred, target, mask)
+    if normalized == 0.0:
+        log_mse = math.log10(MSE_FLOOR)
+    else:
+        log_mse = max(math.log10(normalized) + 2.0 * math.log10(scale), math.log10(MSE_FLOOR))
+    return 20.0 * math.log10(peak) - 10.0 * log_mse
+
+
+def all_metrics(pred, target, mask=None) -> dict[str, float]:
+    """{"l1", "l2", "psnr"} for one image."""
+    return {"l1": l1(pred, target, mask), "l2": l2(pred, target, mask), "psnr": psnr(pred, target, mask)}

@@ -1,0 +1,101 @@
+"""The `relight` command: `relight sh`, `relight presets`, `relight image`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+
+import numpy as np
+
+EXIT_BAD_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as one line on stderr, exit 2."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _cmd_sh(args) -> int:
+    from relight import sh
+    from relight.envmap import light_from_map
+
+    coeffs = light_from_map(
+        args.map,
+        args.order,
+        rotation_deg=args.rotate,
+        normalize=args.normalize,
+        target=args.target,
+    )
+    if args.window != "none":
+        coeffs = sh.apply_window(coeffs, args.window)
+    if args.json:
+        print(json.dumps({"order": args.order, "coeffs": np.round(coeffs, 9).tolist()}))
+    else:
+        print(f"# SH order {args.order}, {sh.num_coeffs(args.order)} coefficients (l, m, R, G, B)")
+        for l in range(args.order + 1):
+            for m in range(-l, l + 1):
+                r, g, b = coeffs[l * l + l + m]
+                print(f"{l:2d} {m:+3d} {r:14.8g} {g:14.8g} {b:14.8g}")
+    return 0
+
+
+def _cmd_presets(args) -> int:
+    from relight import presets
+
+    names = presets.list_presets()
+    if args.blender:
+        names += presets.list_blender_presets()
+    for name in names:
+        tag = "\theld-out" if name in presets.HELD_OUT else ""
+        print(f"{name}{tag}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="relight", description="Single-image full-body human relighting.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("sh", help="SH coefficients of an equirect HDR map or preset")
+    p.add_argument("map", help="EXR/.hdr path or preset name (see `relight presets`)")
+    p.add_argument("--order", type=int, default=4, help="SH order N, (N+1)^2 coefficients (default 4)")
+    p.add_argument("--rotate", type=float, default=0.0, metavar="DEG", help="rotate the light about world Z")
+    p.add_argument("--normalize", action="store_true", help="scale to the reference mean luminance")
+    p.add_argument("--target", type=float, default=0.8, help="reference mean luminance (default 0.8)")
+    p.add_argument("--window", choices=("none", "hanning", "lanczos"), default="none",
+                   help="ringing window applied per band after projection (default none)")
+    p.add_argument("--json", action="store_true", help='print {"order": N, "coeffs": [[r, g, b], ...]}')
+    p.set_defaults(func=_cmd_sh)
+
+    p = sub.add_parser("presets", help="list the bundled HDR light presets")
+    p.add_argument("--blender", action="store_true", help="also list Blender's maps (needs bpy)")
+    p.set_defaults(func=_cmd_presets)
+
+    if importlib.util.find_spec("relight.cli_image") is not None:
+        from relight.cli_image import register
+
+        register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # usage error (exit 2, one line already printed) or --help (0)
+        return int(exc.code or 0)
+    try:
+        return int(args.func(args) or 0)
+    except BrokenPipeError:  # e.g. `relight presets | head -1`
+        sys.stderr.close()
+        return 0
+    except (ValueError, OSError) as exc:
+        print(f"relight {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""`relight image`: relight the person in a photo (or every photo in a folder).
+
+    relight image PHOTO (--light HDR_OR_PRESET | --light-from PHOTO2) [--rotate DEG] [--exposure EV]
+                  [--mask MASK] [--no-normalize] [--model PATH] [--out OUT.png|OUT.exr]
+                  [--layers] [--quality draft|balanced|best] [--threads N]
+    relight image DIR --light ... --out OUTDIR
+
+A photo with an alpha channel uses it as the mask unless --mask is given.
+Bad input is one line on stderr and a non-zero exit; nothing partial is
+written (each output is written atomically, after everything succeeded).
+In folder mode every photo is tried, failures are listed at the end and the
+exit status is 1 if any failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+EXIT_FAILED = 1
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the `image` sub-command to the `relight` command's subparsers."""
+    from relight.runtime import QUALITY_SIZES
+
+    p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("photo", help="photo file (PNG/JPEG/TIFF/WebP/EXR) or a folder of them")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--light", help="equirect HDR map (.exr/.hdr) or preset name (see `relight presets`)")
+    source.add_argument("--light-from", metavar="PHOTO",
+                        help="light transfer: use the light the network estimates in another photo")
+    p.add_argument("--rotate", type=float, default=0.0, metavar="DEG", help="turn the light about world Z")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV", help="scale the light by 2**EV")
+    p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
+    p.add_argument("--no-normalize", dest="normalize", action="store_false",
+                   help="use the map's radiance as is (default: scale to mean luminance 0.8)")
+    p.add_argument("--model", default=None, help="ONNX model (default: the installed model)")
+    p.add_argument("--out", default=None,
+                   help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
+                        "(default: PHOTO_relit.png beside the photo)")
+    p.add_argument("--layers", action="store_true",
+                   help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
+    p.add_argument("--quality", choices=sorted(QUALITY_SIZES), default="balanced",
+                   help="working resolution: draft 256, balanced 512, best 1024 px")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.set_defaults(func=run_image)
+    return p
+
+
+def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
+    if out is None:
+        return photo.with_name(photo.stem + "_relit" + (".exr" if layers else ".png"))
+    path = Path(out)
+    suffix = path.suffix.lower()
+    if suffix not in (".png", ".exr"):
+        raise ValueError(f"--out must end in .png or .exr, got {path.name}")
+    if layers and suffix != ".exr":
+        raise ValueError("--layers writes a multi-layer EXR: give --out NAME.exr")
+    if not path.parent.is_dir():
+        raise ValueError(f"output folder does not exist: {path.parent}")
+    return path
+
+
+def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None) -> Path:
+    """Read, decompose, relight and write one photo; nothing is written on failure."""
+    from relight.photo import read_mask, read_photo, write_image, write_layers_exr
+
+    image, alpha = read_photo(photo_path)
+    if mask_path is not None:
+        mask = read_mask(mask_path, image.shape[:2])
+    elif alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0:
+        mask = alpha  # the file's own alpha marks the person
+    else:
+        mask = None
+    d = relighter.decompose(image, mask)
+    relit = d.relight(args.light, args.rotate, args.exposure, normalize=args.normalize)
+    if args.layers:
+        layers = d.layers(args.light, args.rotate, args.exposure, normalize=args.normalize)
+        return write_layers_exr(out_path, relit, layers)
+    return write_image(out_path, relit)
+
+
+def _check_light(args, relighter) -> None:
+    """Resolve the light once up front: a bad map fails before any photo is read."""
+    from relight.runtime import resolve_light
+
+    L = resolve_light(args.light, relighter.sh_order, args.rotate, args.normalize)
+    if not np.all(np.isfinite(L)):
+        raise ValueError("the light gives non-finite SH coefficients")
+
+
+def run_image(args) -> int:
+    """Entry point of `relight image` (argparse namespace from register())."""
+    from relight.runtime import Relighter
+
+    source = Path(args.photo)
+    if not source.exists():
+        raise ValueError(f"{source}: no such file or folder")
+    folder = source.is_dir()
+    if folder:
+        if args.mask is not None:
+            raise ValueError("--mask applies to one photo; in folder mode give each photo an alpha channel")
+        if args.out is None:
+            raise ValueError("folder mode needs --out OUTPUT_FOLDER")
+        out_dir = Path(args.out)
+        if out_dir.exists() and not out_dir.is_dir():
+            raise ValueError(f"--out {out_dir} exists and is not a folder")
+        if out_dir.resolve() == source.resolve():
+            raise ValueError("--out must differ from the input folder")
+    else:
+        out_path = _output_for(source, args.out, args.layers)
+    relighter = Relighter(args.model, threads=args.threads, working_size=args.quality)
+    if args.light_from is not None:
+        from relight.photo import read_photo
+
+        donor, donor_alpha = read_photo(args.light_from)
+        usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
+        args.light = relighter.decompose(donor, donor_alpha if usable else None).light
+    _check_light(args, relighter)
+    if not folder:
+        written = _process(relighter, source, out_path, args, args.mask)
+        print(f"wrote {written}")
+        return 0
+    return _run_folder(relighter, source, out_dir, args)
+
+
+def _run_folder(relighter, source: Path, out_dir: Path, args) -> int:
+    from tqdm import tqdm
+
+    from relight.photo import PHOTO_SUFFIXES
+
+    photos = sorted(p for p in source.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
+    if not photos:
+        raise ValueError(f"{source}: no photos ({', '.join(PHOTO_SUFFIXES)}) in the folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    suffix = ".exr" if args.layers else ".png"
+    stems = [p.stem for p in photos]
+    # a.jpg and a.png both present: keep the extension in the output names
+    names = {p: (p.stem if stems.count(p.stem) == 1 else p.name.replace(".", "_")) + suffix for p in photos}
+    failures: list[tuple[Path, str]] = []
+    bar = tqdm(photos, desc="relight", unit="photo", file=sys.stderr, disable=None)
+    for photo in bar:
+        try:
+            _process(relighter, photo, out_dir / names[photo], args, None)
+        except (ValueError, OSError) as exc:
+            failures.append((photo, str(exc)))
+            bar.write(f"relight image: failed: {photo.name}: {exc}", file=sys.stderr)
+    done = len(photos) - len(failures)
+    print(f"relit {done} of {len(photos)} photos into {out_dir}")
+    if failures:
+        print(f"relight image: error: {len(failures)} of {len(photos)} photos failed: "
+              + ", ".join(p.name for p, _ in failures), file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`relight image ...` without the rest of the `relight` command."""
+    from relight.cli import main as relight_main
+
+    return relight_main(["image", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

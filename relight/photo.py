@@ -1,0 +1,485 @@
+"""Photo files <-> linear float32 arrays.
+
+Reads PNG/JPEG/TIFF/WebP (sRGB-encoded; EXIF orientation applied; 8- and
+16-bit; grey expanded to RGB; an alpha channel comes back as the mask) and
+EXR (linear). Writes 8-bit sRGB PNG, linear EXR, and a multi-layer EXR whose
+channels follow Blender's "<layer>.<pass>.<channel>" naming so its Image node
+shows every pass. The image size is checked from the header before any pixel
+is decoded; every failure to read is one ValueError. Writes are atomic.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from relight.colour import srgb_encode
+
+__all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
+           "write_layers_exr", "MAX_SIDE", "MAX_PIXELS", "LAYER_NAME", "PHOTO_SUFFIXES"]
+
+MAX_SIDE = 40_000            # px: refuse wider/taller images before decoding
+MAX_PIXELS = 150_000_000     # below Pillow's own bomb limit (2 x 89.5 MP) so ours speaks first
+STRIP_ROWS = 256             # rows converted at a time: bounds temporaries for huge photos
+LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+# sRGB decode tables: exact per code value, so 8/16-bit decoding is a lookup
+_LUT8: np.ndarray | None = None
+_LUT16: np.ndarray | None = None
+
+
+def _srgb_decode_table(levels: int) -> np.ndarray:
+    x = np.arange(levels, dtype=np.float64) / (levels - 1)
+    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return lin.astype(np.float32)
+
+
+def _lut(bits: int) -> np.ndarray:
+    global _LUT8, _LUT16
+    if bits == 8:
+        if _LUT8 is None:
+            _LUT8 = _srgb_decode_table(256)
+        return _LUT8
+    if _LUT16 is None:
+        _LUT16 = _srgb_decode_table(65536)
+    return _LUT16
+
+
+def _check_size(width: int, height: int, path) -> None:
+    if width < 1 or height < 1:
+        raise ValueError(f"{path}: image is empty ({width}x{height})")
+    if width > MAX_SIDE or height > MAX_SIDE or width * height > MAX_PIXELS:
+        raise ValueError(f"{path}: image is too large ({width}x{height}; limits: {MAX_SIDE} px a side, "
+                         f"{MAX_PIXELS // 1_000_000} megapixels)")
+
+
+def _exists(path: Path) -> None:
+    if not path.exists():
+        raise ValueError(f"{path}: file not found")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: file is empty")
+
+
+def read_photo(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a photo as (linear float32 [H, W, 3], mask float32 [H, W] in [0, 1] or None).
+
+    The mask is the file's alpha channel when it has one.
+    """
+    path = Path(path)
+    _exists(path)
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic == EXR_MAGIC:
+        return _read_exr_photo(path)
+    return _read_pillow_photo(path)
+
+
+# ------------------------------------------------------------------ Pillow
+
+
+def _open_pillow(path: Path):
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+    except Image.DecompressionBombError:
+        raise ValueError(f"{path}: image is too large (refused before decoding)") from None
+    except Exception as exc:  # Pillow raises UnidentifiedImageError, SyntaxError, struct.error...
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
+    return im
+
+
+def _read_pillow_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    from PIL import Image, ImageOps
+
+    im = _open_pillow(path)
+    try:
+        width, height = im.size
+        _check_size(width, height, path)
+        if getattr(im, "n_frames", 1) > 1:
+            im.seek(0)  # animated/multi-page files: the first frame is the photo
+        rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
+        if isinstance(rawmode, tuple):
+            rawmode = rawmode[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
+                # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
+                decoded = _read_png16(path)
+                if decoded is not None:
+                    return _decode_16bit(*decoded)
+            im.load()
+            im = ImageOps.exif_transpose(im)
+            return _pillow_to_linear(im, path)
+    except ValueError:
+        raise
+    except Exception as exc:  # truncated data, bad EXIF, decoder errors
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: corrupt or truncated image ({type(exc).__name__}: {exc})") from None
+    finally:
+        im.close()
+
+
+def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    mode = im.mode
+    if mode in ("I;16", "I;16L", "I;16B", "I;16N"):
+        grey = np.asarray(im).astype(np.uint16, copy=False)
+        return _decode_16bit(np.repeat(grey[..., None], 3, axis=2), None)
+    if mode == "I":
+        grey = np.asarray(im)
+        if grey.min(initial=0) < 0 or grey.max(initial=0) > 65535:
+            raise ValueError(f"{path}: 32-bit integer image with values outside 0..65535")
+        return _decode_16bit(np.repeat(grey.astype(np.uint16)[..., None], 3, axis=2), None)
+    if mode == "F":
+        grey = np.asarray(im, dtype=np.float32)
+        if not np.all(np.isfinite(grey)):
+            raise ValueError(f"{path}: image contains NaN or Inf")
+        from relight.colour import srgb_decode
+
+        lin = srgb_decode(grey).astype(np.float32)
+        return np.repeat(lin[..., None], 3, axis=2), None
+    has_alpha = mode in ("RGBA", "LA", "PA", "La", "RGBa") or (mode == "P" and "transparency" in im.info) \
+        or (mode in ("L", "RGB") and "transparency" in im.info)
+    rgba = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+    lut = _lut(8)
+    out = np.empty(rgba.shape[:2] + (3,), np.float32)
+    for r0 in range(0, out.shape[0], STRIP_ROWS):
+        out[r0:r0 + STRIP_ROWS] = lut[rgba[r0:r0 + STRIP_ROWS, :, :3]]
+    mask = rgba[..., 3].astype(np.float32) / 255.0 if has_alpha else None
+    return out, mask
+
+
+def _decode_16bit(rgb16: np.ndarray, alpha16: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    lut = _lut(16)
+    out = np.empty(rgb16.shape[:2] + (3,), np.float32)
+    for r0 in range(0, out.shape[0], STRIP_ROWS):
+        out[r0:r0 + STRIP_ROWS] = lut[rgb16[r0:r0 + STRIP_ROWS]]
+    mask = alpha16.astype(np.float32) / 65535.0 if alpha16 is not None else None
+    return out, mask
+
+
+# ------------------------------------------------------------------ 16-bit PNG
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _read_png16(path: Path):
+    """(rgb uint16 [H, W, 3], alpha uint16 [H, W] | None) of a non-interlaced 16-bit
+    RGB/RGBA PNG, or None for anything else (then Pillow decodes it)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    if not data.startswith(_PNG_SIGNATURE):
+        return None
+    pos, header, idat = len(_PNG_SIGNATURE), None, []
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + length]
+        if len(body) != length:
+            raise ValueError(f"{path}: truncated PNG chunk {kind!r}")
+        if kind == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body[:13])
+        elif kind == b"IDAT":
+            idat.append(body)
+        elif kind == b"IEND":
+            break
+        pos += 12 + length
+    if header is None:
+        raise ValueError(f"{path}: PNG without IHDR")
+    width, height, depth, colour, _, _, interlace = header
+    if depth != 16 or colour not in (2, 6) or interlace != 0:
+        return None
+    _check_size(width, height, path)
+    channels = 3 if colour == 2 else 4
+    bpp = 2 * channels
+    stride = width * bpp
+    expected = height * (stride + 1)
+    inflater = zlib.decompressobj()
+    try:
+        raw = inflater.decompress(b"".join(idat), expected + 1)  # bounded: no zip bomb
+    except zlib.error as exc:
+        raise ValueError(f"{path}: corrupt PNG data ({exc})") from None
+    if len(raw) != expected:
+        raise ValueError(f"{path}: truncated PNG ({len(raw)} of {expected} bytes of pixel data)")
+    rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
+    kinds = rows[:, 0]
+    if kinds.max(initial=0) > 4:
+        raise ValueError(f"{path}: corrupt PNG (unknown row filter {int(kinds.max())})")
+    recon = _png_unfilter(rows[:, 1:].reshape(height, width, bpp), kinds)
+    values = recon.reshape(height, width * channels * 2).view(">u2").reshape(height, width, channels)
+    values = values.astype(np.uint16)
+    return values[..., :3], (values[..., 3] if channels == 4 else None)
+
+
+def _png_unfilter(filtered: np.ndarray, kinds: np.ndarray) -> np.ndarray:
+    """Undo PNG row filters; filtered [H, W, bpp] uint8 -> reconstructed bytes."""
+    h, w, bpp = filtered.shape
+    out = np.zeros((h + 1, w + 1, bpp), np.int16)  # zero row above, zero column left
+    f = filtered.astype(np.int16)
+    if np.all(kinds <= 2):
+        # None/Sub/Up depend on nothing later in the row but the left byte's sum: row by row
+        for r in range(h):
+            k = kinds[r]
+            if k == 0:
+                out[r + 1, 1:] = f[r]
+            elif k == 1:
+                out[r + 1, 1:] = np.cumsum(f[r], axis=0, dtype=np.int64) & 255
+            else:
+                out[r + 1, 1:] = (f[r] + out[r, 1:]) & 255
+        return out[1:, 1:].astype(np.uint8)
+    # Average/Paeth read the left, upper and upper-left bytes: sweep anti-diagonals,
+    # whose cells depend only on earlier diagonals, so each one is one vector step
+    kind_of_row = kinds.astype(np.int16)
+    for d in range(h + w - 1):
+        r = np.arange(max(0, d - w + 1), min(h - 1, d) + 1)
+        p = d - r
+        left, up, ul = out[r + 1, p], out[r, p + 1], out[r, p]
+        k = kind_of_row[r][:, None]
+        pa, pb, pc = np.abs(up - ul), np.abs(left - ul), np.abs(left + up - 2 * ul)
+        paeth = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, up, ul))
+        pred = np.choose(k, [np.zeros_like(left), left, up, (left + up) >> 1, paeth])
+        out[r + 1, p + 1] = (f[r, p] + pred) & 255
+    return out[1:, 1:].astype(np.uint8)
+
+
+# ------------------------------------------------------------------ EXR
+
+
+def _exr_size(path: Path) -> tuple[int, int]:
+    import OpenEXR
+
+    try:
+        f = OpenEXR.File(str(path), header_only=True)
+        windows = []
+        for part in f.parts:
+            (x0, y0), (x1, y1) = part.header["dataWindow"]
+            windows.append((int(x1) - int(x0) + 1, int(y1) - int(y0) + 1))
+    except Exception as exc:
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: not a readable EXR ({type(exc).__name__}: {exc})") from None
+    if not windows:
+        raise ValueError(f"{path}: EXR has no parts")
+    return max(w for w, _ in windows), max(h for _, h in windows)
+
+
+def _pick_rgb(channels: dict[str, np.ndarray], path: Path):
+    """Choose the colour channels: plain R,G,B; else one "<prefix>.R/G/B" set (Combined first)."""
+    for prefix in ("", *sorted({k.rsplit(".", 1)[0] + "." for k in channels if "." in k},
+                               key=lambda p: (not p.endswith("Combined."), p))):
+        if all(prefix + c in channels for c in "RGB"):
+            return [channels[prefix + c] for c in "RGB"], channels.get(prefix + "A")
+        if prefix + "Y" in channels and not any(prefix + c in channels for c in "RGB"):
+            y = channels[prefix + "Y"]
+            return [y, y, y], channels.get(prefix + "A")
+    raise ValueError(f"{path}: EXR has no R, G, B (or Y) channels (has {sorted(channels)[:8]})")
+
+
+def _read_exr_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    from relight.exr import read_exr
+
+    width, height = _exr_size(path)
+    _check_size(width, height, path)
+    try:
+        channels = read_exr(path)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: file not found") from None
+    except ValueError:
+        raise
+    except Exception as exc:
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: corrupt EXR ({type(exc).__name__}: {exc})") from None
+    rgb, alpha = _pick_rgb(channels, path)
+    shapes = {c.shape for c in rgb} | ({alpha.shape} if alpha is not None else set())
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise ValueError(f"{path}: EXR colour channels have different sizes {sorted(shapes)}")
+    h, w = rgb[0].shape
+    _check_size(w, h, path)
+    img = np.empty((h, w, 3), np.float32)
+    for i, c in enumerate(rgb):
+        if c.dtype == np.uint32:
+            raise ValueError(f"{path}: EXR colour channels must be half or float, not uint")
+        img[..., i] = c
+    if not np.all(np.isfinite(img)):
+        raise ValueError(f"{path}: EXR contains NaN or Inf pixels")
+    np.maximum(img, 0.0, out=img)  # negative radiance is not light: clamp
+    mask = None
+    if alpha is not None:
+        mask = np.asarray(alpha, dtype=np.float32)
+        if not np.all(np.isfinite(mask)):
+            raise ValueError(f"{path}: EXR alpha contains NaN or Inf")
+        mask = np.clip(mask, 0.0, 1.0)
+    return img, mask
+
+
+# ------------------------------------------------------------------ masks
+
+
+def read_mask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
+    """Read a person mask for a photo of `shape` (H, W): float32 [H, W] in [0, 1].
+
+    A file with an alpha channel gives its alpha; otherwise its grey level as
+    stored (code value / max; linear value for EXR): white = person. Refuses
+    a size mismatch and an all-zero mask.
+    """
+    path = Path(path)
+    _exists(path)
+    with open(path, "rb") as f:
+        is_exr = f.read(4) == EXR_MAGIC
+    if is_exr:
+        img, alpha = _read_exr_photo(path)
+        mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
+    else:
+        mask = _read_pillow_mask(path)
+    if mask.shape != tuple(shape):
+        raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]} but the photo is "
+                         f"{shape[1]}x{shape[0]}")
+    if not np.any(mask > 0):
+        raise ValueError(f"{path}: mask is empty (all zero): it marks no person")
+    return mask
+
+
+def _read_pillow_mask(path: Path) -> np.ndarray:
+    from PIL import Image, ImageOps
+
+    im = _open_pillow(path)
+    try:
+        _check_size(*im.size, path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im.load()
+            im = ImageOps.exif_transpose(im)
+            if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
+                return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
+            if im.mode == "F":
+                return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
+            if "A" in im.mode or "transparency" in im.info:
+                return np.asarray(im.convert("RGBA"))[..., 3].astype(np.float32) / 255.0
+            return np.asarray(im.convert("L"), dtype=np.float32) / 255.0
+    except ValueError:
+        raise
+    except Exception as exc:
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: corrupt or truncated mask image ({type(exc).__name__}: {exc})") from None
+    finally:
+        im.close()
+
+
+# ------------------------------------------------------------------ writing
+
+
+def _tmp_beside(path: Path, suffix: str) -> Path:
+    from relight.exr import atomic_write_path
+
+    return atomic_write_path(path, suffix)
+
+
+def _check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
+    a = np.asarray(image)
+    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValueError(f"{name} must have shape [H, W, 3], got {a.shape}")
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ValueError(f"{name} must be floating point (linear), got {a.dtype}")
+    return a
+
+
+def _out_dir(path: Path) -> None:
+    if not path.parent.is_dir():
+        raise ValueError(f"output folder does not exist: {path.parent}")
+
+
+def write_png(path: str | os.PathLike, linear: np.ndarray) -> Path:
+    """Write linear RGB as an 8-bit sRGB PNG (values clipped to [0, 1]), atomically."""
+    from PIL import Image
+
+    path = Path(path)
+    _out_dir(path)
+    a = _check_image(linear)
+    h, w = a.shape[:2]
+    u8 = np.empty((h, w, 3), np.uint8)
+    for r0 in range(0, h, STRIP_ROWS):
+        strip = a[r0:r0 + STRIP_ROWS]
+        if not np.all(np.isfinite(strip)):
+            raise ValueError("image to write contains NaN or Inf")
+        u8[r0:r0 + STRIP_ROWS] = np.rint(srgb_encode(strip.astype(np.float32, copy=False)) * 255.0)
+    tmp = _tmp_beside(path, ".png")
+    try:
+        Image.fromarray(u8, "RGB").save(tmp, format="PNG", compress_level=4)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _rgb_channels(prefix: str, image: np.ndarray) -> dict[str, np.ndarray]:
+    if not np.all(np.isfinite(image)):
+        raise ValueError(f"{prefix or 'image'} to write contains NaN or Inf")
+    return {f"{prefix}{c}": np.ascontiguousarray(image[..., i], dtype=np.float32) for i, c in enumerate("RGB")}
+
+
+def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarray | None = None) -> Path:
+    """Write linear RGB (+ optional A) as a float32 EXR, atomically."""
+    from relight.exr import write_exr
+
+    path = Path(path)
+    _out_dir(path)
+    a = _check_image(linear)
+    channels = _rgb_channels("", a)
+    if alpha is not None:
+        channels["A"] = np.ascontiguousarray(alpha, dtype=np.float32)
+    return write_exr(path, channels)
+
+
+def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray]) -> Path:
+    """Multi-layer EXR for Blender: render layer `Relight` with passes Relit (RGBA),
+    Albedo, Shading, Residual (RGB) and Alpha (A).
+
+    Channel names are "Relight.<Pass>.<channel>", the naming Blender writes
+    and reads back as one render layer whose passes its Image node lists.
+    `layers` is Decomposition.layers(): albedo, shading, residual [H, W, 3]
+    and alpha [H, W].
+    """
+    from relight.exr import write_exr
+
+    path = Path(path)
+    _out_dir(path)
+    relit = _check_image(relit, "relit")
+    alpha = np.asarray(layers["alpha"], dtype=np.float32)
+    if alpha.shape != relit.shape[:2]:
+        raise ValueError(f"alpha layer is {alpha.shape}, relit image is {relit.shape[:2]}")
+    channels = _rgb_channels(f"{LAYER_NAME}.Relit.", relit)
+    # the relit frame is the whole photo (person composited over it): opaque
+    channels[f"{LAYER_NAME}.Relit.A"] = np.ones(relit.shape[:2], np.float32)
+    for key, pass_name in (("albedo", "Albedo"), ("shading", "Shading"), ("residual", "Residual")):
+        img = _check_image(layers[key], key)
+        if img.shape != relit.shape:
+            raise ValueError(f"{key} layer is {img.shape}, relit image is {relit.shape}")
+        channels.update(_rgb_channels(f"{LAYER_NAME}.{pass_name}.", img))
+    channels[f"{LAYER_NAME}.Alpha.A"] = np.ascontiguousarray(alpha)
+    return write_exr(path, channels)
+
+
+def write_image(path: str | os.PathLike, linear: np.ndarray) -> Path:
+    """Write by extension: .png (8-bit sRGB) or .exr (linear float)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".png":
+        return write_png(path, linear)
+    if suffix == ".exr":
+        return write_exr_image(path, linear)
+    raise ValueError(f"output must end in .png or .exr, got {Path(path).name}")

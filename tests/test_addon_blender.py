@@ -1,0 +1,650 @@
+"""Relight Photo add-on under headless bpy: registration, the Relight operator in
+test mode, live updates from the cached decomposition, World lights, saving
+layers, and every error the user can meet (asserted on the report text)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import bpy
+
+import blender_addon
+from blender_addon import bl_ops, bl_world, state
+from relight import envmap, presets, sh
+from relight.exr import read_exr, write_exr
+from relight.runtime import resolve_light
+
+REPO = Path(__file__).resolve().parents[1]
+ORDER = 4
+H, W = 72, 48
+# float32 arithmetic on values <= ~4 through a few dozen operations (SH dot
+# products of 25 terms, bilinear taps, blend): far below 1e-5
+TIGHT = 1e-5
+
+
+def make_tiny_model(tmp_path_factory) -> Path:
+    """A seeded random-weight RelightNet exported by the project's export code, in a
+    child process so torch never loads into the bpy process; made once per session."""
+    out = tmp_path_factory.getbasetemp() / "addon_tiny_model" / "tiny.onnx"
+    if out.is_file():
+        return out
+    out.parent.mkdir(exist_ok=True)
+    code = textwrap.dedent(f"""
+        from export.random_model import export_random_model
+        export_random_model({str(out)!r}, seed=3, sh_order={ORDER}, width=4, depth=2)
+    """)
+    subprocess.run([sys.executable, "-c", code], cwd=REPO, check=True, capture_output=True, timeout=300)
+    return out
+
+
+def write_person_png(path: Path, with_alpha: bool = False) -> None:
+    """A bright figure (ellipse) on a darker textured background, sRGB PNG."""
+    from PIL import Image
+
+    y, x = np.mgrid[0:H, 0:W]
+    inside = ((x - W / 2) / (W / 4)) ** 2 + ((y - H / 2) / (H / 2.6)) ** 2 <= 1
+    rgb = np.empty((H, W, 3), np.uint8)
+    rgb[..., 0] = 40 + (x * 3) % 50
+    rgb[..., 1] = 60 + (y * 2) % 40
+    rgb[..., 2] = 90
+    rgb[inside] = (220, 170, 140)
+    if with_alpha:
+        rgba = np.dstack([rgb, np.where(inside, 255, 0).astype(np.uint8)])
+        Image.fromarray(rgba, "RGBA").save(path)
+    else:
+        Image.fromarray(rgb, "RGB").save(path)
+
+
+def pixels(name: str) -> np.ndarray:
+    """Float RGBA [H, W, 4] of an image datablock, top row first."""
+    image = bpy.data.images[name]
+    w, h = image.size
+    flat = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(flat)
+    return flat.reshape(h, w, 4)[::-1]
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return make_tiny_model(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def addon(model, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("addon_photos")
+    write_person_png(folder / "person.png")
+    write_person_png(folder / "cutout.png", with_alpha=True)
+    blender_addon.register()
+    photo = bpy.data.images.load(str(folder / "person.png"))
+    cutout = bpy.data.images.load(str(folder / "cutout.png"))
+    yield {"model": model, "photo": photo.name, "cutout": cutout.name, "folder": folder}
+    for image in list(bpy.data.images):
+        if image.name.startswith(("person.png", "cutout.png", "mask", "lightsrc")):
+            bpy.data.images.remove(image)
+    blender_addon.unregister()
+
+
+@pytest.fixture
+def settings(addon):
+    s = bpy.context.scene.relight_photo
+    s.model_path = str(addon["model"])
+    s.quality = "DRAFT"
+    s.mask_mode = "AUTO"
+    s.light_kind = "PRESET"
+    s.preset = "studio"
+    s.rotation = 0.0
+    s.exposure = 0.0
+    s.strength = 1.0
+    s.hdr_path = ""
+    s.light_image = None
+    s.mask_image = None
+    yield s
+    s.light_kind = "PRESET"
+
+
+def relight(image_name: str, **kw):
+    return bpy.ops.relight_photo.relight(image_name=image_name, synchronous=True, **kw)
+
+
+# ------------------------------------------------------------------ registration
+
+def test_register_unregister_register_again(addon):
+    assert hasattr(bpy.types, "RELIGHT_PHOTO_PT_panel")
+    panel = bpy.types.RELIGHT_PHOTO_PT_panel
+    assert (panel.bl_space_type, panel.bl_region_type, panel.bl_category, panel.bl_label) == \
+        ("IMAGE_EDITOR", "UI", "Relight", "Relight Photo")
+    blender_addon.unregister()
+    assert not hasattr(bpy.types, "RELIGHT_PHOTO_PT_panel")
+    assert not hasattr(bpy.types.Scene, "relight_photo")
+    assert bl_ops.on_depsgraph_update not in bpy.app.handlers.depsgraph_update_post
+    blender_addon.register()
+    assert hasattr(bpy.types.Scene, "relight_photo")
+    assert bpy.app.handlers.depsgraph_update_post[:].count(bl_ops.on_depsgraph_update) == 1
+    assert "relight_photo.relight" in {f"relight_photo.{n}" for n in dir(bpy.ops.relight_photo)}
+
+
+# ------------------------------------------------------------------ the operator
+
+def test_relight_writes_every_layer(addon, settings):
+    name = addon["photo"]
+    assert relight(name) == {"FINISHED"}
+    for layer in ("relit", "albedo", "shading", "residual", "alpha"):
+        image = bpy.data.images[f"{name}.{layer}"]
+        assert tuple(image.size) == (W, H) and image.is_float
+        assert image.colorspace_settings.name == ("Non-Color" if layer == "alpha" else "Linear Rec.709")
+        assert np.all(np.isfinite(pixels(image.name)))
+    albedo = pixels(f"{name}.albedo")[..., :3]
+    alpha = pixels(f"{name}.alpha")[..., 0]
+    assert albedo.min() >= 0 and albedo.max() <= 1 + TIGHT
+    assert alpha.min() >= 0 and alpha.max() <= 1
+    # the relit image is the runtime's relight of the cached decomposition
+    session = state.SESSIONS[name]
+    expected = session.decomposition.relight("studio")
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
+    # and the photo is the PNG decoded to linear (what relight.photo reads)
+    from relight.photo import read_photo
+
+    linear, _ = read_photo(addon["folder"] / "person.png")
+    np.testing.assert_allclose(session.photo, linear, atol=1e-6)
+
+
+def test_invoking_without_a_window_runs_synchronously(addon, settings):
+    # what a script or `blender -b` gets from the UI-style call
+    assert bpy.ops.relight_photo.relight("INVOKE_DEFAULT", image_name=addon["photo"]) == {"FINISHED"}
+    assert "job" not in state.RUNNING
+
+
+def test_rotating_the_light_follows_the_sh_rotation(addon, settings):
+    name = addon["photo"]
+    relight(name)
+    before = pixels(f"{name}.relit")[..., :3].copy()
+    network_runs = state.SESSIONS[name]
+    settings.rotation = math.radians(90.0)  # property update: no network run
+    assert state.SESSIONS[name] is network_runs
+    after = pixels(f"{name}.relit")[..., :3]
+    L = resolve_light("studio", ORDER)  # normalised map light
+    rotated = sh.rotate(L, sh.z_rotation(90.0))
+    expected = network_runs.decomposition.relight(rotated)
+    np.testing.assert_allclose(after, expected, atol=TIGHT)
+    assert np.abs(after - before).max() > 1e-2  # the light really moved
+
+
+def test_exposure_and_strength_update_live(addon, settings):
+    name = addon["photo"]
+    relight(name)
+    d = state.SESSIONS[name].decomposition
+    photo = state.SESSIONS[name].photo
+    settings.exposure = 1.0
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight("studio", exposure_ev=1.0),
+                               atol=2 * TIGHT)
+    settings.strength = 0.25
+    expected = photo + 0.25 * (d.relight("studio", exposure_ev=1.0) - photo)
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
+    settings.strength = 0.0
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], photo, atol=1e-7)
+
+
+def test_with_a_ui_dial_changes_are_coalesced_into_one_timer(addon, settings, monkeypatch):
+    name = addon["photo"]
+    relight(name)
+    before = pixels(f"{name}.relit").copy()
+    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    settings.rotation = math.radians(10.0)
+    settings.rotation = math.radians(20.0)
+    settings.exposure = 0.5
+    try:
+        # nothing recomputed yet: one timer is waiting for the UI to be idle
+        assert bpy.app.timers.is_registered(bl_ops._deferred_refresh)
+        np.testing.assert_array_equal(pixels(f"{name}.relit"), before)
+        assert bl_ops._deferred_refresh() is None  # what Blender's timer calls, once
+        expected = state.SESSIONS[name].decomposition.relight("studio", rotation_deg=20.0, exposure_ev=0.5)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
+    finally:
+        if bpy.app.timers.is_registered(bl_ops._deferred_refresh):
+            bpy.app.timers.unregister(bl_ops._deferred_refresh)
+
+
+def test_output_image_in_the_editor_maps_back_to_its_photo(addon, settings):
+    name = addon["photo"]
+    relight(name)
+    # running again on the '.relit' image relights the photo, not the output
+    assert relight(f"{name}.relit") == {"FINISHED"}
+    assert settings.last_source == name
+    assert f"{name}.relit.relit" not in bpy.data.images
+
+
+def test_deleted_output_is_recreated_by_name(addon, settings):
+    # undo or the user may remove output images: nothing keeps a pointer to them
+    name = addon["photo"]
+    relight(name)
+    bpy.data.images.remove(bpy.data.images[f"{name}.relit"])
+    settings.rotation = math.radians(30.0)
+    assert f"{name}.relit" in bpy.data.images
+
+
+def test_mask_from_the_photos_alpha(addon, settings):
+    name = addon["cutout"]
+    settings.mask_mode = "IMAGE_ALPHA"
+    assert relight(name) == {"FINISHED"}
+    alpha = pixels(f"{name}.alpha")[..., 0]
+    source = pixels(name)[..., 3]
+    # the user's mask is the matte: alpha 0 outside, 1 inside the figure
+    np.testing.assert_allclose(alpha, source, atol=1e-6)
+    relit = pixels(f"{name}.relit")[..., :3]
+    np.testing.assert_array_equal(relit[source == 0], state.SESSIONS[name].photo[source == 0])
+
+
+def test_mask_from_another_image_uses_its_grey_code_values(addon, settings, tmp_path):
+    from PIL import Image
+
+    y, x = np.mgrid[0:H, 0:W]
+    grey = np.where(x < W // 2, 255, 128).astype(np.uint8)  # 128 is 0.502 as stored, 0.216 decoded
+    grey[: H // 4] = 0
+    Image.fromarray(grey, "L").save(tmp_path / "mask_grey.png")
+    mask = bpy.data.images.load(str(tmp_path / "mask_grey.png"))
+    settings.mask_mode = "IMAGE"
+    settings.mask_image = mask
+    try:
+        assert relight(addon["photo"]) == {"FINISHED"}
+        alpha = pixels(f"{addon['photo']}.alpha")[..., 0]
+        np.testing.assert_allclose(alpha, grey / 255.0, atol=1e-6)
+    finally:
+        settings.mask_image = None
+        bpy.data.images.remove(mask)
+
+
+def test_light_transfer_from_another_photo(addon, settings):
+    src = bpy.data.images.load(str(addon["folder"] / "cutout.png"), check_existing=False)
+    src.name = "lightsrc"
+    settings.light_kind = "IMAGE"
+    settings.light_image = src
+    name = addon["photo"]
+    assert relight(name) == {"FINISHED"}
+    key = (src.name, str(addon["model"]), "DRAFT")
+    other = state.LIGHT_SOURCES[key]
+    expected = state.SESSIONS[name].decomposition.relight(other)
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
+
+
+def test_hdr_file_light(addon, settings, tmp_path):
+    env = np.zeros((16, 32, 3), np.float32) + 0.2
+    env[:8, 8:12] = 5.0  # a bright patch in the upper sky
+    path = tmp_path / "patch.exr"
+    write_exr(path, {c: env[..., i] for i, c in enumerate("RGB")})
+    settings.light_kind = "HDR"
+    settings.hdr_path = str(path)
+    name = addon["photo"]
+    assert relight(name) == {"FINISHED"}
+    expected = state.SESSIONS[name].decomposition.relight(str(path))
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
+
+
+def test_save_layers_writes_a_multilayer_exr(addon, settings, tmp_path):
+    name = addon["photo"]
+    relight(name)
+    settings.rotation = math.radians(45.0)
+    out = tmp_path / "layers.exr"
+    assert bpy.ops.relight_photo.save_layers(filepath=str(out), image_name=name) == {"FINISHED"}
+    ch = read_exr(out)
+    for p in ("Relit", "Albedo", "Shading", "Residual"):
+        assert all(f"Relight.{p}.{c}" in ch for c in "RGB")
+    relit = np.dstack([ch[f"Relight.Relit.{c}"] for c in "RGB"])
+    np.testing.assert_allclose(relit, pixels(f"{name}.relit")[..., :3], atol=1e-7)
+    # albedo * shading + residual is the relit person wherever the matte is 1
+    albedo = np.dstack([ch[f"Relight.Albedo.{c}"] for c in "RGB"])
+    shading = np.dstack([ch[f"Relight.Shading.{c}"] for c in "RGB"])
+    residual = np.dstack([ch[f"Relight.Residual.{c}"] for c in "RGB"])
+    assert ch["Relight.Alpha.A"].shape == (H, W)
+    assert np.all(np.isfinite(albedo * shading + residual))
+
+
+# ------------------------------------------------------------------ World light
+
+def _env_world(path: Path, mapping_rotation=(0.0, 0.0, 0.0), vector_type="POINT"):
+    world = bpy.data.worlds.new("relight_test_world")
+    tree = world.node_tree
+    if tree is None:  # Blender < 5 needs nodes switched on
+        world.use_nodes = True
+        tree = world.node_tree
+    background = next(n for n in tree.nodes if n.type == "BACKGROUND")
+    env = tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(str(path), check_existing=True)
+    mapping = tree.nodes.new("ShaderNodeMapping")
+    mapping.vector_type = vector_type
+    mapping.inputs["Rotation"].default_value = mapping_rotation
+    coords = tree.nodes.new("ShaderNodeTexCoord")
+    tree.links.new(env.outputs["Color"], background.inputs["Color"])
+    tree.links.new(mapping.outputs["Vector"], env.inputs["Vector"])
+    tree.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+    return world
+
+
+def test_world_environment_texture_equals_relights_projection_of_the_file(addon, settings):
+    path = presets.preset_path("studio")
+    world = _env_world(path, (0.0, 0.0, math.radians(90.0)))
+    scene = bpy.context.scene
+    old = scene.world
+    try:
+        scene.world = world
+        settings.light_kind = "WORLD"
+        coeffs, rotation = bl_ops.target_light(bpy.context, ORDER, "")
+        assert rotation == pytest.approx(-90.0)  # Mapping rotates the lookup: the light turns back
+        expected = envmap.light_from_map(str(path), ORDER, normalize=True)
+        # the same half-float texels read by Blender and by OpenEXR: equal up to
+        # float32 summation order in the projection (~1e-6 relative)
+        np.testing.assert_allclose(coeffs, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+    finally:
+        scene.world = old
+        bpy.data.worlds.remove(world)
+
+
+def test_editing_the_world_relights_live(addon, settings):
+    import types
+
+    path = presets.preset_path("studio")
+    world = _env_world(path)
+    scene = bpy.context.scene
+    old = scene.world
+    updated = types.SimpleNamespace(id_type_updated=lambda kind: kind == "WORLD")
+    try:
+        scene.world = world
+        settings.light_kind = "WORLD"
+        name = addon["photo"]
+        relight(name)
+        d = state.SESSIONS[name].decomposition
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(str(path)), atol=TIGHT)
+        # the user turns the Mapping node: Blender sends a depsgraph update
+        world.node_tree.nodes["Mapping"].inputs["Rotation"].default_value[2] = math.radians(45.0)
+        bl_ops.on_depsgraph_update(scene, updated)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(str(path), rotation_deg=-45.0),
+                                   atol=TIGHT)
+    finally:
+        scene.world = old
+        bpy.data.worlds.remove(world)
+
+
+def test_float_exr_photo_is_taken_as_linear(addon, settings, tmp_path):
+    rng = np.random.default_rng(5)
+    linear = rng.uniform(0.0, 3.0, (H, W, 3)).astype(np.float32)  # HDR values above 1 too
+    path = tmp_path / "hdr_photo.exr"
+    write_exr(path, {c: linear[..., i] for i, c in enumerate("RGB")})
+    image = bpy.data.images.load(str(path))
+    try:
+        assert relight(image.name) == {"FINISHED"}
+        np.testing.assert_array_equal(state.SESSIONS[image.name].photo, linear)
+    finally:
+        for n in [i.name for i in bpy.data.images if i.name.startswith("hdr_photo.exr")]:
+            bpy.data.images.remove(bpy.data.images[n])
+
+
+def test_baked_world_agrees_with_the_direct_read_including_the_mapping_sign(addon, settings):
+    # the Cycles bake renders what Blender shows, so it checks both the panorama
+    # orientation and the sign given to the Mapping node's rotation
+    path = presets.preset_path("studio")
+    for vector_type in ("POINT", "TEXTURE"):
+        world = _env_world(path, (0.0, 0.0, math.radians(60.0)), vector_type)
+        try:
+            direct = bl_world.read_world(world)
+            assert direct.source.startswith("environment texture")
+            want = sh.rotate(sh.project_equirect(direct.equirect, ORDER), sh.z_rotation(direct.rotation_deg))
+            baked = sh.project_equirect(bl_world.bake_world(world, 128), ORDER)
+            # 128 x 64 panorama with a 0.5 px filter vs the 512 x 256 file: measured
+            # relative L2 difference 0.018; the opposite sign or no rotation gives 1.4
+            err = np.linalg.norm(baked - want) / np.linalg.norm(want)
+            assert err < 0.05, (vector_type, err)
+        finally:
+            bpy.data.worlds.remove(world)
+
+
+def test_mapping_without_generated_coordinates_is_baked(addon, settings):
+    # an unlinked Mapping input is the constant (0, 0, 0): the World is one flat
+    # colour, which only the bake sees; reading the image directly would be wrong
+    world = _env_world(presets.preset_path("studio"))
+    try:
+        tree = world.node_tree
+        tree.links.remove(tree.nodes["Mapping"].inputs["Vector"].links[0])
+        light = bl_world.read_world(world)
+        assert light.source == "baked procedural world"
+        spread = light.equirect.std(axis=(0, 1)) / light.equirect.mean(axis=(0, 1))
+        assert np.all(spread < 1e-3), spread  # flat, up to the EXR's float rounding
+    finally:
+        bpy.data.worlds.remove(world)
+
+
+def test_procedural_world_is_baked_and_tracked(addon, settings):
+    world = bpy.data.worlds.new("relight_sky")
+    tree = world.node_tree
+    background = next(n for n in tree.nodes if n.type == "BACKGROUND")
+    sky = tree.nodes.new("ShaderNodeTexSky")
+    tree.links.new(sky.outputs["Color"], background.inputs["Color"])
+    try:
+        light = bl_world.read_world(world)
+        assert light.source == "baked procedural world"
+        assert light.equirect.shape == (64, 128, 3) and np.all(np.isfinite(light.equirect))
+        # the sky is above the horizon: the upper half is brighter than the lower
+        assert light.equirect[:32].mean() > light.equirect[32:].mean()
+        key = bl_world.fingerprint(world)
+        assert bl_world.fingerprint(world) == key
+        sky.sun_elevation = 0.1
+        assert bl_world.fingerprint(world) != key
+    finally:
+        bpy.data.worlds.remove(world)
+
+
+# ------------------------------------------------------------------ errors
+
+def _error(message_start: str, **kw):
+    with pytest.raises(RuntimeError) as info:
+        relight(**kw) if "image_name" in kw else bpy.ops.relight_photo.relight(synchronous=True)
+    text = str(info.value)
+    assert message_start in text, text
+    # one sentence, no traceback
+    assert "Traceback" not in text and text.strip().count("\n") == 0
+    return text
+
+
+def test_error_no_image(addon, settings):
+    _error("Open a photo in the Image Editor first.")
+    _error("There is no image called 'nothing'.", image_name="nothing")
+
+
+def test_error_photo_file_missing(addon, settings, tmp_path):
+    path = tmp_path / "gone.png"
+    write_person_png(path)
+    image = bpy.data.images.load(str(path))
+    path.unlink()
+    try:
+        _error("The image 'gone.png' has no pixels: is its file missing?", image_name=image.name)
+    finally:
+        bpy.data.images.remove(image)
+
+
+def test_error_missing_model(addon, settings):
+    settings.model_path = "/nonexistent/model.onnx"
+    _error("The model file '/nonexistent/model.onnx' does not exist.", image_name=addon["photo"])
+
+
+def test_error_empty_mask(addon, settings):
+    mask = bpy.data.images.new("mask_black", W, H)
+    mask.pixels.foreach_set(np.tile(np.array([0, 0, 0, 1], np.float32), W * H))
+    settings.mask_mode = "IMAGE"
+    settings.mask_image = mask
+    _error("The mask is empty: it selects no pixel of the photo.", image_name=addon["photo"])
+    settings.mask_image = None
+    _error("Choose a mask image, or set the mask to Automatic.", image_name=addon["photo"])
+    settings.mask_mode = "IMAGE_ALPHA"
+    _error("The photo has no alpha channel to use as the mask.", image_name=addon["photo"])
+
+
+def test_error_unreadable_hdr(addon, settings, tmp_path):
+    bad = tmp_path / "broken.exr"
+    bad.write_bytes(b"\x76\x2f\x31\x01 truncated")
+    settings.light_kind = "HDR"
+    settings.hdr_path = str(bad)
+    _error("The HDR file 'broken.exr' cannot be read as an equirectangular map", image_name=addon["photo"])
+    settings.hdr_path = str(tmp_path / "absent.hdr")
+    _error("does not exist.", image_name=addon["photo"])
+
+
+def test_error_no_world_and_no_light_photo(addon, settings):
+    scene = bpy.context.scene
+    old = scene.world
+    try:
+        scene.world = None
+        settings.light_kind = "WORLD"
+        _error("The scene has no World to take the light from.", image_name=addon["photo"])
+    finally:
+        scene.world = old
+    settings.light_kind = "IMAGE"
+    _error("Choose the photo to take the light from.", image_name=addon["photo"])
+
+
+def test_error_save_before_relight(addon, settings, tmp_path):
+    state.SESSIONS.clear()
+    with pytest.raises(RuntimeError, match="Relight the photo first: there are no layers to save yet."):
+        bpy.ops.relight_photo.save_layers(filepath=str(tmp_path / "x.exr"), image_name=addon["photo"])
+
+
+def test_a_bad_light_chosen_after_relighting_shows_in_the_panel(addon, settings):
+    name = addon["photo"]
+    relight(name)
+    settings.light_kind = "HDR"
+    settings.hdr_path = "/nonexistent/sky.exr"  # update callback: no operator to report
+    status = bpy.context.window_manager.relight_photo_status
+    assert status.is_error and status.message == "The HDR file '/nonexistent/sky.exr' does not exist."
+
+
+# ------------------------------------------------------------------ the modal (UI) path
+# Headless Blender has no window to deliver timer events, so these drive the
+# operator's modal() by hand with the events Blender would send.
+
+class _FakeWindowManager:
+    def __init__(self):
+        self.progress = []
+        self.relight_photo_status = bpy.context.window_manager.relight_photo_status
+
+    def progress_update(self, value):
+        self.progress.append(value)
+
+    def progress_end(self):
+        self.progress.append("end")
+
+    def event_timer_remove(self, _timer):
+        pass
+
+
+class _FakeWorkspace:
+    def __init__(self):
+        self.status = []
+
+    def status_text_set(self, text):
+        self.status.append(text)
+
+
+def _modal_operator(image_name):
+    import types
+
+    cls = bl_ops.RELIGHT_PHOTO_OT_relight
+    op = types.SimpleNamespace(image_name=image_name, synchronous=False, _job=None, _timer=None,
+                               _plan=None, reports=[])
+    op.report = lambda kind, text: op.reports.append((set(kind), text))
+    for name in ("_make_plan", "_start", "_finish", "_error", "_cleanup", "modal"):
+        setattr(op, name, getattr(cls, name).__get__(op))
+    context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_FakeWindowManager(),
+                                    workspace=_FakeWorkspace(), space_data=None, window=None)
+    return op, context
+
+
+def test_modal_run_polls_the_worker_then_finishes(addon, settings):
+    import time
+    import types
+
+    name = addon["photo"]
+    state.SESSIONS.pop(name, None)
+    op, context = _modal_operator(name)
+    op._start(context)
+    assert "job" in state.RUNNING
+    timer = types.SimpleNamespace(type="TIMER")
+    result = {"PASS_THROUGH"}
+    deadline = time.monotonic() + 120
+    while result == {"PASS_THROUGH"} and time.monotonic() < deadline:
+        time.sleep(0.02)
+        result = op.modal(context, timer)
+    assert result == {"FINISHED"}
+    assert "job" not in state.RUNNING and name in state.SESSIONS
+    assert context.window_manager.progress[-1] == "end"
+    assert context.workspace.status[-1] is None  # the header text is given back
+    assert op.reports and op.reports[-1][1].startswith(f"Relit '{name}' in")
+    # a second Relight while one is running is refused with one sentence
+    op2, _ = _modal_operator(name)
+    op2._start(context)
+    op3, _ = _modal_operator(name)
+    with pytest.raises(ValueError, match="A relight is already running"):
+        op3._start(context)
+    with pytest.raises(RuntimeError, match="A relight is already running"):
+        relight(name)  # the synchronous path refuses too, and leaves the running job alone
+    assert state.RUNNING["job"] is op2._job
+    # Esc: cancelled at once, the worker's late result is dropped
+    assert op2.modal(context, types.SimpleNamespace(type="ESC")) == {"CANCELLED"}
+    assert "job" not in state.RUNNING
+    assert op2.reports[-1] == ({"WARNING"}, "Relighting cancelled.")
+    assert context.window_manager.relight_photo_status.running is False
+
+
+class _CheckingLayout:
+    """Stands in for bpy's UILayout: records what the panel shows and fails on
+    a property name the settings do not have."""
+
+    def __init__(self, log):
+        self.log = log
+        self.enabled = True
+        self.scale_y = 1.0
+
+    def _child(self, *args, **kw):
+        return _CheckingLayout(self.log)
+
+    column = row = box = _child
+
+    def prop(self, data, name, **kw):
+        assert hasattr(data, name), name
+        self.log.append(("prop", name))
+
+    def template_ID(self, data, name, **kw):
+        assert hasattr(data, name), name
+        self.log.append(("template_ID", name))
+
+    def label(self, text="", icon="NONE"):
+        self.log.append(("label", text))
+
+    def operator(self, idname, **kw):
+        module, name = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), name), idname
+        self.log.append(("operator", idname))
+
+
+@pytest.mark.parametrize("kind, shown", [("WORLD", "label"), ("HDR", "hdr_path"), ("PRESET", "preset"),
+                                         ("IMAGE", "light_image")])
+def test_panel_draws_every_light_kind(addon, settings, kind, shown):
+    import types
+
+    settings.light_kind = kind
+    log = []
+    panel = types.SimpleNamespace(layout=_CheckingLayout(log))
+    space = types.SimpleNamespace(image=bpy.data.images[addon["photo"]])
+    context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=bpy.context.window_manager,
+                                    space_data=space)
+    bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
+    names = [entry[1] for entry in log]
+    assert ("operator", "relight_photo.relight") in log and ("operator", "relight_photo.save_layers") in log
+    assert {"rotation", "exposure", "strength", "quality", "mask_mode"} <= set(names)
+    if shown == "label":
+        assert any(text.startswith("World: ") for kind_, text in log if kind_ == "label")
+    else:
+        assert shown in names

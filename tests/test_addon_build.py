@@ -1,0 +1,178 @@
+"""Relight Photo packaging: `python -m blender_addon.build` makes a zip that
+Blender's own extension validator accepts and that Blender installs headlessly
+(bpy.ops.extensions.package_install_files) and runs.
+
+The platform wheels are stand-ins made here (valid wheel layout, same file
+names as the real ones) so the test needs no network; docs/addon.md records
+a real build with the downloaded onnxruntime/OpenEXR/Pillow wheels.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import importlib.metadata
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from blender_addon import build, manifest
+
+from test_addon_blender import make_tiny_model, write_person_png
+
+REPO = Path(__file__).resolve().parents[1]
+PLATFORM_FILE_TAGS = {  # what PyPI names the real files
+    "onnxruntime": ("manylinux_2_28_x86_64", "win_amd64", "macosx_14_0_arm64"),
+    "openexr": ("manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64"),
+    "pillow": ("manylinux_2_27_x86_64.manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64"),
+}
+
+
+def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str) -> Path:
+    """A metadata-only wheel named like the real one (installs nothing importable)."""
+    name = f"{prefix}-{version}-cp311-cp311-{platform}.whl"
+    dist_info = f"{prefix}-{version}.dist-info"
+    files = {f"{dist_info}/METADATA": f"Metadata-Version: 2.1\nName: {prefix}\nVersion: {version}\n",
+             f"{dist_info}/WHEEL": f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: cp311-cp311-{platform}\n"}
+    with zipfile.ZipFile(folder / name, "w") as zf:
+        for arc, text in files.items():
+            zf.writestr(arc, text)
+        zf.writestr(f"{dist_info}/RECORD", "".join(f"{a},,\n" for a in files) + f"{dist_info}/RECORD,,\n")
+    return folder / name
+
+
+@pytest.fixture(scope="module")
+def wheel_cache(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("wheel_cache")
+    for dist, prefix in build.BINARY_DEPS:
+        version = importlib.metadata.version(dist)
+        for platform in PLATFORM_FILE_TAGS[prefix]:
+            _stand_in_wheel(cache, prefix, version, platform)
+    return cache
+
+
+@pytest.fixture(scope="module")
+def built_zip(wheel_cache, tmp_path_factory):
+    return build.build(tmp_path_factory.mktemp("dist"), wheel_cache, offline=True)
+
+
+def _blender_ext_cli() -> Path:
+    import bpy
+
+    path = Path(bpy.utils.system_resource("SCRIPTS")) / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"
+    assert path.is_file(), path
+    return path
+
+
+def test_zip_layout_and_manifest(built_zip, tmp_path):
+    with zipfile.ZipFile(built_zip) as zf:
+        names = set(zf.namelist())
+        zf.extractall(tmp_path)
+    assert "blender_manifest.toml" in names and "__init__.py" in names
+    assert "build.py" not in names and not any("__pycache__" in n for n in names)
+    data = manifest.load(tmp_path / "blender_manifest.toml")
+    assert manifest.problems(data, tmp_path) == []
+    listed = {w.removeprefix("./") for w in data["wheels"]}
+    assert listed == {n for n in names if n.startswith("wheels/")}
+    # every binary dependency for each of the three platforms, plus the core
+    assert len(listed) == 1 + 3 * len(build.BINARY_DEPS)
+    for dist, prefix in build.BINARY_DEPS:
+        version = importlib.metadata.version(dist)
+        assert sum(Path(w).name.startswith(f"{prefix}-{version}-") for w in listed) == 3
+
+
+def test_blenders_own_validator_accepts_the_zip(built_zip):
+    done = subprocess.run([sys.executable, str(_blender_ext_cli()), "validate", str(built_zip)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Success" in done.stdout, done.stdout + done.stderr
+
+
+def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
+    with zipfile.ZipFile(built_zip) as zf:
+        core = next(n for n in zf.namelist() if n.startswith("wheels/fullbody_relight_core-"))
+        zf.extract(core, tmp_path)
+    with zipfile.ZipFile(tmp_path / core) as wheel:
+        names = set(wheel.namelist())
+        record = wheel.read(next(n for n in names if n.endswith("dist-info/RECORD"))).decode()
+        for line in record.strip().splitlines():
+            arc, digest, size = line.rsplit(",", 2)
+            if not digest:
+                continue
+            data = wheel.read(arc)
+            want = "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+            assert digest == want and int(size) == len(data), arc
+    for required in ("relight/runtime.py", "relight/sh.py", "relight/envmap.py", "relight/photo.py",
+                     "relight/models/models.json", "relight/data/hdri/studio.exr"):
+        assert required in names
+    assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
+
+
+def test_build_is_reproducible(built_zip, wheel_cache, tmp_path):
+    again = build.build(tmp_path, wheel_cache, offline=True)
+    assert again.read_bytes() == built_zip.read_bytes()
+
+
+def test_missing_wheel_offline_is_one_clear_line(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    done = subprocess.run([sys.executable, "-m", "blender_addon.build", "--out", str(tmp_path / "d"),
+                           "--wheel-cache", str(tmp_path / "empty"), "--offline"],
+                          capture_output=True, text=True, cwd=REPO, env=env, timeout=120)
+    assert done.returncode == 1
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: onnxruntime==")
+    assert "is not in the wheel cache" in done.stderr
+    assert not (tmp_path / "d").exists() or not list((tmp_path / "d").glob("*.zip"))
+
+
+def test_failed_download_is_one_clear_line(tmp_path):
+    # pip with no index and no find-links cannot fetch anything: the offline case
+    env = dict(os.environ, PYTHONPATH=str(REPO), PIP_CONFIG_FILE=os.devnull, PIP_NO_INDEX="1")
+    done = subprocess.run([sys.executable, "-m", "blender_addon.build", "--out", str(tmp_path / "d"),
+                           "--wheel-cache", str(tmp_path / "cache")],
+                          capture_output=True, text=True, cwd=REPO, env=env, timeout=120)
+    assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith("error: cannot download onnxruntime==") and "offline?" in done.stderr
+
+
+def test_blender_installs_the_zip_headlessly_and_it_relights(built_zip, tmp_path, tmp_path_factory):
+    model = make_tiny_model(tmp_path_factory)
+    photo = tmp_path / "person.png"
+    write_person_png(photo)
+    script = textwrap.dedent("""
+        import json, sys
+        import bpy
+        zip_path, model, photo = sys.argv[1:4]
+        result = bpy.ops.extensions.package_install_files(
+            filepath=zip_path, repo="user_default", enable_on_install=True)
+        import relight
+        image = bpy.data.images.load(photo)
+        settings = bpy.context.scene.relight_photo
+        settings.model_path = model
+        settings.quality = "DRAFT"
+        settings.light_kind = "PRESET"
+        settings.preset = "sunset"
+        ran = bpy.ops.relight_photo.relight(image_name=image.name, synchronous=True)
+        relit = bpy.data.images[image.name + ".relit"]
+        px = list(relit.pixels[:])
+        print(json.dumps({
+            "install": sorted(result), "run": sorted(ran), "relight_from": relight.__file__,
+            "addons": [a.module for a in bpy.context.preferences.addons],
+            "size": list(relit.size), "finite": all(v == v and abs(v) < 1e30 for v in px),
+        }))
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["BLENDER_USER_RESOURCES"] = str(tmp_path / "blender_user")  # never the real user's Blender
+    done = subprocess.run([sys.executable, "-c", script, str(built_zip), str(model), str(photo)],
+                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["install"] == ["FINISHED"] and out["run"] == ["FINISHED"]
+    assert "bl_ext.user_default.relight_photo" in out["addons"]
+    # the core came from the bundled wheel, not from this checkout
+    assert out["relight_from"].startswith(str(tmp_path / "blender_user" / "extensions"))
+    assert out["size"] == [48, 72] and out["finite"]

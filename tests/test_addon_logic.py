@@ -1,0 +1,264 @@
+"""Relight Photo add-on: the plain-Python logic (no bpy): quality table, masks,
+lights, compositing, model lookup, the worker thread, manifest rules."""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blender_addon import engine, jobs, manifest, pipeline, quality
+from relight import sh
+from relight.exr import write_exr
+
+ADDON_DIR = Path(__file__).resolve().parents[1] / "blender_addon"
+EPS32 = float(np.finfo(np.float32).eps)
+
+
+# ------------------------------------------------------------------ quality table
+
+def test_quality_presets_are_ordered_and_match_the_runtime_sizes():
+    from relight.runtime import QUALITY_SIZES
+
+    sizes = [p.working_long_side for p in quality.QUALITY_PRESETS]
+    assert [p.key for p in quality.QUALITY_PRESETS] == ["DRAFT", "BALANCED", "BEST"]
+    assert sizes == sorted(sizes) and len(set(sizes)) == 3
+    assert sizes == [QUALITY_SIZES["draft"], QUALITY_SIZES["balanced"], QUALITY_SIZES["best"]]
+    assert quality.preset(quality.DEFAULT_QUALITY).key == "BALANCED"
+    assert [i[0] for i in quality.enum_items()] == ["DRAFT", "BALANCED", "BEST"]
+    with pytest.raises(ValueError, match="unknown quality preset 'ULTRA'"):
+        quality.preset("ULTRA")
+
+
+# ------------------------------------------------------------------ names
+
+def test_output_names_map_back_to_their_photo():
+    assert pipeline.output_name("p.png", "relit") == "p.png.relit"
+    existing = {"p.png", "p.png.relit", "p.png.alpha"}
+    assert pipeline.source_of("p.png.relit", existing) == "p.png"
+    assert pipeline.source_of("p.png.alpha", existing) == "p.png"
+    assert pipeline.source_of("p.png", existing) == "p.png"
+    # an image that merely ends like an output, with no such photo, is itself
+    assert pipeline.source_of("q.relit", existing) == "q.relit"
+    with pytest.raises(ValueError, match="unknown layer"):
+        pipeline.output_name("p.png", "depth")
+
+
+# ------------------------------------------------------------------ masks
+
+def test_mask_modes():
+    shape = (4, 6)
+    assert pipeline.choose_mask("AUTO", shape, None) is None
+    alpha = np.linspace(0, 1, 24, dtype=np.float32).reshape(shape)
+    np.testing.assert_array_equal(pipeline.choose_mask("IMAGE_ALPHA", shape, alpha), alpha)
+    # another image without a varying alpha: its grey level, the mean of R, G, B
+    rgb = np.zeros(shape + (3,), np.float32)
+    rgb[..., 1] = 0.6
+    m = pipeline.choose_mask("IMAGE", shape, None, rgb, np.ones(shape, np.float32), "m")
+    np.testing.assert_allclose(m, 0.2, rtol=2 * EPS32)
+    # with a varying alpha: the alpha
+    np.testing.assert_array_equal(pipeline.choose_mask("IMAGE", shape, None, rgb, alpha, "m"), alpha)
+
+
+@pytest.mark.parametrize("args, message", [
+    (("IMAGE_ALPHA", (4, 6), None), "The photo has no alpha channel"),
+    (("IMAGE_ALPHA", (4, 6), np.zeros((4, 6), np.float32)), "The mask is empty"),
+    (("IMAGE", (4, 6), None), "Choose a mask image"),
+    (("IMAGE", (4, 6), None, np.ones((5, 6, 3), np.float32), None, "m.png"),
+     "The mask image 'm.png' is 6x5 but the photo is 6x4"),
+    (("IMAGE", (4, 6), None, np.zeros((4, 6, 3), np.float32), None, "m"), "The mask is empty"),
+])
+def test_bad_masks_are_one_sentence_errors(args, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        pipeline.choose_mask(*args)
+
+
+# ------------------------------------------------------------------ lights
+
+def _equirect(h=16, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0.1, 2.0, (h, 2 * h, 3)).astype(np.float32)
+
+
+def test_hdr_file_light_accepts_an_exr_and_rejects_bad_files(tmp_path):
+    env = _equirect()
+    good = tmp_path / "env.exr"
+    write_exr(good, {c: env[..., i] for i, c in enumerate("RGB")})
+    assert pipeline.hdr_file_light(str(good), 4) == str(good)
+    with pytest.raises(ValueError, match="Choose an HDR file"):
+        pipeline.hdr_file_light("", 4)
+    with pytest.raises(ValueError, match="does not exist"):
+        pipeline.hdr_file_light(str(tmp_path / "absent.exr"), 4)
+    junk = tmp_path / "junk.hdr"
+    junk.write_bytes(b"this is not an image")
+    with pytest.raises(ValueError, match=r"^The HDR file 'junk.hdr' cannot be read as an equirectangular map"):
+        pipeline.hdr_file_light(str(junk), 4)
+
+
+def test_preset_light_checks_the_name():
+    names = pipeline.preset_names()
+    assert "studio" in names
+    assert pipeline.preset_light("studio", 2) == "studio"
+    with pytest.raises(ValueError, match="The light preset 'nowhere' is not available"):
+        pipeline.preset_light("nowhere", 2)
+
+
+def test_world_pixels_are_scaled_like_hdr_files():
+    env = _equirect()
+    coeffs = pipeline.equirect_light(env, 4)
+    # the runtime scales maps to mean luminance 0.8 (docs/conventions.md)
+    assert sh.mean_luminance(coeffs) == pytest.approx(0.8, rel=1e-9)
+    raw = sh.project_equirect(env, 4)
+    # same direction in coefficient space: only a scale differs
+    scale = coeffs[0, 0] / raw[0, 0]
+    np.testing.assert_allclose(coeffs, raw * scale, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="twice as wide as high"):
+        pipeline.equirect_light(env[:, :20], 4)
+    with pytest.raises(ValueError, match="The World gives no usable light"):
+        pipeline.equirect_light(np.zeros((8, 16, 3), np.float32), 4)
+
+
+# ------------------------------------------------------------------ compositing
+
+def test_strength_blends_linearly_between_photo_and_relit():
+    rng = np.random.default_rng(3)
+    photo = rng.uniform(0, 1, (5, 7, 3)).astype(np.float32)
+    relit = rng.uniform(0, 2, (5, 7, 3)).astype(np.float32)
+    relit[0] = photo[0]  # background row: the runtime leaves it bit for bit
+    np.testing.assert_array_equal(pipeline.blend(relit, photo, 0.0), photo)
+    np.testing.assert_array_equal(pipeline.blend(relit, photo, 1.0), relit)
+    np.testing.assert_array_equal(pipeline.blend(relit, photo, 7.0), relit)  # clamped to 1
+    quarter = pipeline.blend(relit, photo, 0.25)
+    assert quarter.dtype == np.float32 and quarter.shape == photo.shape
+    # (relit - photo) * 0.25 + photo: three float32 roundings of values <= 2
+    np.testing.assert_allclose(quarter, 0.75 * photo + 0.25 * relit, atol=4 * EPS32)
+    np.testing.assert_array_equal(quarter[0], photo[0])
+    with pytest.raises(ValueError, match="differ in size"):
+        pipeline.blend(relit[:4], photo, 1.0)
+
+
+def test_env_flag(monkeypatch):
+    for value, expected in (("1", True), ("true", True), (" Yes ", True), ("on", True),
+                            ("0", False), ("", False), ("no", False)):
+        monkeypatch.setenv("RELIGHT_PHOTO_TEST_FLAG", value)
+        assert pipeline.env_flag("RELIGHT_PHOTO_TEST_FLAG") is expected
+    monkeypatch.delenv("RELIGHT_PHOTO_TEST_FLAG")
+    assert pipeline.env_flag("RELIGHT_PHOTO_TEST_FLAG") is False
+
+
+# ------------------------------------------------------------------ model lookup
+
+def test_model_lookup(tmp_path, monkeypatch):
+    from relight import models
+
+    with pytest.raises(ValueError, match=r"^The model file '.*absent.onnx' does not exist\.$"):
+        pipeline.model_path_for("BALANCED", str(tmp_path / "absent.onnx"))
+    given = tmp_path / "m.onnx"
+    given.write_bytes(b"x")
+    assert pipeline.model_path_for("DRAFT", str(given)) == given
+    empty = tmp_path / "reg" / "models.json"
+    empty.parent.mkdir()
+    empty.write_text(json.dumps({"format": models.REGISTRY_FORMAT, "default": None, "models": {}}))
+    monkeypatch.setattr(models, "REGISTRY_PATH", empty)
+    with pytest.raises(ValueError, match="No relighting model is installed"):
+        pipeline.model_path_for("BEST")
+    # a registered default whose file is gone
+    empty.write_text(json.dumps({"format": models.REGISTRY_FORMAT, "default": "a",
+                                 "models": {"a": {"file": "a.onnx", "sha256": "0" * 64}}}))
+    with pytest.raises(ValueError, match="The relighting model 'a.onnx' is missing"):
+        pipeline.model_path_for("BEST")
+    (empty.parent / "a.onnx").write_bytes(b"x")
+    assert pipeline.model_path_for("BEST") == empty.parent / "a.onnx"
+
+
+def test_worker_errors_become_one_sentence():
+    assert str(engine.user_error(ValueError("bad photo\nmore detail"))) == "bad photo."
+    assert "lower quality" in str(engine.user_error(MemoryError()))
+    assert str(engine.user_error(RuntimeError("ort crashed"))) == "The network failed (RuntimeError: ort crashed.)"
+    with pytest.raises(ValueError, match="does not exist"):
+        engine.open_relighter("/nonexistent/model.onnx")
+
+
+# ------------------------------------------------------------------ worker thread
+
+def test_background_job_runs_off_the_calling_thread():
+    release = threading.Event()
+    seen = {}
+
+    def work():
+        seen["thread"] = threading.current_thread()
+        release.wait(10)
+        return 42
+
+    job = jobs.BackgroundJob(work, label="t")
+    # the caller is not blocked: the job is still waiting for us
+    assert job.poll() is jobs.JobState.RUNNING
+    with pytest.raises(RuntimeError, match="has no result"):
+        job.result
+    release.set()
+    assert job.wait(10) is jobs.JobState.DONE
+    assert job.result == 42
+    assert seen["thread"] is not threading.main_thread()
+
+
+def test_cancelled_job_drops_its_result_and_failed_job_keeps_its_error():
+    release = threading.Event()
+    job = jobs.BackgroundJob(lambda: release.wait(10) or "late", label="c")
+    job.cancel()
+    assert job.poll() is jobs.JobState.CANCELLED
+    release.set()
+    job.wait(10)
+    assert job.poll() is jobs.JobState.CANCELLED
+    with pytest.raises(RuntimeError):
+        job.result
+
+    def boom():
+        raise ValueError("no person found")
+
+    failed = jobs.BackgroundJob(boom, label="f")
+    assert failed.wait(10) is jobs.JobState.FAILED
+    assert isinstance(failed.error, ValueError)
+
+
+# ------------------------------------------------------------------ manifest
+
+def test_source_manifest_follows_the_extension_rules():
+    data = manifest.load(ADDON_DIR / "blender_manifest.toml")
+    assert manifest.problems(data) == []
+    assert data["name"] == "Relight Photo" and data["type"] == "add-on"
+    assert set(data["permissions"]) == {"files"}
+    assert sorted(data["platforms"]) == sorted(manifest.PLATFORMS)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.pop("maintainer"), "missing required key 'maintainer'"),
+    (lambda d: d.update(version="1.0"), "'version' must be a version string"),
+    (lambda d: d.update(permissions={"files": "x", "network": "y"}), "only the 'files' permission"),
+    (lambda d: d.update(blender_version_min="4.1.0"), "4.2.0 or later"),
+    (lambda d: d.update(wheels=["./wheels\\a-1-py3-none-any.whl"]), "forward slashes"),
+    (lambda d: d.update(wheels=["./wheels/a.whl"]), "does not follow"),
+    (lambda d: d.update(license=["Apache-2.0"]), "SPDX"),
+    (lambda d: d.update(platforms=["linux-x64"]), "'platforms' must be"),
+])
+def test_manifest_rule_violations_are_named(change, message):
+    data = manifest.load(ADDON_DIR / "blender_manifest.toml")
+    change(data)
+    assert any(message in p for p in manifest.problems(data)), manifest.problems(data)
+
+
+def test_manifest_wheels_must_exist_in_the_package(tmp_path):
+    data = manifest.load(ADDON_DIR / "blender_manifest.toml")
+    missing = manifest.problems(data, tmp_path)
+    assert len(missing) == len(data["wheels"]) and all("not in the package" in m for m in missing)
+
+
+def test_no_network_code_in_the_addon():
+    # the add-on asks only for the 'files' permission; only the build script downloads
+    pattern = re.compile(r"^\s*(import|from)\s+(urllib|requests|socket|http|ftplib|aiohttp|ssl)\b", re.M)
+    offenders = [p.name for p in ADDON_DIR.glob("*.py")
+                 if p.name != "build.py" and pattern.search(p.read_text(encoding="utf-8"))]
+    assert offenders == []

@@ -1,0 +1,177 @@
+"""`relight image`: single photo, layers, folders, and every bad-input path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from export.random_model import export_random_model
+from relight.cli import main
+from relight.colour import srgb_encode
+from relight.exr import read_exr, write_exr
+from relight.photo import read_photo
+from relight.runtime import Relighter
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    path, _, _ = export_random_model(tmp_path_factory.mktemp("cli") / "tiny.onnx", seed=11,
+                                     sh_order=4, width=4, depth=2)
+    return str(path)
+
+
+def _save_photo(path, h=40, w=30, seed=0, alpha=False):
+    rng = np.random.default_rng(seed)
+    u8 = rng.integers(30, 220, (h, w, 4 if alpha else 3), dtype=np.uint8)
+    if alpha:
+        u8[..., 3] = 0
+        u8[5:35, 5:25, 3] = 255
+    Image.fromarray(u8).save(path)
+    return path
+
+
+def _run(capsys, *argv):
+    if "--quality" not in argv:
+        argv = (*argv, "--quality", "draft")  # 256 px: keeps the tests fast
+    code = main(["image", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_single_photo_matches_the_api(model, tmp_path, capsys):
+    photo = _save_photo(tmp_path / "p.png")
+    out = tmp_path / "o.png"
+    code, stdout, err = _run(capsys, photo, "--light", "studio", "--rotate", 30, "--exposure", 0.5,
+                             "--model", model, "--out", out, "--quality", "draft")
+    assert code == 0, err
+    assert f"wrote {out}" in stdout
+    img, _ = read_photo(photo)
+    d = Relighter(model, working_size=256).decompose(img)
+    expect = d.relight("studio", 30, 0.5)
+    got = np.asarray(Image.open(out)) / 255.0
+    # 8-bit sRGB output: within half a code value of the encoded API result
+    assert np.max(np.abs(got - srgb_encode(expect))) <= 0.5 / 255 + 1e-6
+
+
+def test_default_output_name_and_exr_output(model, tmp_path, capsys):
+    photo = _save_photo(tmp_path / "p.png", alpha=True)
+    code, _, err = _run(capsys, photo, "--light", "city", "--model", model)
+    assert code == 0, err
+    assert (tmp_path / "p_relit.png").is_file()
+    code, _, err = _run(capsys, photo, "--light", "city", "--model", model, "--out", tmp_path / "o.exr")
+    assert code == 0, err
+    img, _ = read_photo(photo)
+    got, _ = read_photo(tmp_path / "o.exr")
+    # the photo's alpha is the mask: transparent pixels are the untouched photo
+    np.testing.assert_array_equal(got[:5], img[:5])
+
+
+def test_light_transfer_from_another_photo(model, tmp_path, capsys):
+    photo = _save_photo(tmp_path / "p.png", seed=1)
+    donor = _save_photo(tmp_path / "donor.png", seed=2)
+    out = tmp_path / "t.exr"
+    code, _, err = _run(capsys, photo, "--light-from", donor, "--model", model, "--out", out)
+    assert code == 0, err
+    r = Relighter(model, working_size=256)
+    d = r.decompose(read_photo(photo)[0])
+    expect = d.relight(r.decompose(read_photo(donor)[0]))
+    # (reading an EXR photo clamps negative radiance, which a random network can produce)
+    np.testing.assert_array_equal(read_photo(out)[0], np.maximum(expect, 0))
+    code, _, err = _run(capsys, photo, "--light", "studio", "--light-from", donor, "--model", model)
+    assert code == 2 and "not allowed with" in err
+
+
+def test_layers_exr(model, tmp_path, capsys):
+    photo = _save_photo(tmp_path / "p.png")
+    out = tmp_path / "l.exr"
+    code, _, err = _run(capsys, photo, "--light", "city", "--model", model, "--out", out, "--layers")
+    assert code == 0, err
+    ch = read_exr(out)
+    assert {"Relight.Relit.R", "Relight.Albedo.G", "Relight.Shading.B", "Relight.Residual.R",
+            "Relight.Alpha.A"} <= set(ch)
+    assert ch["Relight.Relit.R"].shape == (40, 30)
+
+
+def test_folder_goes_on_after_a_failure(model, tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    for i in range(2):
+        _save_photo(src / f"p{i}.png", seed=i)
+    (src / "broken.jpg").write_bytes(b"\xff\xd8\xff\xe0 not really a jpeg")
+    (src / "notes.txt").write_text("ignored: not a photo suffix")
+    out = tmp_path / "out"
+    code, stdout, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", out)
+    assert code == 1
+    assert sorted(p.name for p in out.iterdir()) == ["p0.png", "p1.png"]
+    assert "relit 2 of 3 photos" in stdout
+    assert "broken.jpg" in err.strip().splitlines()[-1]
+
+
+def _bad_cases(tmp_path, model):
+    photo = _save_photo(tmp_path / "p.png")
+    cases = {}
+    (tmp_path / "empty.png").write_bytes(b"")
+    cases["empty"] = ([tmp_path / "empty.png"], "empty")
+    data = (tmp_path / "p.png").read_bytes()
+    (tmp_path / "trunc.png").write_bytes(data[: len(data) // 2])
+    cases["truncated"] = ([tmp_path / "trunc.png"], "truncated|corrupt")
+    (tmp_path / "text.png").write_text("hello")
+    cases["non-image"] = ([tmp_path / "text.png"], "not a readable image")
+    cases["missing"] = ([tmp_path / "nope.png"], "no such file")
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    (tmp_path / "huge.png").write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 45000, 45000, 8, 2, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(bytes(100))) + chunk(b"IEND", b""))
+    cases["huge header"] = ([tmp_path / "huge.png"], "too large")
+    Image.fromarray(np.full((10, 10), 255, np.uint8)).save(tmp_path / "small_mask.png")
+    cases["mask size"] = ([photo, "--mask", tmp_path / "small_mask.png"], "mask is 10x10")
+    Image.fromarray(np.zeros((40, 30), np.uint8)).save(tmp_path / "zero_mask.png")
+    cases["mask all zero"] = ([photo, "--mask", tmp_path / "zero_mask.png"], "empty")
+    nan = np.full((8, 16), np.nan, np.float32)
+    write_exr(tmp_path / "nan.exr", {"R": nan, "G": nan, "B": nan})
+    cases["hdr nan"] = ([photo, "--light", tmp_path / "nan.exr"], "NaN")
+    cases["unknown preset"] = ([photo, "--light", "nowhere"], "neither a file nor a preset")
+    cases["layers png"] = ([photo, "--layers", "--out", tmp_path / "x.png"], "--layers")
+    cases["bad suffix"] = ([photo, "--out", tmp_path / "x.jpg"], ".png or .exr")
+    tampered = tmp_path / "t.onnx"
+    raw = bytearray(open(model, "rb").read())
+    raw[100] ^= 1
+    tampered.write_bytes(bytes(raw))
+    (tmp_path / "t.onnx.sha256").write_text(open(model + ".sha256").read())
+    cases["tampered model"] = ([photo, "--model", tampered], "SHA-256 mismatch")
+    return cases
+
+
+def test_every_bad_input_is_one_line_and_writes_nothing(model, tmp_path, capsys):
+    for name, (args, message) in _bad_cases(tmp_path, model).items():
+        argv = list(args)
+        if "--light" not in argv:
+            argv += ["--light", "studio"]
+        if "--model" not in argv:
+            argv += ["--model", model]
+        if "--out" not in argv:
+            argv += ["--out", tmp_path / "result.png"]
+        before = sorted(p.name for p in tmp_path.iterdir())
+        code, _, err = _run(capsys, *argv)
+        assert code != 0, name
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("relight image: error:"), (name, err)
+        import re
+
+        assert re.search(message, lines[0]), (name, lines[0])
+        assert sorted(p.name for p in tmp_path.iterdir()) == before, name
+
+
+def test_folder_mode_usage_errors(model, tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    code, _, err = _run(capsys, src, "--light", "studio", "--model", model)
+    assert code == 2 and "needs --out" in err
+    code, _, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", tmp_path / "o")
+    assert code == 2 and "no photos" in err
+    assert not (tmp_path / "o").exists()

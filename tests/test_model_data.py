@@ -1,0 +1,165 @@
+"""Scene loading, cropping, splits (held-out lights never train), samples and their physics."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from model import data
+from model.synthetic import GLOSS, write_analytic_dataset
+from relight import presets
+from relight.prt import to_network_input
+
+HELD_OUT = frozenset(presets.HELD_OUT)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny tensors: one thread is faster, and 2 threads crawl when other jobs share the cores."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("analytic")
+    return write_analytic_dataset(folder, n_scenes=4, size=32, order=4, lights=("studio", "city", "venice"))
+
+
+def test_crop_box_is_a_padded_square_around_the_mask():
+    alpha = np.zeros((20, 30))
+    alpha[5:9, 10:20] = 1.0  # bbox 4 x 10
+    top, left, side = data.crop_box(alpha, padding=2)
+    assert side == 14 and left == 8 and top == 5 + 2 - 2 - 5  # centred vertically: (14 - 8) // 2 = 3 above
+    with pytest.raises(ValueError, match="empty alpha"):
+        data.crop_box(np.zeros((4, 4)), 1)
+
+
+def test_crop_resize_zero_extends_and_is_linear():
+    rng = np.random.default_rng(0)
+    planes = rng.uniform(size=(10, 10, 2)).astype(np.float32)
+    out = data.crop_resize(planes, (-2, -2, 12), 12)  # no resize: exact copy with a zero border
+    assert out.shape == (2, 12, 12)
+    np.testing.assert_array_equal(out[:, 2:, 2:], planes.transpose(2, 0, 1))
+    assert not out[:, :2].any() and not out[:, :, :2].any()
+    # resizing is linear: resize(a + 2b) = resize(a) + 2 resize(b) (float32 round-off)
+    a, b = planes[..., :1], planes[..., 1:]
+    lhs = data.crop_resize(a + 2 * b, (0, 0, 10), 4)
+    rhs = data.crop_resize(a, (0, 0, 10), 4) + 2 * data.crop_resize(b, (0, 0, 10), 4)
+    np.testing.assert_allclose(lhs, rhs, rtol=1e-5, atol=1e-6)
+
+
+def test_split_by_body_is_deterministic_and_disjoint(scenes):
+    train, val = data.split_by_body(scenes, 0.25, seed=3)
+    assert (train, val) == data.split_by_body(scenes, 0.25, seed=3)
+    assert len(val) == 1 and len(train) == 3 and not set(train) & set(val)
+    bodies = lambda ps: {data.body_key(json.loads(p.read_text())) for p in ps}
+    assert not bodies(train) & bodies(val)
+    with pytest.raises(ValueError):
+        data.split_by_body(scenes, 1.0)
+
+
+def test_training_samples_never_use_held_out_lights(scenes):
+    bank = [("park", np.eye(25, 3, dtype=np.float32) + 1.0)]
+    ds = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=bank, extra_light_prob=0.5, held_out=HELD_OUT)
+    seen = set()
+    for epoch in range(6):
+        for i in range(len(ds)):
+            s = ds.item(i, epoch)
+            seen |= {s["light_name"], s["target_light_name"]}
+    # the scenes' venice renders exist but never reach training; the others do
+    assert seen <= {"studio", "city", "park"} and {"studio", "city", "park"} <= seen
+    with pytest.raises(AssertionError, match="held-out"):
+        data.TrainingScenes(scenes, 32, 4, extra_lights=[("venice", bank[0][1])], held_out=HELD_OUT)
+
+
+def test_preset_light_bank_excludes_held_out_maps():
+    names = [name for name, _ in data.preset_training_lights(2)]
+    assert names and not set(names) & HELD_OUT
+    assert all(light.shape == (9, 3) for _, light in data.preset_training_lights(2)[:1])
+
+
+def test_training_sample_ranges_physics_and_determinism(scenes):
+    ds = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], extra_light_prob=0.5, held_out=HELD_OUT)
+    a, b = ds.item(1, 0), ds.item(1, 0)
+    for key in a:
+        if isinstance(a[key], torch.Tensor):
+            assert torch.equal(a[key], b[key]), key
+    assert any(not torch.equal(ds.item(1, e)["input"], a["input"]) for e in range(1, 4))
+    for epoch in range(4):
+        s = ds.item(0, epoch)
+        assert s["input"].shape == (3, 32, 32) and s["transport"].shape == (25, 32, 32)
+        assert s["light"].shape == (25, 3) and s["alpha"].shape == (1, 32, 32)
+        assert s["input"].min() >= -1 and s["input"].max() <= 1
+        assert s["alpha"].min() >= 0 and s["alpha"].max() <= 1
+        assert all(torch.isfinite(v).all() for v in s.values() if isinstance(v, torch.Tensor))
+        # on fully covered pixels the target is the PRT rendering rho * S (extra light) or
+        # the analytic "path tracer" (rho + GLOSS) * S (scene light), S = T . L. Exact up to
+        # resampling: resize(rho S) - resize(rho) resize(S) is a covariance over the filter
+        # footprint, <= stripe contrast (0.34) x shading change over ~2 source pixels (~0.03)
+        inner = s["alpha"][0] > 0.999
+        shading = torch.einsum("nhw,nc->chw", s["transport"], s["target_light"])
+        prt = s["albedo"] * shading
+        err = torch.minimum((s["target_image"] - prt).abs(), (s["target_image"] - prt - GLOSS * shading).abs())
+        assert float(err[:, inner].max()) < 0.01
+        assert float(err[:, inner].median()) < 1e-5
+
+
+def test_reference_radiance_of_extra_lights():
+    rng = np.random.default_rng(0)
+    from relight import sh
+
+    base = np.random.default_rng(1).normal(size=(9, 3)) * 0.3
+    base[0] += 3.0  # a positive mean light
+    for _ in range(5):
+        light = data.random_reference_light(base, rng)
+        # float32 storage of the scaled light: relative error ~1e-7
+        assert 0.7 - 1e-6 <= sh.mean_luminance(light) <= 0.9 + 1e-6
+        # a Z rotation keeps band energies: |L_l| unchanged up to the scale
+        scale = sh.mean_luminance(light) / sh.mean_luminance(base)
+        np.testing.assert_allclose(np.linalg.norm(light[1:4]), scale * np.linalg.norm(base[1:4]), rtol=1e-5)
+
+
+def test_evaluation_pairs_target_held_out_lights(scenes):
+    pairs = data.EvaluationPairs(scenes[:2], 32, 4, padding=2, held_out_only=True, held_out=HELD_OUT)
+    assert len(pairs) == 4  # per scene: (studio -> venice), (city -> venice)
+    for i in range(len(pairs)):
+        s = pairs[i]
+        assert s["light_b"] == "venice" and s["light_a"] in ("studio", "city")
+        expected = to_network_input(s["image"].numpy().transpose(1, 2, 0), s["alpha"].numpy()[0])
+        np.testing.assert_allclose(s["input"].numpy().transpose(1, 2, 0), expected, rtol=0, atol=1e-6)
+
+
+def test_missing_dataset_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="no finished scenes"):
+        data.find_scenes(tmp_path)
+    with pytest.raises(ValueError, match="does not exist"):
+        data.find_scenes(tmp_path / "nope")
+
+
+def test_mirror_signs_match_the_sh_basis_and_keep_shading():
+    from relight import sh
+
+    rng = np.random.default_rng(0)
+    dirs = rng.normal(size=(50, 3))
+    mirrored = dirs * [-1.0, 1.0, 1.0]
+    signs = data.mirror_signs(4)
+    np.testing.assert_allclose(sh.sh_basis(mirrored, 4), sh.sh_basis(dirs, 4) * signs, rtol=1e-12, atol=1e-12)
+    assert signs[:4].tolist() == [1, 1, 1, -1]  # Y00, y, z unchanged; x flips
+
+
+def test_flipped_samples_are_mirror_images(scenes):
+    kw = dict(padding=2, extra_lights=[], held_out=HELD_OUT, mask_prob=1.0)
+    plain = data.TrainingScenes(scenes, 32, 4, flip_prob=0.0, **kw)
+    flipped = data.TrainingScenes(scenes, 32, 4, flip_prob=1.0, **kw)
+    a, b = plain.item(2, 5), flipped.item(2, 5)  # same seed: same lights and background
+    signs = torch.from_numpy(data.mirror_signs(4))
+    torch.testing.assert_close(b["input"], a["input"].flip(-1))
+    torch.testing.assert_close(b["transport"], a["transport"].flip(-1) * signs[:, None, None])
+    torch.testing.assert_close(b["light"], a["light"] * signs[:, None])
+    # shading is a mirror image: (s T) . (s L) = T . L
+    shade = lambda s: torch.einsum("nhw,nc->chw", s["transport"], s["target_light"])
+    torch.testing.assert_close(shade(b), shade(a).flip(-1), rtol=1e-5, atol=1e-6)

@@ -1,0 +1,59 @@
+"""model.metrics against hand-computed values; finite for zeros and huge values; clear errors."""
+
+import math
+
+import numpy as np
+import pytest
+
+from model import metrics
+
+
+def _pair():
+    """2x1 image, 3 channels; pixel 1 is background (alpha 0) and must not count."""
+    pred = np.array([[[0.5, 0.2, 0.9]], [[100.0, -50.0, 7.0]]])
+    target = np.array([[[0.4, 0.4, 0.4]], [[0.0, 0.0, 0.0]]])
+    mask = np.array([[1.0], [0.0]])
+    return pred, target, mask
+
+
+def test_hand_computed_values():
+    pred, target, mask = _pair()
+    # person pixel: errors 0.1, 0.2, 0.5
+    assert metrics.l1(pred, target, mask) == pytest.approx((0.1 + 0.2 + 0.5) / 3, rel=1e-12)
+    mse = (0.01 + 0.04 + 0.25) / 3
+    assert metrics.l2(pred, target, mask) == pytest.approx(mse, rel=1e-12)
+    assert metrics.psnr(pred, target, mask) == pytest.approx(10 * math.log10(1.0 / mse), rel=1e-12)
+    # soft coverage weights pixels: alpha 0.5 on a second pixel with error 1 everywhere
+    p = np.array([[[1.0, 1.0, 1.0]], [[1.0, 1.0, 1.0]]])
+    t = np.array([[[1.0, 1.0, 1.0]], [[0.0, 0.0, 0.0]]])
+    assert metrics.l1(p, t, np.array([[1.0], [0.5]])) == pytest.approx(0.5 / 1.5, rel=1e-12)
+    # no mask: every pixel
+    assert metrics.l1(p, t) == pytest.approx(0.5, rel=1e-12)
+
+
+def test_identical_images_cap_psnr_and_zeros_are_finite():
+    zeros = np.zeros((4, 4, 3))
+    assert metrics.l1(zeros, zeros) == 0.0 and metrics.l2(zeros, zeros) == 0.0
+    assert metrics.psnr(zeros, zeros) == pytest.approx(100.0)  # MSE floored at 1e-10
+
+
+def test_huge_values_stay_finite():
+    big = np.full((2, 2, 3), 1e150)
+    value = metrics.psnr(big, np.zeros_like(big))
+    # MSE = 1e300 -> PSNR = -3000 dB exactly, no overflow in the squares
+    assert math.isfinite(value) and value == pytest.approx(-3000.0, rel=1e-9)
+    assert metrics.psnr(np.full((1, 1, 3), 1e300), np.zeros((1, 1, 3))) == pytest.approx(-6000.0, rel=1e-9)
+    f32 = np.full((2, 2, 3), 3e38, dtype=np.float32)
+    assert math.isfinite(metrics.l2(f32, -f32))
+
+
+@pytest.mark.parametrize("pred, target, mask, match", [
+    (np.zeros((2, 2, 3)), np.zeros((2, 3, 3)), None, "shape"),
+    (np.full((2, 2, 3), np.nan), np.zeros((2, 2, 3)), None, "NaN"),
+    (np.zeros((2, 2, 3)), np.zeros((2, 2, 3)), np.zeros((2, 2)), "empty"),
+    (np.zeros((2, 2, 3)), np.zeros((2, 2, 3)), np.zeros((3, 2)), "mask shape"),
+    (np.zeros((2, 3)), np.zeros((2, 3)), None, r"\[H, W, C\]"),
+])
+def test_bad_input_raises_value_error(pred, target, mask, match):
+    with pytest.raises(ValueError, match=match):
+        metrics.l1(pred, target, mask)

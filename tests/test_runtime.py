@@ -1,0 +1,325 @@
+"""Runtime: hash check, decomposition, relighting maths, compositing, light sources, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from export.random_model import export_random_model
+from relight import models, sh
+from relight.exr import write_exr
+from relight.prt import to_network_input
+from relight.runtime import Relighter, bilinear_rows, resolve_light
+
+ORDER = 4
+N = (ORDER + 1) ** 2
+EPS32 = float(np.finfo(np.float32).eps)
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    path, _, _ = export_random_model(tmp_path_factory.mktemp("rt") / "tiny.onnx", seed=7,
+                                     sh_order=ORDER, width=4, depth=2)
+    return path
+
+
+@pytest.fixture(scope="module")
+def relighter(model_path):
+    return Relighter(model_path, threads=1, working_size=64)
+
+
+def _photo(h=48, w=64, seed=0):
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    base = np.stack([0.3 + 0.4 * x, 0.2 + 0.5 * y, 0.5 - 0.3 * x * y], axis=-1)
+    return (base * rng.uniform(0.7, 1.0, (h, w, 3))).astype(np.float32)
+
+
+def _formula(d, L):
+    """albedo * (T . L) + E . L in float64, and a bound on its float32 rounding error."""
+    L = np.asarray(L, np.float64)
+    a, T, E = (np.asarray(v, np.float64) for v in (d.albedo, d.transport, d.residual))
+    exact = a * (T @ L) + E @ L
+    # float32 dot products of n terms: error <= n * eps * sum |terms| (Higham);
+    # the light itself was rounded to float32 (relative eps per coefficient)
+    bound = (N + 2) * EPS32 * (np.abs(a) * (np.abs(T) @ np.abs(L)) + np.abs(E) @ np.abs(L))
+    return exact, bound + 1e-30
+
+
+def test_own_light_reproduces_the_networks_reconstruction(relighter):
+    photo = _photo()
+    mask = np.ones(photo.shape[:2], np.float32)
+    d = relighter.decompose(photo, mask)
+    assert d.box == (0, 48, 0, 64) and d.working_size == (48, 64)
+    # the network's own outputs for the same input
+    raw = relighter.run(to_network_input(photo, mask).transpose(2, 0, 1)[None])
+    np.testing.assert_array_equal(d.albedo, raw["albedo"][0].transpose(1, 2, 0))
+    np.testing.assert_array_equal(d.light, raw["light"][0])
+    out = d.relight(d)
+    exact, bound = _formula(d, d.light)
+    assert np.all(np.abs(out - exact) <= bound)
+
+
+def test_sh_light_matches_the_formula_on_matte_pixels(relighter):
+    photo = _photo(seed=1)
+    mask = np.zeros(photo.shape[:2], np.float32)
+    mask[5:40, 10:50] = 1.0
+    d = relighter.decompose(photo, mask, working_size=44)  # the crop's own size: no resampling
+    rng = np.random.default_rng(2)
+    L = rng.normal(0, 0.3, (N, 3))
+    out = d.relight(L)
+    y0, y1, x0, x1 = d.box
+    assert (y0, y1, x0, x1) == (3, 42, 8, 52)  # mask box + 2 px margin
+    exact, bound = _formula(d, L.astype(np.float32))
+    inside = mask[y0:y1, x0:x1] > 0
+    assert np.all(np.abs(out[y0:y1, x0:x1][inside] - exact[inside]) <= bound[inside])
+
+
+def test_outside_matte_pixels_are_untouched_bit_for_bit(relighter):
+    photo = _photo(seed=2)
+    mask = np.zeros(photo.shape[:2], np.float32)
+    mask[10:30, 20:40] = np.linspace(0, 1, 20)[None, :]  # soft edge, zeros in column 20
+    d = relighter.decompose(photo, mask)
+    out = d.relight("studio", rotation_deg=45, exposure_ev=1.5)
+    outside = mask == 0
+    np.testing.assert_array_equal(out[outside], photo[outside])
+    assert not np.allclose(out[~outside], photo[~outside])
+    # and without a mask: pixels the predicted matte leaves out, and everything outside the crop
+    d2 = relighter.decompose(photo)
+    out2 = d2.relight("studio")
+    alpha = d2.full_alpha()
+    np.testing.assert_array_equal(out2[alpha == 0], photo[alpha == 0])
+
+
+def test_rotating_by_360_degrees_is_identity(relighter):
+    d = relighter.decompose(_photo(seed=3), np.ones((48, 64), np.float32))
+    L = np.random.default_rng(4).normal(0, 0.3, (N, 3))
+    a, b = d.relight(L), d.relight(L, rotation_deg=360.0)
+    np.testing.assert_array_equal(a, b)  # whole turns are recognised exactly
+    c = d.relight(L, rotation_deg=360.0 + 1e-9)
+    # a rotation matrix 1e-9 rad from identity: coefficients move by ~1e-9 * l
+    np.testing.assert_allclose(c, a, atol=1e-6)
+    Lr = resolve_light(L, ORDER, rotation_deg=123.0)
+    back = resolve_light(Lr, ORDER, rotation_deg=237.0)
+    np.testing.assert_allclose(back, L, atol=1e-9)
+
+
+def test_exposure_plus_one_doubles_the_persons_radiance(relighter):
+    mask = np.zeros((48, 64), np.float32)
+    mask[4:44, 8:56] = 1.0
+    d = relighter.decompose(_photo(seed=4), mask)
+    a, b = d.relight("studio"), d.relight("studio", exposure_ev=1.0)
+    person = mask == 1
+    # scaling the light by 2 is exact in binary floating point, and alpha == 1 there
+    np.testing.assert_array_equal(b[person], 2.0 * a[person])
+    np.testing.assert_array_equal(b[~person], a[~person])
+
+
+def test_sh_of_any_order_is_truncated_or_zero_padded(relighter):
+    d = relighter.decompose(_photo(seed=5), np.ones((48, 64), np.float32))
+    rng = np.random.default_rng(6)
+    low = rng.normal(0, 0.3, (9, 3))
+    padded = np.zeros((N, 3))
+    padded[:9] = low
+    np.testing.assert_array_equal(d.relight(low), d.relight(padded))
+    high = rng.normal(0, 0.3, (49, 3))
+    np.testing.assert_array_equal(d.relight(high), d.relight(high[:N]))
+
+
+def test_light_transfer_uses_the_other_photos_light(relighter):
+    mask = np.ones((48, 64), np.float32)
+    d1 = relighter.decompose(_photo(seed=6), mask)
+    d2 = relighter.decompose(_photo(seed=7)[::-1].copy(), mask)
+    assert not np.allclose(d1.light, d2.light)
+    np.testing.assert_array_equal(d1.relight(d2), d1.relight(d2.light))
+
+
+def test_hdr_map_light_is_projected_and_normalised(relighter, tmp_path):
+    d = relighter.decompose(_photo(seed=8), np.ones((48, 64), np.float32))
+    h, w = 64, 128
+    value = 3.0
+    path = tmp_path / "white.exr"
+    write_exr(path, {c: np.full((h, w), value, np.float32) for c in "RGB"})
+    # a constant map has only L00 = value * integral(Y00) = value * 2 sqrt(pi)
+    raw = resolve_light(str(path), ORDER, normalize=False)
+    # (the row quadrature is midpoint-like: its error on the zonal terms falls as
+    # 1/H^2, measured 5e-3 of L00 at H = 16, so 1e-3 holds with margin at H = 64)
+    np.testing.assert_allclose(raw[0], value * 2 * math.sqrt(math.pi), rtol=1e-3)
+    np.testing.assert_allclose(raw[1:], 0, atol=1e-3 * raw[0, 0])
+    norm = resolve_light(path, ORDER)
+    assert sh.mean_luminance(norm) == pytest.approx(0.8, rel=1e-9)
+    np.testing.assert_array_equal(d.relight(path), d.relight(norm))
+    np.testing.assert_array_equal(d.relight(str(path), normalize=False), d.relight(raw))
+    # the cache notices a changed file
+    write_exr(path, {c: np.full((h, w), 2 * value, np.float32) for c in "RGB"})
+    np.testing.assert_allclose(resolve_light(path, ORDER, normalize=False), 2 * raw, rtol=1e-6)
+
+
+def test_layers_recompose_the_relit_person(relighter):
+    mask = np.zeros((48, 64), np.float32)
+    mask[2:46, 2:62] = 1.0
+    d = relighter.decompose(_photo(seed=9), mask)
+    assert d.box == (0, 48, 0, 64) and d.working_size == (48, 64)  # no resampling
+    L = np.random.default_rng(10).normal(0, 0.3, (N, 3))
+    lay = d.layers(L)
+    assert set(lay) == {"albedo", "shading", "residual", "alpha"}
+    assert lay["albedo"].shape == (48, 64, 3) and lay["alpha"].shape == (48, 64)
+    np.testing.assert_array_equal(lay["alpha"], mask)
+    out = d.relight(L)
+    person = mask == 1
+    recomposed = lay["albedo"] * lay["shading"] + lay["residual"]
+    # one extra float32 rounding each for the product and the sum
+    np.testing.assert_allclose(recomposed[person], out[person], rtol=4 * EPS32, atol=1e-7)
+    own = d.layers()
+    exact, bound = _formula(d, d.light)
+    y0, y1, x0, x1 = d.box
+    np.testing.assert_allclose(own["shading"][y0:y1, x0:x1][person[y0:y1, x0:x1]],
+                               (np.asarray(d.transport, np.float64) @ d.light)[person[y0:y1, x0:x1]],
+                               rtol=1e-5, atol=1e-6)
+
+
+def test_bilinear_upsampling_reproduces_affine_ramps():
+    h, w = 5, 7
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    src = (0.5 * y - 0.25 * x + 1.0)[..., None].astype(np.float32)
+    H, W = 15, 28
+    out = bilinear_rows(src, H, W)[..., 0]
+    # output pixel centres map to source coordinates (i + 0.5) * h / H - 0.5
+    sy = (np.arange(H) + 0.5) * h / H - 0.5
+    sx = (np.arange(W) + 0.5) * w / W - 0.5
+    interior = (sy >= 0) & (sy <= h - 1)
+    icol = (sx >= 0) & (sx <= w - 1)
+    expect = 0.5 * sy[:, None] - 0.25 * sx[None, :] + 1.0
+    np.testing.assert_allclose(out[np.ix_(interior, icol)], expect[np.ix_(interior, icol)], atol=1e-6)
+    np.testing.assert_array_equal(bilinear_rows(src, h, w), src)  # same size: identity
+    np.testing.assert_allclose(bilinear_rows(src, H, W, 3, 9), bilinear_rows(src, H, W)[3:9])
+
+
+def test_large_photo_keeps_fine_detail_and_compositing_is_consistent(relighter):
+    # 4x the working size: the network sees a box-filtered crop
+    H, W = 192, 256
+    rng = np.random.default_rng(11)
+    photo = (0.4 + 0.2 * rng.uniform(size=(H, W, 3))).astype(np.float32)
+    mask = np.ones((H, W), np.float32)
+    d = relighter.decompose(photo, mask)
+    assert d.working_size == (48, 64)
+    # box filter of a 4x4 block is its mean
+    np.testing.assert_allclose(d.photo_working, photo.reshape(48, 4, 64, 4, 3).mean(axis=(1, 3)),
+                               rtol=1e-5)
+    L = np.random.default_rng(12).normal(0, 0.3, (N, 3))
+    L[0] = [2.0, 2.0, 2.0]
+    flat = d.relight(L, detail=False)
+    np.testing.assert_allclose(flat, bilinear_rows(d.relight_working(L), H, W), rtol=1e-6, atol=1e-7)
+    detailed = d.relight(L)
+    # detail: the full-resolution photo times the upsampled quotient relit / photo
+    eps = 1e-3
+    quotient = (d.relight_working(L) + eps) / (d.photo_working + eps)
+    expect = (photo + eps) * bilinear_rows(quotient, H, W) - eps
+    np.testing.assert_allclose(detailed, expect, rtol=1e-5, atol=1e-6)
+    # a smooth photo has no detail to restore: both ways agree to the resampling error
+    smooth = np.broadcast_to(np.linspace(0.3, 0.6, W, dtype=np.float32)[None, :, None], (H, W, 3)).copy()
+    ds = relighter.decompose(smooth, mask)
+    np.testing.assert_allclose(ds.relight(L), ds.relight(L, detail=False), rtol=0.05, atol=1e-3)
+
+
+def test_decompose_without_mask_finds_a_box_and_is_deterministic(relighter):
+    photo = _photo(96, 128, seed=13)
+    a, b = relighter.decompose(photo), relighter.decompose(photo)
+    y0, y1, x0, x1 = a.box
+    assert 0 <= y0 < y1 <= 96 and 0 <= x0 < x1 <= 128
+    assert a.box == b.box and max(a.working_size) == 64
+    np.testing.assert_array_equal(a.relight("studio"), b.relight("studio"))
+    assert np.all((a.alpha == 0) | (a.alpha >= 1 / 255))
+
+
+def test_tampered_model_is_refused(model_path, tmp_path):
+    bad = tmp_path / "m.onnx"
+    data = bytearray(model_path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    models.sidecar_path(bad).write_text(models.sidecar_path(model_path).read_text())
+    with pytest.raises(ValueError, match="SHA-256 mismatch.*refusing"):
+        Relighter(bad)
+    models.sidecar_path(bad).unlink()
+    with pytest.raises(ValueError, match="no SHA-256"):
+        Relighter(bad)
+    with pytest.raises(ValueError, match="not found"):
+        Relighter(tmp_path / "absent.onnx")
+
+
+def test_graph_without_relight_metadata_is_refused(model_path, tmp_path):
+    import onnx
+
+    m = onnx.load(str(model_path))
+    del m.metadata_props[:]
+    path = tmp_path / "plain.onnx"
+    onnx.save(m, str(path))
+    models.write_sidecar(path)
+    with pytest.raises(ValueError, match="not a relighting model"):
+        Relighter(path)
+
+
+@pytest.mark.parametrize("photo, mask, message", [
+    (np.zeros((48, 64)), None, "shape"),
+    (np.zeros((48, 64, 3), np.uint8), None, "floating"),
+    (np.full((48, 64, 3), np.nan, np.float32), None, "NaN"),
+    (np.zeros((1, 64, 3), np.float32), None, "too small"),
+    (np.zeros((48, 64, 3), np.float32), np.ones((48, 63)), "mask must be"),
+    (np.zeros((48, 64, 3), np.float32), np.zeros((48, 64)), "empty"),
+    (np.zeros((48, 64, 3), np.float32), np.full((48, 64), 2.0), r"\[0, 1\]"),
+    (np.zeros((48, 64, 3), np.float32), np.full((48, 64), np.nan), "finite"),
+])
+def test_bad_decompose_input(relighter, photo, mask, message):
+    with pytest.raises(ValueError, match=message):
+        relighter.decompose(photo, mask)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(light=np.zeros((5, 3))), "coeff|square|order"),
+    (dict(light=np.full((9, 3), np.nan)), "NaN|finite"),
+    (dict(light=object()), "light must be"),
+    (dict(light="no-such-preset"), "neither a file nor a preset"),
+    (dict(light=""), "empty"),
+    (dict(light=np.zeros((9, 3)), rotation_deg=float("nan")), "finite"),
+    (dict(light=np.zeros((9, 3)), exposure_ev="bright"), "exposure"),
+    (dict(light=np.zeros((9, 3)), exposure_ev=1e6), "exposure"),
+])
+def test_bad_relight_input(relighter, kwargs, message):
+    d = relighter.decompose(_photo(), np.ones((48, 64), np.float32))
+    with pytest.raises(ValueError, match=message):
+        d.relight(**kwargs)
+
+
+def test_bad_session_options(model_path):
+    with pytest.raises(ValueError, match="threads"):
+        Relighter(model_path, threads=0)
+    with pytest.raises(ValueError, match="quality"):
+        Relighter(model_path, working_size="ultra")
+    with pytest.raises(ValueError, match="working size"):
+        Relighter(model_path, working_size=8)
+
+
+def test_runtime_modules_import_neither_torch_nor_bpy_nor_onnx():
+    import subprocess
+    import sys
+
+    code = ("import sys, relight.runtime, relight.photo, relight.cli_image, relight.models, relight.cli; "
+            "relight.cli.build_parser(); "
+            "print(sorted(m for m in ('torch', 'bpy', 'onnx', 'onnxconverter_common') if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+
+
+def test_preview_is_the_working_resolution_composite(relighter):
+    photo = _photo(96, 128, seed=14)
+    mask = np.zeros((96, 128), np.float32)
+    mask[20:80, 30:100] = 1.0
+    d = relighter.decompose(photo, mask)
+    prev = d.preview("studio", rotation_deg=10)
+    assert prev.shape == d.working_size + (3,)
+    a = d.alpha[..., None]
+    np.testing.assert_array_equal(prev, a * d.relight_working("studio", 10) + (1 - a) * d.photo_working)
+    np.testing.assert_array_equal(prev[d.alpha == 0], d.photo_working[d.alpha == 0])
