@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_runtime.py [--repeats 3] [--sizes 256 512 1024] [--quick]
 
-Uses the default RelightNet config (width 32, depth 4, SH order 4) with seeded
+Uses the default RelightNet config (model.network.PRESETS["default"]) with seeded
 random weights (timings do not depend on the weight values), exported to fp32
 and fp16 ONNX in a temporary folder. Prints Markdown tables (medians).
 """

@@ -1,6 +1,7 @@
 """Training throughput of RelightNet (images/s): forward + all losses + backward + AdamW step.
 
     .venv/bin/python benchmarks/bench_train.py [--size 256] [--batch 4] [--steps 3] [--variants]
+        [--preset default|small|paper] [--width W]
 
 Random inputs with the shapes of real samples (the data pipeline is timed
 separately: --data DIR times model.data.TrainingScenes items). Prints a
@@ -16,7 +17,7 @@ import time
 import torch
 
 from model.losses import LossWeights, relight_losses
-from model.network import RelightNet
+from model.network import PRESETS, RelightNet
 
 
 def fake_batch(batch: int, size: int, n: int) -> dict:
@@ -70,7 +71,9 @@ def main() -> None:
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--steps", type=int, default=3)
-    p.add_argument("--width", type=int, default=32)
+    p.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                   help="network layout (model.network.PRESETS; paper: the heavy original)")
+    p.add_argument("--width", type=int, help="override the preset's width")
     p.add_argument("--variants", action="store_true", help="also time the ablations")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--data", help="also time TrainingScenes items from this dataset folder")
@@ -89,7 +92,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     base = None
     for name, flags in variants.items():
-        ips, infer, params, gflop = time_training({"width": args.width, **flags}, args.batch, args.size, args.steps)
+        base_config = {**PRESETS[args.preset], **({"width": args.width} if args.width else {})}
+        ips, infer, params, gflop = time_training({**base_config, **flags}, args.batch, args.size, args.steps)
         base = base or ips
         print(f"| {name} | {params / 1e6:.1f} | {gflop:.1f} | {ips:.3f} | {ips / base:.2f} | {infer:.3f} |",
               flush=True)

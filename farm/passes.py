@@ -43,8 +43,14 @@ def mesh_object(
     normals: np.ndarray,
     attributes: dict[str, np.ndarray] | None = None,
     uvs: np.ndarray | None = None,
+    *,
+    scene: bpy.types.Scene,
 ) -> bpy.types.Object:
-    """A smooth-shaded triangle mesh with our own vertex normals and float3 point attributes."""
+    """A smooth-shaded triangle mesh with our own vertex normals and float3 point attributes.
+
+    Linked into `scene` explicitly: after a temporary scene was rendered and
+    removed (render_sky_equirect), bpy.context.scene must not be trusted.
+    """
     vertices = np.ascontiguousarray(vertices, dtype=np.float32)
     faces = np.ascontiguousarray(faces, dtype=np.int32)
     mesh = bpy.data.meshes.new(name)
@@ -73,7 +79,7 @@ def mesh_object(
         loop_uv = np.asarray(uvs, dtype=np.float32)[faces.ravel()]
         layer.data.foreach_set("uv", loop_uv.ravel())
     obj = bpy.data.objects.new(name, mesh)
-    bpy.context.scene.collection.objects.link(obj)
+    scene.collection.objects.link(obj)
     return obj
 
 
@@ -378,7 +384,8 @@ def sh_world(scene: bpy.types.Scene, index: int) -> None:
 
 
 def camera_object(
-    location: np.ndarray, rotation: np.ndarray, focal_mm: float, sensor_mm: float = 36.0
+    location: np.ndarray, rotation: np.ndarray, focal_mm: float, sensor_mm: float = 36.0,
+    *, scene: bpy.types.Scene,
 ) -> bpy.types.Object:
     """A perspective camera with world matrix [rotation | location] (Blender camera axes)."""
     import mathutils
@@ -390,12 +397,12 @@ def camera_object(
     data.clip_start = 0.05
     data.clip_end = 100.0
     obj = bpy.data.objects.new("camera", data)
-    bpy.context.scene.collection.objects.link(obj)
+    scene.collection.objects.link(obj)
     m = np.eye(4)
     m[:3, :3] = rotation
     m[:3, 3] = location
     obj.matrix_world = mathutils.Matrix(m.tolist())
-    bpy.context.scene.camera = obj
+    scene.camera = obj
     return obj
 
 

@@ -12,11 +12,13 @@ node sees at the same path (NFS or similar); Ray is imported only here.
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import shutil
 import signal
 import socket
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -51,6 +53,43 @@ class JobSetupError(RuntimeError):
 
 
 _JOB_CACHE: dict = {}
+# Each Ray worker process keeps the scene code's scratch in its own temp folder,
+# so the scratch of a process killed mid-scene can be found and removed later.
+RAY_TMP_PREFIX = "farm_ray_"
+_SYSTEM_TMP = Path(tempfile.gettempdir())
+_PRIVATE_TMP: Path | None = None
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_dead_workers_tmp(base: Path = _SYSTEM_TMP) -> list[str]:
+    """Delete the private temp folders of Ray worker processes (on this node) that are gone."""
+    removed = []
+    for path in base.glob(RAY_TMP_PREFIX + "*"):
+        pid = path.name[len(RAY_TMP_PREFIX):]
+        if pid.isdigit() and not _pid_alive(int(pid)):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path.name)
+    return removed
+
+
+def _use_private_tmp() -> None:
+    global _PRIVATE_TMP
+    if _PRIVATE_TMP is None:
+        remove_dead_workers_tmp()
+        _PRIVATE_TMP = _SYSTEM_TMP / f"{RAY_TMP_PREFIX}{os.getpid()}"
+        _PRIVATE_TMP.mkdir(exist_ok=True)
+        atexit.register(shutil.rmtree, _PRIVATE_TMP, True)  # a normal exit (max_calls) tidies up
+        tempfile.tempdir = str(_PRIVATE_TMP)
+        os.environ["TMPDIR"] = str(_PRIVATE_TMP)
 
 
 def _attempt_log(out: Path, index: int) -> Path:
@@ -91,6 +130,7 @@ def render_task(job_module: str, settings: dict, index: int, seed: int, out: str
     out_dir = Path(out)
     # Each task holds one CPU of the cluster: one Cycles thread (farm.passes reads it).
     os.environ.setdefault("RELIGHT_CYCLES_THREADS", "1")
+    _use_private_tmp()
     _note(out_dir, index, "start")
     free = shutil.disk_usage(out_dir).free
     if free < need_bytes:
@@ -171,6 +211,7 @@ def run_on_ray(config: RunConfig) -> Summary:
     finally:
         if started_here:
             ray.shutdown()
+        remove_dead_workers_tmp()  # this node's; other nodes clean up as their next task starts
     summary = book.close()
     if summary.abort:
         raise FarmError(summary.abort)

@@ -188,7 +188,6 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
             lights.sample_light(rng, pool, options.sh_order, cam.world_to_camera, sky_render)
             for _ in range(options.lights)
         ]
-        scene = bpy.context.scene
         stage("lights", t0)
 
         # Transport bake in the camera frame (rays are invariant under the rigid change of frame).
@@ -235,7 +234,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
         # Blender scene.
         t0 = time.perf_counter()
         passes.configure_film(scene, (options.resolution, options.resolution))
-        passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM)
+        passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
         attribute_names = ["normal", "depth"]
         if transport is not None:
             attribute_names += [f"t{i}" for i in range((n_coeffs + 2) // 3)]
@@ -251,7 +250,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
             if transport is not None:
                 for k, block in enumerate(passes.pack_vectors(transport[lo:hi])):
                     attrs[f"t{k}"] = block
-            obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs)
+            obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
             mat, base_socket, params_socket = appearance.build_material(part.name, part.material)
             passes.add_attribute_aovs(mat, attribute_names)
             passes.add_socket_aov(mat, "albedo", base_socket)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import torch
@@ -16,22 +15,11 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 
 from model.network import RelightNet
+from relight.fileio import atomic_path, atomic_write_text
 
 FORMAT = "relightnet/1"
-CONFIG_KEYS = ("sh_order", "width", "depth", "with_residual", "with_matte", "decomposition", "tstar")
-
-
-def _atomic_write_bytes(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+CONFIG_KEYS = ("sh_order", "width", "depth", "with_residual", "with_matte", "decomposition", "tstar",
+               "decoder_width", "full_res_convs", "shared_parts", "separable")
 
 
 def save_model(model: RelightNet, path: str | os.PathLike, extra: dict | None = None) -> Path:
@@ -42,10 +30,12 @@ def save_model(model: RelightNet, path: str | os.PathLike, extra: dict | None = 
     meta = {"format": FORMAT, "config": model.config(), **(extra or {})}
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
     header = {"relightnet": json.dumps(meta, sort_keys=True)}
-    _atomic_write_bytes(path, lambda tmp: save_file(tensors, tmp, metadata=header))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".safetensors") as tmp:
+        save_file(tensors, str(tmp), metadata=header)
     sidecar = path.with_suffix(".json")
     text = json.dumps(meta, indent=2, sort_keys=True) + "\n"
-    _atomic_write_bytes(sidecar, lambda tmp: Path(tmp).write_text(text))
+    atomic_write_text(sidecar, text)
     return path
 
 

@@ -22,6 +22,7 @@ never reach training: asserted on every training sample).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -281,8 +282,9 @@ class TrainingScenes(torch.utils.data.Dataset):
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed, self.epoch = seed, 0
-        self.cache = _SceneCache(list(json_paths), lambda p: load_cropped(p, size, order, padding, self.held_out),
-                                 cache_size)
+        # functools.partial, not a lambda: DataLoader workers may need to pickle the dataset
+        self.cache = _SceneCache(list(json_paths), functools.partial(
+            load_cropped, size=size, order=order, padding=padding, held_out=self.held_out), cache_size)
 
     def __len__(self) -> int:
         return len(self.cache.paths)
@@ -360,7 +362,8 @@ class EvaluationPairs(torch.utils.data.Dataset):
                  held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4):
         self.size, self.order = size, order
         self.held_out = held_out_light_names() if held_out is None else held_out
-        self.load = lambda p: load_cropped(p, size, order, padding, self.held_out, verify_hash=True)
+        self.load = functools.partial(load_cropped, size=size, order=order, padding=padding,
+                                      held_out=self.held_out, verify_hash=True)
         self.paths = list(json_paths)
         self.pairs: list[tuple[int, int, int]] = []
         for s, path in enumerate(self.paths):

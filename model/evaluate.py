@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from relight.colour import srgb_encode
-from relight.exr import atomic_write_path
+from relight.fileio import atomic_path, atomic_write_text
 
 from model import metrics
 from model.data import EvaluationPairs, find_scenes, held_out_light_names
@@ -172,26 +172,11 @@ def contact_sheet(rows: list[list[np.ndarray]]) -> np.ndarray:
     return sheet
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = atomic_write_path(path, path.suffix)
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def _atomic_write_png(path: Path, pixels: np.ndarray) -> None:
     from PIL import Image
 
-    tmp = atomic_write_path(path, ".png")
-    try:
+    with atomic_path(path, ".png") as tmp:
         Image.fromarray(pixels).save(tmp, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_only: bool = False,
@@ -237,10 +222,10 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     results = {method: _mean_table(r) for method, r in rows.items()}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _atomic_write_text(out / "evaluation.md", markdown_table(results, len(pairs), str(data)) +
+    atomic_write_text(out / "evaluation.md", markdown_table(results, len(pairs), str(data)) +
                        "\nContact sheet columns: input, ours relit (over the GT background), GT, "
                        "|error| x4, albedo, shading, |residual| x10 (person maps times the GT alpha).\n")
-    _atomic_write_text(out / "evaluation.json", json.dumps(
+    atomic_write_text(out / "evaluation.json", json.dumps(
         {"model": str(model_path), "baseline": str(baseline) if baseline else None, "pairs": len(pairs),
          "size": size, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs]}, indent=1) + "\n")
     _atomic_write_png(out / "contact_sheet.png", contact_sheet(sheet))

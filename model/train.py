@@ -22,7 +22,7 @@ from model.checkpoint import save_model
 from model.data import (DEFAULT_PADDING, EvaluationPairs, TrainingScenes, find_scenes, held_out_light_names,
                         preset_training_lights, split_by_body)
 from model.losses import LossWeights, relight_losses
-from model.network import RelightNet
+from model.network import PRESETS, RelightNet
 from model import sh_torch
 
 
@@ -152,8 +152,10 @@ def parse_args(argv=None):
     p.add_argument("--accumulate", type=int, default=1,
                    help="gradient accumulation: effective batch = batch x accumulate (paper: 16)")
     p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
-    p.add_argument("--width", type=int, default=32)
-    p.add_argument("--depth", type=int, default=4)
+    # the default preset (model.network.PRESETS); the paper's width is 32, whose heavy
+    # decoders are reachable only through RelightNet(**PAPER_CONFIG)
+    p.add_argument("--width", type=int, default=PRESETS["default"]["width"])
+    p.add_argument("--depth", type=int, default=PRESETS["default"]["depth"])
     p.add_argument("--order", type=int, default=4, help="SH order N (paper: 4; Kanamori-Endo: 2)")
     p.add_argument("--lr", type=float, default=5e-5)
     p.add_argument("--weight-decay", type=float, default=1e-2)

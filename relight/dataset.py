@@ -7,16 +7,15 @@ when its JSON exists and names the EXR's SHA-256.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from relight.exr import atomic_write_path, read_exr, write_exr
+from relight.exr import read_exr, write_exr
+from relight.fileio import atomic_write_text, file_sha256
 from relight.sh import num_coeffs
 
 __all__ = [
@@ -87,14 +86,6 @@ def transport_channel_names(n: int) -> list[str]:
     """transport.00 .. transport.(n-1), zero-padded to at least two digits."""
     width = max(2, len(str(n - 1)))
     return [f"transport.{k:0{width}d}" for k in range(n)]
-
-
-def file_sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _json_default(obj):
@@ -208,13 +199,7 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
         text = json.dumps(sidecar, default=_json_default, allow_nan=False, indent=1)
     except ValueError as exc:
         raise ValueError(f"scene metadata has a non-finite number: {exc}") from None
-    tmp = atomic_write_path(json_path, ".json")
-    try:
-        tmp.write_text(text + "\n", encoding="utf-8")
-        os.replace(tmp, json_path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write_text(json_path, text + "\n")
     return exr_path, json_path
 
 

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_exr", "write_exr", "atomic_write_path"]
+from relight.fileio import atomic_path
+
+__all__ = ["read_exr", "write_exr"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
 
@@ -59,17 +59,6 @@ def read_exr(path) -> dict[str, np.ndarray]:
     return channels
 
 
-def atomic_write_path(final: Path, suffix: str) -> Path:
-    """A fresh temporary path next to `final` (same filesystem, so os.replace is atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=f".tmp{suffix}", dir=final.parent)
-    os.close(fd)
-    # mkstemp makes the file 0600; give it the permissions a plain open() would
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    return Path(tmp)
-
-
 def write_exr(
     path,
     channels: dict[str, np.ndarray],
@@ -117,12 +106,7 @@ def write_exr(
     header = {"compression": codes[compression], "type": OpenEXR.scanlineimage}
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
-    tmp = atomic_write_path(path, ".exr")
-    try:
+    with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, prepared) as f:
             f.write(str(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path

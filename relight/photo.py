@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.colour import srgb_encode
+from relight.fileio import atomic_path
 
 __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
            "write_layers_exr", "MAX_SIDE", "MAX_PIXELS", "LAYER_NAME", "PHOTO_SUFFIXES"]
@@ -383,12 +384,6 @@ def _read_pillow_mask(path: Path) -> np.ndarray:
 # ------------------------------------------------------------------ writing
 
 
-def _tmp_beside(path: Path, suffix: str) -> Path:
-    from relight.exr import atomic_write_path
-
-    return atomic_write_path(path, suffix)
-
-
 def _check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
@@ -417,13 +412,8 @@ def write_png(path: str | os.PathLike, linear: np.ndarray) -> Path:
         if not np.all(np.isfinite(strip)):
             raise ValueError("image to write contains NaN or Inf")
         u8[r0:r0 + STRIP_ROWS] = np.rint(srgb_encode(strip.astype(np.float32, copy=False)) * 255.0)
-    tmp = _tmp_beside(path, ".png")
-    try:
+    with atomic_path(path, ".png") as tmp:
         Image.fromarray(u8, "RGB").save(tmp, format="PNG", compress_level=4)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 

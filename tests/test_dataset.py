@@ -7,7 +7,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from relight import dataset, exr
+from relight import dataset, exr, fileio
 
 RNG = np.random.default_rng(5)
 H, W, ORDER = 6, 10, 2
@@ -235,7 +235,7 @@ def test_crash_during_exr_write_leaves_no_scene(tmp_path, monkeypatch):
     def failing_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(exr.os, "replace", failing_replace)
+    monkeypatch.setattr(fileio.os, "replace", failing_replace)  # every atomic write renames here
     with pytest.raises(OSError, match="disk full"):
         dataset.write_scene(tmp_path / "scene_000007", channels, meta)
     assert list(tmp_path.iterdir()) == []  # no EXR, no JSON, no temp files

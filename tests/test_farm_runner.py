@@ -7,11 +7,13 @@ demand; the end-to-end tests render with the real farm.scene.render_scene.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
 import queue
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -124,6 +126,16 @@ def test_options_reach_scene_options_one_to_one():
         "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "sh_order": 2,
         "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout"}
     assert list(config.indices) == [0, 1, 2]
+    # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
+    from farm import scene
+    from farm.worker import build_options
+
+    options = build_options(scene.SceneOptions, json.loads(json.dumps(config.scene.to_json())))
+    options.validate()
+    assert (options.resolution, options.lights, options.samples, options.denoise, options.sh_order,
+            options.bake_directions, options.passes, options.specular, options.light_pool) == (
+        64, 2, 8, False, 2, 64, frozenset({"prt"}), "off", "heldout")
+    assert set(config.scene.to_json()) == {f.name for f in dataclasses.fields(scene.SceneOptions)}
     # Raw float32 channels of a 64x64 prt-only scene: 11 geometry + 9 transport + 2*3*2 per light.
     assert config.scene.expected_channels() == 11 + 9 + 12
     assert config.scene.path_traced_images() == 0
@@ -299,6 +311,9 @@ def test_resume_after_the_farm_is_killed(tmp_path):
     runs = run_log(out)["runs"]
     assert runs[-1]["summary"]["skipped"] == len(finished)
     assert runs[-1]["summary"]["done"] == len(unfinished)
+    # The killed farm could not remove its workers' temp folders (documented); tidy up.
+    for line in (tmp_path / "tmpdirs.log").read_text().splitlines():
+        shutil.rmtree(line.split()[1], ignore_errors=True)
 
 
 # -- output disk ---------------------------------------------------------------------
@@ -398,11 +413,13 @@ def test_real_scene_end_to_end_through_render_py_then_resume(tmp_path):
     assert 0.0 <= scene.alpha.min() and scene.alpha.max() <= 1.0 and (scene.alpha > 0.5).mean() > 0.02
     run = run_log(out)["runs"][-1]
     s = run["summary"]
-    assert (s["done"], s["failed"], s["retried"], s["skipped"]) == (1, 0, 0, 0)
+    assert (s["done"], s["failed"], s["skipped"]) == (1, 0, 0)
+    # A crash inside bpy is retried (the runner's job), so only consistency is asserted here.
+    assert s["retried"] == run["scenes"][0]["attempts"] - 1 == len(run["scenes"][0]["errors"])
     assert s["images_per_hour"] == pytest.approx(2 * 3600 / s["wall_seconds"])
     assert run["scenes"][0]["timings"]["path_trace_render_calls"]  # the sidecar's stages reach the log
     table = dict(re.split(r"\s{2,}", ln.strip(), maxsplit=1) for ln in r.stdout.splitlines() if "  " in ln)
-    assert table["done"] == "1" and table["failed"] == "0" and table["retried"] == "0"
+    assert table["done"] == "1" and table["failed"] == "0" and table["retried"] == str(s["retried"])
     assert float(table["path-traced images/hour"]) == pytest.approx(s["images_per_hour"], rel=1e-3)
     first = {p.name: (p.stat().st_mtime_ns, digest(p)) for p in out.glob("scene_000000.*")}
 
@@ -435,6 +452,8 @@ def test_worker_output_that_is_not_protocol_is_ignored(tmp_path):
     got = [events_q.get(timeout=30), events_q.get(timeout=30)]
     assert [m for _, m in got] == [{"event": "ready", "pid": 1}, None]  # then EOF
     worker.proc.wait(timeout=30)
+    worker.remove_tmp()
+    assert not worker.tmp.exists()
 
 
 def test_worker_that_cannot_start_stops_the_run_with_its_error(tmp_path):

@@ -163,3 +163,14 @@ def test_flipped_samples_are_mirror_images(scenes):
     # shading is a mirror image: (s T) . (s L) = T . L
     shade = lambda s: torch.einsum("nhw,nc->chw", s["transport"], s["target_light"])
     torch.testing.assert_close(shade(b), shade(a).flip(-1), rtol=1e-5, atol=1e-6)
+
+
+def test_lambertian_samples_are_prt_renderings(scenes):
+    """--lambertian trains on PRT images only: targets are exactly rho * (T . L), never the gloss."""
+    ds = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT, lambertian=True)
+    for epoch in range(3):
+        s = ds.item(0, epoch)
+        for light, image in (("light", "image"), ("target_light", "target_image")):
+            prt = s["albedo"] * torch.einsum("nhw,nc->chw", s["transport"], s[light])
+            # computed from the same float32 crops: float32 round-off only
+            torch.testing.assert_close(s[image], prt, rtol=1e-5, atol=1e-6)

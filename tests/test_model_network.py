@@ -7,9 +7,13 @@ import pytest
 import torch
 
 from model.checkpoint import load_model, read_metadata, save_model
-from model.network import RelightNet
+from model.checkpoint import CONFIG_KEYS
+from model.network import ARCH_DEFAULTS, PAPER_CONFIG, PRESETS, RelightNet
 
 TINY = dict(width=4, depth=2)
+# the paper's heavy layout (two generators per signed map, wide decoders, two
+# full-resolution convs) at TINY size
+TINY_PAPER = {**PAPER_CONFIG, **TINY}
 
 
 @pytest.fixture(autouse=True)
@@ -28,7 +32,9 @@ def _input(b=2, h=16, w=16, seed=0):
 
 @pytest.mark.parametrize("flags", [
     {}, {"with_residual": False}, {"decomposition": False}, {"sh_order": 2},
-    {"with_matte": False}, {"tstar": True},
+    {"with_matte": False}, {"tstar": True}, {"separable": True}, {"decoder_width": 2},
+    {"shared_parts": False, "decoder_width": None, "full_res_convs": 2},
+    {"shared_parts": False, "decoder_width": None, "full_res_convs": 2, "tstar": True},
 ])
 def test_shapes_ranges_and_parts(flags):
     torch.manual_seed(0)
@@ -54,17 +60,16 @@ def test_shapes_ranges_and_parts(flags):
         assert torch.count_nonzero(out["residual"]) == 0
 
 
-def test_gradients_reach_every_head():
+@pytest.mark.parametrize("shared_parts", [True, False])
+def test_gradients_reach_every_head(shared_parts):
     torch.manual_seed(0)
-    model = RelightNet(**TINY).train()
+    model = RelightNet(**TINY, shared_parts=shared_parts).train()
     out = model(_input())
     loss = sum(v.float().square().mean() for v in out.values())
     loss.backward()
-    heads = {
-        "albedo_gen.head", "transport_decoder.gen_pos.head", "transport_decoder.gen_neg.head",
-        "residual_decoder.gen_pos.head", "residual_decoder.gen_neg.head", "matte_head",
-        "light_decoder.fc", "encoder.stem",
-    }
+    parts = (["gen_parts.head"] if shared_parts else ["gen_pos.head", "gen_neg.head"])
+    heads = {"albedo_gen.head", "matte_head", "light_decoder.fc", "encoder.stem"}
+    heads |= {f"{dec}.{part}" for dec in ("transport_decoder", "residual_decoder") for part in parts}
     grads = {name: p.grad for name, p in model.named_parameters()}
     for head in heads:
         got = [g for name, g in grads.items() if name.startswith(head)]
@@ -137,8 +142,9 @@ def test_onnx_export_matches_torch(tmp_path):
     """Every variant stays exportable at opset 17 (dynamic H, W)."""
     import onnxruntime as ort
     torch.manual_seed(0)
-    for flags in ({}, {"decomposition": False, "with_residual": False}, {"tstar": True}):
-        model = RelightNet(**TINY, **flags).eval()
+    for flags in ({}, {"decomposition": False, "with_residual": False}, {"tstar": True},
+                  {"separable": True}, TINY_PAPER):
+        model = RelightNet(**{**TINY, **flags}).eval()
         path = tmp_path / "m.onnx"
         names = list(model(_input(b=1)).keys())
         torch.onnx.export(model, (_input(b=1),), str(path), opset_version=17, input_names=["image"],
@@ -150,3 +156,55 @@ def test_onnx_export_matches_torch(tmp_path):
             ref = model(x)
         for name, value in zip(names, got):
             np.testing.assert_allclose(value, ref[name].numpy(), rtol=1e-4, atol=1e-5)
+
+
+def test_shared_parts_split_the_head_channels():
+    """With shared_parts one generator's 2n-channel head holds T+ (first n) and |T-| (last n)."""
+    torch.manual_seed(0)
+    model = RelightNet(**TINY).eval()
+    assert model.transport_decoder.gen_parts.head.out_channels == 2 * model.n
+    x = _input()
+    with torch.no_grad():
+        out = model(x)
+        feats = model.encoder(x)
+        dec = model.transport_decoder
+        raw = dec.gen_parts(dec.res_block(feats[-1]), feats)
+    torch.testing.assert_close(out["transport_pos"], raw[:, : model.n].abs(), rtol=0, atol=0)
+    torch.testing.assert_close(out["transport_neg"], raw[:, model.n:].abs(), rtol=0, atol=0)
+
+
+def test_paper_config_has_the_original_layout():
+    """PAPER_CONFIG rebuilds the heavy network: 21,610,334 weights, as before the efficiency
+    parameters existed (and the docs' 21.6 M), with one generator per part."""
+    model = RelightNet(**PAPER_CONFIG)
+    assert sum(p.numel() for p in model.parameters()) == 21_610_334
+    assert hasattr(model.transport_decoder, "gen_neg") and len(model.encoder.stem) == 2
+
+
+def test_config_rebuilds_every_layout_and_records_every_key():
+    for config in (*PRESETS.values(), {**TINY, "separable": True}):
+        model = RelightNet(**config)
+        rebuilt = RelightNet(**model.config())
+        shapes = {k: v.shape for k, v in model.state_dict().items()}
+        assert {k: v.shape for k, v in rebuilt.state_dict().items()} == shapes
+    # every layout key is recorded, and model.checkpoint accepts all of them
+    assert set(ARCH_DEFAULTS) <= set(RelightNet().config()) <= set(CONFIG_KEYS)
+    assert RelightNet(**PRESETS["default"]).config() == RelightNet().config()
+    with pytest.raises(ValueError, match="full_res_convs"):
+        RelightNet(full_res_convs=3)
+    with pytest.raises(ValueError, match="decoder_width"):
+        RelightNet(decoder_width=0)
+
+
+def test_default_model_fits_the_size_and_compute_budget():
+    """Ship budget: fp32 ONNX <= 25 MB (4 bytes per weight + a few kB of graph) and 512x512
+    decomposition < 400 ms on 2 cores, which onnxruntime reached at about 15 GFLOP
+    (docs/benchmarks/model.md). Conv FLOPs scale with the pixel count, so 128x128 costs 1/16
+    of 512x512; the light decoder's FC does not scale but is < 1e-5 GFLOP."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    model = RelightNet().eval()
+    assert 4 * sum(p.numel() for p in model.parameters()) < 25e6
+    with FlopCounterMode(display=False) as counter, torch.no_grad():
+        model(torch.zeros(1, 3, 128, 128))
+    assert counter.get_total_flops() * 16 / 1e9 < 16.0

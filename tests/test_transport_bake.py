@@ -229,7 +229,7 @@ def _cycles_sphere_scene(tmp_path, meshes, order, directions, materials=None, re
     mats = []
     for i, (mv, mf, mn, params) in enumerate(meshes):
         blocks = passes.pack_vectors(T[offsets[i]:offsets[i + 1]])
-        obj = passes.mesh_object(f"m{i}", mv, mf, mn, dict(zip(names, blocks)))
+        obj = passes.mesh_object(f"m{i}", mv, mf, mn, dict(zip(names, blocks)), scene=scene)
         mat = bpy.data.materials.new(f"mat{i}")
         bsdf = mat.node_tree.nodes["Principled BSDF"]
         for key, value in params.items():
@@ -241,7 +241,8 @@ def _cycles_sphere_scene(tmp_path, meshes, order, directions, materials=None, re
         passes.add_socket_aov(mat, "albedo", rgb.outputs[0])
         obj.data.materials.append(mat)
         mats.append(mat)
-    passes.camera_object(np.array([0.0, -3.0, 0.0]), np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), 50.0)
+    passes.camera_object(np.array([0.0, -3.0, 0.0]), np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), 50.0,
+                         scene=scene)
     return scene, spec, names
 
 

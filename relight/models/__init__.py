@@ -10,11 +10,11 @@ recorded here or in the ``MODEL.onnx.sha256`` file written next to it.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
+
+from relight.fileio import atomic_write_text, file_sha256  # noqa: F401 (file_sha256 is re-exported)
 
 REGISTRY_FORMAT = "relight-models/1"
 REGISTRY_PATH = Path(__file__).with_name("models.json")
@@ -36,16 +36,6 @@ METADATA_KEYS = (
 ONNX_FORMAT = "relight-onnx/1"
 OUTPUT_NAMES = ("albedo", "transport", "residual", "light", "alpha")
 INPUT_NAME = "image"
-HASH_CHUNK = 1 << 20
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """Hex SHA-256 of a file, read in 1 MiB chunks."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(HASH_CHUNK):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def sidecar_path(model_path: str | os.PathLike) -> Path:
@@ -54,27 +44,11 @@ def sidecar_path(model_path: str | os.PathLike) -> Path:
     return p.with_name(p.name + ".sha256")
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give what open() would
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_sidecar(model_path: str | os.PathLike, digest: str | None = None) -> Path:
     """Write MODEL.onnx.sha256 in `sha256sum` format (so `sha256sum -c` checks it)."""
     digest = digest or file_sha256(model_path)
     out = sidecar_path(model_path)
-    _atomic_write_text(out, f"{digest}  {Path(model_path).name}\n")
+    atomic_write_text(out, f"{digest}  {Path(model_path).name}\n")
     return out
 
 
@@ -115,7 +89,7 @@ def register_model(name: str, model_path: str | os.PathLike, digest: str, metada
     data["models"][name] = {"file": model_path.name, "sha256": digest, "metadata": metadata}
     if make_default or not data.get("default"):
         data["default"] = name
-    _atomic_write_text(registry_path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    atomic_write_text(registry_path, json.dumps(data, indent=2, sort_keys=True) + "\n")
     return registry_path
 
 

@@ -1,0 +1,42 @@
+"""Atomic writes: the target is either the old file or the complete new one."""
+
+import hashlib
+import os
+
+import pytest
+
+from relight import fileio
+
+
+def test_failed_write_keeps_the_old_file_and_leaves_no_temp(tmp_path):
+    target = tmp_path / "scene.json"
+    target.write_text("old")
+    with pytest.raises(RuntimeError, match="killed"):
+        with fileio.atomic_path(target, ".json") as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("killed mid-write")
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.json"]
+
+
+def test_successful_write_replaces_and_gets_open_permissions(tmp_path):
+    target = tmp_path / "out.txt"
+    fileio.atomic_write_text(target, "new")
+    assert target.read_text() == "new"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
+
+
+def test_json_with_nan_is_refused_before_anything_is_written(tmp_path):
+    target = tmp_path / "x.json"
+    with pytest.raises(ValueError):
+        fileio.atomic_write_json(target, {"a": float("nan")}, allow_nan=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sha256_matches_hashlib_across_chunk_boundary(tmp_path):
+    data = os.urandom(fileio.HASH_CHUNK + 123)  # spans two chunks
+    p = tmp_path / "blob"
+    p.write_bytes(data)
+    assert fileio.file_sha256(p) == hashlib.sha256(data).hexdigest()
