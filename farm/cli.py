@@ -14,12 +14,12 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from farm.options import LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
+
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
 MAX_SCENE_INDEX = 999_999
-KNOWN_PASSES = ("pt", "prt")
-SPECULAR_CHOICES = ("auto", "on", "off")
-LIGHT_POOLS = ("train", "heldout")
+KNOWN_PASSES = tuple(sorted(PASS_NAMES))
 DEFAULT_JOB_MODULE = "farm.scene"
 
 
@@ -32,49 +32,6 @@ class FarmError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class SceneSettings:
-    """The per-scene options, mirrored one to one onto farm.scene.SceneOptions."""
-
-    resolution: int = 256
-    lights: int = 4
-    samples: int = 64
-    denoise: bool = True
-    sh_order: int = 4
-    bake_directions: int = 256
-    passes: frozenset = frozenset({"pt", "prt"})
-    specular: str = "auto"
-    light_pool: str = "train"
-
-    def to_json(self) -> dict:
-        """Plain JSON form (passes as a sorted list); workers rebuild SceneOptions from it."""
-        return {
-            "resolution": self.resolution,
-            "lights": self.lights,
-            "samples": self.samples,
-            "denoise": self.denoise,
-            "sh_order": self.sh_order,
-            "bake_directions": self.bake_directions,
-            "passes": sorted(self.passes),
-            "specular": self.specular,
-            "light_pool": self.light_pool,
-        }
-
-    def expected_channels(self) -> int:
-        """Float32 channels a scene EXR holds for these options (docs/ARCHITECTURE.md table)."""
-        n = (self.sh_order + 1) ** 2
-        channels = 1 + 3 + 3 + 3 + 1  # alpha, albedo, normal, material, depth
-        if "prt" in self.passes:
-            channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
-        if "pt" in self.passes:
-            channels += 3 * self.lights  # image.LK
-        return channels
-
-    def path_traced_images(self) -> int:
-        """Path-traced images one scene yields when nothing is skipped."""
-        return self.lights if "pt" in self.passes else 0
-
-
-@dataclass(frozen=True)
 class RunConfig:
     """Everything one farm run needs; built by parse_args."""
 
@@ -82,7 +39,7 @@ class RunConfig:
     scenes: int
     seed: int
     first: int = 0
-    scene: SceneSettings = field(default_factory=SceneSettings)
+    scene: SceneOptions = field(default_factory=SceneOptions)
     workers: int = 1
     recycle: int = 20
     timeout: float = 1800.0
@@ -164,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="transport bake directions per vertex")
     s.add_argument("--passes", type=_passes, default=",".join(KNOWN_PASSES),
                    help="comma list: pt (path traced), prt (transport)")
-    s.add_argument("--specular", choices=SPECULAR_CHOICES, default="auto",
+    s.add_argument("--specular", choices=SPECULAR_MODES, default="auto",
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
                    help="train maps, or only the held-out maps")
@@ -197,7 +154,7 @@ def parse_args(argv: list[str]) -> RunConfig:
             f"--directions ({a.directions}) must be >= (order+1)^2 = {(a.order + 1) ** 2} "
             "to determine the transport coefficients"
         )
-    scene = SceneSettings(
+    scene = SceneOptions(
         resolution=a.res, lights=a.lights, samples=a.samples, denoise=a.denoise,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
         specular=a.specular, light_pool=a.light_pool,

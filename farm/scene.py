@@ -13,15 +13,13 @@ import hashlib
 import importlib.metadata
 import math
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from farm.options import SceneOptions  # noqa: F401 (part of the job-module interface)
 from relight import dataset, prt, sh
 
-PASS_NAMES = frozenset({"pt", "prt"})
-SPECULAR_MODES = ("auto", "on", "off")
 # Share of scenes whose materials are all pure Lambert (then "auto" skips the
 # view-dependent bake, and the PRT image equals the path-traced one up to
 # interreflection and noise).
@@ -30,45 +28,6 @@ MAX_POSE_ATTEMPTS = 12
 # Capsule overlap (fraction of the two radii) above which a pose is rejected.
 MAX_PENETRATION = 0.3
 GEOMETRY_SAMPLES = 16
-
-
-@dataclass
-class SceneOptions:
-    resolution: int = 256
-    lights: int = 4
-    samples: int = 64
-    denoise: bool = True
-    sh_order: int = 4
-    bake_directions: int = 256
-    passes: frozenset = field(default_factory=lambda: frozenset({"pt", "prt"}))
-    specular: str = "auto"
-    light_pool: str = "train"
-
-    def validate(self) -> None:
-        checks = (
-            ("resolution", self.resolution, 8, 8192),
-            ("lights", self.lights, 1, 64),
-            ("samples", self.samples, 1, 1 << 16),
-            ("sh_order", self.sh_order, 0, 16),
-            ("bake_directions", self.bake_directions, 16, 1 << 16),
-        )
-        for name, value, lo, hi in checks:
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
-                raise ValueError(f"SceneOptions.{name} must be an integer in [{lo}, {hi}], got {value!r}")
-        if not isinstance(self.denoise, bool):
-            raise ValueError(f"SceneOptions.denoise must be a bool, got {self.denoise!r}")  # noqa: TRY004 (bad option values are ValueErrors project-wide)
-        passes = frozenset(self.passes)
-        if not passes <= PASS_NAMES:
-            raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
-        if self.specular not in SPECULAR_MODES:
-            raise ValueError(f"SceneOptions.specular must be one of {SPECULAR_MODES}, got {self.specular!r}")
-        if self.light_pool not in ("train", "heldout"):
-            raise ValueError(f"SceneOptions.light_pool must be 'train' or 'heldout', got {self.light_pool!r}")
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["passes"] = sorted(self.passes)
-        return d
 
 
 def _versions() -> dict:
@@ -113,8 +72,6 @@ def visible_vertices(cam_vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
     """Synthesize, bake and render scene `index`; returns the finished JSON path."""
-    import bpy
-
     from farm import appearance, bake, bodies, camera, lights, passes, poses
 
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:

@@ -27,18 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-@dataclasses.dataclass(frozen=True)
-class SceneOptions:
-    resolution: int = 256
-    lights: int = 4
-    samples: int = 64
-    denoise: bool = True
-    sh_order: int = 4
-    bake_directions: int = 256
-    passes: frozenset = frozenset({"pt", "prt"})
-    specular: str = "auto"
-    light_pool: str = "train"
+from farm.options import SceneOptions  # the real options: same fields, same JSON
 
 
 def _log(event: str, index: int) -> None:

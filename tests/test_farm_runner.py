@@ -158,7 +158,7 @@ def test_worker_script_protocol(tmp_path):
     """farm/worker.py run as a script (as Blender -P does): ready, one reply per task, exit on EOF."""
     out = tmp_path / "out"
     out.mkdir()
-    options = json.dumps(cli.SceneSettings(lights=2, sh_order=2).to_json())
+    options = json.dumps(cli.SceneOptions(lights=2, sh_order=2).to_json())
     proc = subprocess.run(
         [PYTHON, "farm/worker.py", "--", "--job-module", FAULT_JOB, "--out", str(out), "--options", options],
         input='{"index": 3, "seed": 5}\n{"index": 4, "seed": 5}\n', cwd=REPO, capture_output=True,

@@ -1,0 +1,74 @@
+"""The per-scene options of the farm: one bpy-free class for the command line,
+the workers and farm.scene (which needs bpy) alike."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+PASS_NAMES = frozenset({"pt", "prt"})
+SPECULAR_MODES = ("auto", "on", "off")
+LIGHT_POOLS = ("train", "heldout")
+
+
+@dataclass(frozen=True)
+class SceneOptions:
+    """What one scene renders; every field is recorded in its sidecar."""
+
+    resolution: int = 256
+    lights: int = 4
+    samples: int = 64
+    denoise: bool = True
+    sh_order: int = 4
+    bake_directions: int = 256
+    passes: frozenset = frozenset({"pt", "prt"})
+    specular: str = "auto"
+    light_pool: str = "train"
+
+    def validate(self) -> None:
+        checks = (
+            ("resolution", self.resolution, 8, 8192),
+            ("lights", self.lights, 1, 64),
+            ("samples", self.samples, 1, 1 << 16),
+            ("sh_order", self.sh_order, 0, 16),
+            ("bake_directions", self.bake_directions, 16, 1 << 16),
+        )
+        for name, value, lo, hi in checks:
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+                raise ValueError(f"SceneOptions.{name} must be an integer in [{lo}, {hi}], got {value!r}")
+        if not isinstance(self.denoise, bool):
+            raise ValueError(f"SceneOptions.denoise must be a bool, got {self.denoise!r}")  # noqa: TRY004 (bad option values are ValueErrors project-wide)
+        passes = frozenset(self.passes)
+        if not passes <= PASS_NAMES:
+            raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
+        if self.specular not in SPECULAR_MODES:
+            raise ValueError(f"SceneOptions.specular must be one of {SPECULAR_MODES}, got {self.specular!r}")
+        if self.light_pool not in LIGHT_POOLS:
+            raise ValueError(f"SceneOptions.light_pool must be 'train' or 'heldout', got {self.light_pool!r}")
+
+    def to_json(self) -> dict:
+        """Plain JSON form (passes as a sorted list); `from_json` rebuilds it."""
+        d = asdict(self)
+        d["passes"] = sorted(self.passes)
+        return d
+
+    as_dict = to_json
+
+    @classmethod
+    def from_json(cls, settings: dict) -> "SceneOptions":
+        return cls(**dict(settings, passes=frozenset(settings["passes"])))
+
+    def expected_channels(self) -> int:
+        """Float32 channels a scene EXR holds for these options (docs/ARCHITECTURE.md table)."""
+        n = (self.sh_order + 1) ** 2
+        channels = 1 + 3 + 3 + 3 + 1  # alpha, albedo, normal, material, depth
+        if "prt" in self.passes:
+            channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
+        if "pt" in self.passes:
+            channels += 3 * self.lights  # image.LK
+        return channels
+
+    def path_traced_images(self) -> int:
+        """Path-traced images one scene yields when nothing is skipped."""
+        return self.lights if "pt" in self.passes else 0
