@@ -363,7 +363,11 @@ class Decomposition:
             relit *= scale  # a power of two for whole EV steps: exact
             source, quotient = self._up.prepare(relit), False
         else:
-            source = self._up.prepare((relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS))
+            ratio = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
+            # capped: a bright speck averaged away at working resolution would
+            # otherwise be multiplied by relit / (its dark surroundings)
+            np.clip(ratio, -DETAIL_MAX, DETAIL_MAX, out=ratio)
+            source = self._up.prepare(ratio)
             quotient = True
 
         def strip(r0: int) -> None:
