@@ -444,6 +444,10 @@ def render_sky_equirect(params: dict, size: tuple[int, int], work_dir: Path, sam
         sky_scene.render.engine = "CYCLES"
         sky_scene.cycles.device = "CPU"
         configure_film(sky_scene, size)
+        # No persistent Cycles session for a scene removed right after its one
+        # render: a session left holding the freed scene crashed the next
+        # depsgraph update (SIGSEGV linking the person's meshes).
+        sky_scene.render.use_persistent_data = False
         sky_scene.view_layers[0].name = VIEW_LAYER
         sky_scene.cycles.samples = samples
         sky_scene.cycles.use_denoising = False
