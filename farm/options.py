@@ -53,7 +53,6 @@ class SceneOptions:
         d["passes"] = sorted(self.passes)
         return d
 
-    as_dict = to_json
 
     @classmethod
     def from_json(cls, settings: dict) -> "SceneOptions":

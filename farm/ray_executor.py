@@ -125,7 +125,7 @@ def _kill_self(out: Path, index: int, timeout: float) -> None:
 def render_task(job_module: str, settings: dict, index: int, seed: int, out: str,
                 timeout: float, need_bytes: int) -> dict:
     """One scene inside a Ray worker process (bpy imported once per process)."""
-    from farm.worker import build_options, load_job, render_one
+    from farm.worker import load_job, render_one
 
     out_dir = Path(out)
     # Each task holds one CPU of the cluster: one Cycles thread (farm.passes reads it).
@@ -141,7 +141,7 @@ def render_task(job_module: str, settings: dict, index: int, seed: int, out: str
     if key not in _JOB_CACHE:
         try:
             options_class, render_scene = load_job(job_module)
-            options = build_options(options_class, settings)
+            options = options_class.from_json(settings)
         except Exception as exc:
             _note(out_dir, index, f"setup failed: {type(exc).__name__}: {exc}")
             raise JobSetupError(f"{type(exc).__name__}: {exc} (on {socket.gethostname()})") from None

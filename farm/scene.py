@@ -268,7 +268,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
         "index": int(index),
         "seed": int(seed),
         "sh_order": options.sh_order,
-        "options": options.as_dict(),
+        "options": options.to_json(),
         "lights": [light.record() for light in scene_lights],
         "camera": cam.as_dict(),
         "body": params.as_dict(),

@@ -42,13 +42,6 @@ def load_job(module_name: str):
     return module.SceneOptions, module.render_scene
 
 
-def build_options(options_class, settings: dict):
-    """SceneOptions from the runner's JSON settings (passes back to a frozenset)."""
-    kwargs = dict(settings)
-    kwargs["passes"] = frozenset(kwargs["passes"])
-    return options_class(**kwargs)
-
-
 def is_disk_full(exc: BaseException) -> bool:
     """True when exc (or what caused it) is ENOSPC, also when a library re-raised it as text."""
     seen = set()
@@ -93,7 +86,7 @@ def serve(job_module: str, settings: dict, out_dir: Path, reply) -> int:
         reply.flush()
 
     options_class, render_scene = load_job(job_module)
-    options = build_options(options_class, settings)
+    options = options_class.from_json(settings)
     send({"event": "ready", "pid": os.getpid()})
     for line in sys.stdin.buffer:
         if not line.strip():

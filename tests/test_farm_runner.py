@@ -128,9 +128,8 @@ def test_options_reach_scene_options_one_to_one():
     assert list(config.indices) == [0, 1, 2]
     # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
     from farm import scene
-    from farm.worker import build_options
 
-    options = build_options(scene.SceneOptions, json.loads(json.dumps(config.scene.to_json())))
+    options = scene.SceneOptions.from_json(json.loads(json.dumps(config.scene.to_json())))
     options.validate()
     assert (options.resolution, options.lights, options.samples, options.denoise, options.sh_order,
             options.bake_directions, options.passes, options.specular, options.light_pool) == (
