@@ -74,24 +74,43 @@ def bench_rays(repeats: int) -> None:
     print(f"\nwhole diffuse bake_transport (all {len(v)} vertices active): {r.seconds:.2f} s wall, of which rays {r.ray_seconds:.2f} s")
 
 
-def bench_directions() -> None:
+DIRECTION_COUNTS = (64, 128, 256, 512, 1024)
+DIRECTION_REFERENCE = 4096
+
+
+def directions_rows(counts=DIRECTION_COUNTS, reference: int = DIRECTION_REFERENCE) -> tuple[str, list[dict]]:
+    """(description, rows): per bake kind and S, the error of T.L against S = `reference`.
+
+    Rows: {"bake", "S", "mean", "p99", "seconds"}; error is |T.L - T_ref.L| of a white
+    surface under the 'park' map at mean luminance 0.8, over the mesh's vertices.
+    """
     from farm import bake
     from relight import presets, prt, sh
     from relight.envmap import load_equirect
 
     v, f, n, mats, view = dressed_mesh()
     L = sh.normalize_reference(sh.project_equirect(load_equirect(presets.preset_path("park")).pixels, 4), 0.8)[0]
-    print(f"mesh: {len(v)} vertices; error of T.L (white surface, 'park' map at mean luminance 0.8)")
-    print("against S = 4096; same random rotation family, different draws\n")
-    print("| bake | S | mean abs error | 99th pct abs error | bake seconds |")
-    print("|---|---|---|---|---|")
+    info = (f"mesh: {len(v)} vertices; error of T.L (white surface, 'park' map at mean luminance 0.8)\n"
+            f"against S = {reference}; same random rotation family, different draws")
+    rows = []
     for label, kw in (("diffuse", {}), ("view-dependent", {"materials": mats, "view_point": view})):
-        ref = bake.bake_transport(v, f, n, 4, 4096, rng=np.random.default_rng(99), **kw)
+        ref = bake.bake_transport(v, f, n, 4, reference, rng=np.random.default_rng(99), **kw)
         ref_shade = prt.shading(ref.transport, L)
-        for S in (64, 128, 256, 512, 1024):
+        for S in counts:
             r = bake.bake_transport(v, f, n, 4, S, rng=np.random.default_rng(S), **kw)
             err = np.abs(prt.shading(r.transport, L) - ref_shade)
-            print(f"| {label} | {S} | {err.mean():.4f} | {np.percentile(err, 99):.4f} | {r.seconds:.2f} |")
+            rows.append({"bake": label, "S": S, "mean": float(err.mean()),
+                         "p99": float(np.percentile(err, 99)), "seconds": r.seconds})
+    return info, rows
+
+
+def bench_directions() -> None:
+    info, rows = directions_rows()
+    print(info + "\n")
+    print("| bake | S | mean abs error | 99th pct abs error | bake seconds |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['bake']} | {r['S']} | {r['mean']:.4f} | {r['p99']:.4f} | {r['seconds']:.2f} |")
 
 
 def bench_scene(resolution: int, lights: int, samples: int) -> None:
@@ -129,31 +148,47 @@ def bench_scene(resolution: int, lights: int, samples: int) -> None:
     print(f"\nshare of wall time outside the path-traced render calls: {outside:.1%}")
 
 
-def bench_spp(resolution: int) -> None:
+SPP_COUNTS = (16, 32, 64, 128, 256)
+SPP_REFERENCE = 1024
+
+
+def spp_rows(resolution: int, counts=SPP_COUNTS, reference: int = SPP_REFERENCE) -> tuple[str, list[dict]]:
+    """(description, rows): one scene's path-traced image at several spp against `reference` spp.
+
+    Rows: {"spp", "denoise", "error", "seconds"}; error = mean |I - I_ref| / mean I_ref over
+    the person's pixels only (the visible map behind is noise-free).
+    """
     import bpy
 
     from farm import passes
     from farm.scene import SceneOptions, render_scene
     from relight import dataset
 
-    # Re-render the path-traced image of one scene at several spp; reference 1024 spp.
-    # Errors over the person's pixels only (the visible map behind is noise-free).
     with tempfile.TemporaryDirectory() as tmp:
         path = render_scene(2, 1, SceneOptions(resolution=resolution, lights=1, samples=1, denoise=False,
                                                passes=frozenset({"pt"})), Path(tmp))
         person = dataset.read_scene(path).alpha[..., 0] > 0.999
         scene = bpy.context.scene
         work = Path(tmp)
-        ref = passes.render_path_traced(scene, work, "ref", 1024, False).image[person]
-        print(f"{resolution}x{resolution}, one scene, error = mean |I - I_ref| / mean I_ref over the person's"
-              f" {int(person.sum())} pixels, reference 1024 spp without denoising\n")
-        print("| spp | denoise | relative error | render seconds |")
-        print("|---|---|---|---|")
-        for spp in (16, 32, 64, 128, 256):
+        ref = passes.render_path_traced(scene, work, "ref", reference, False).image[person]
+        info = (f"{resolution}x{resolution}, one scene, error = mean |I - I_ref| / mean I_ref over the person's"
+                f" {int(person.sum())} pixels, reference {reference} spp without denoising")
+        rows = []
+        for spp in counts:
             for denoise in (False, True):
                 r = passes.render_path_traced(scene, work, f"s{spp}", spp, denoise)
                 err = np.abs(r.image[person] - ref).mean() / np.abs(ref).mean()
-                print(f"| {spp} | {'OIDN' if denoise else 'off'} | {err:.4f} | {r.seconds:.2f} |")
+                rows.append({"spp": spp, "denoise": denoise, "error": float(err), "seconds": r.seconds})
+    return info, rows
+
+
+def bench_spp(resolution: int) -> None:
+    info, rows = spp_rows(resolution)
+    print(info + "\n")
+    print("| spp | denoise | relative error | render seconds |")
+    print("|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['spp']} | {'OIDN' if r['denoise'] else 'off'} | {r['error']:.4f} | {r['seconds']:.2f} |")
 
 
 def main() -> None:

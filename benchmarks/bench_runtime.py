@@ -1,6 +1,7 @@
 """Runtime benchmark: decomposition time, relighting cost per megapixel, peak memory.
 
     .venv/bin/python benchmarks/bench_runtime.py [--repeats 3] [--sizes 256 512 1024] [--quick]
+                                                 [--skip ...] [--baseline REV]
 
 Uses the default RelightNet config (model.network.PRESETS["default"]) with seeded
 random weights (timings do not depend on the weight values), exported to fp32
@@ -105,35 +106,124 @@ def bench_widths(tmp: Path, widths, size: int, repeats: int) -> list[str]:
     return rows
 
 
-def bench_relight(model: Path, repeats: int, big: tuple[int, int]) -> list[str]:
+def _paired_median_times(fns: dict, repeats: int) -> dict:
+    """Median seconds of each callable, timed in alternation (a noisy machine's load
+    drifts; alternating keeps the ratios between them honest)."""
+    for fn in fns.values():
+        fn()  # warm-up: first run at a shape allocates and plans
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(ts) for name, ts in times.items()}
+
+
+def _baseline_runtime(rev: str):
+    """relight/runtime.py as of git revision `rev`, imported as a separate module."""
+    import importlib.util
+
+    source = subprocess.run(["git", "show", f"{rev}:relight/runtime.py"], cwd=ROOT, capture_output=True,
+                            text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp()) / "runtime_baseline.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location("runtime_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def _as_baseline(module, d):
+    """The same decomposition as an object of the baseline runtime."""
+    names = ("albedo", "transport", "residual", "light", "alpha", "box", "working_size", "photo",
+             "photo_working", "mask", "sh_order")
+    return module.Decomposition(**{k: getattr(d, k) for k in names})
+
+
+def _float16_dot(d, L, block: int = 4096):
+    """albedo (T.L') + E.L' with T, E, albedo stored float16, cast to float32 per block of
+    rows: the storage idea of issue 5, timed here because numpy 1.26 casts float16 in
+    scalar code."""
+    n = d._transport_m.shape[1]
+    packed = np.concatenate([d._transport_m, d._residual_m, d._albedo_m], axis=1).astype(np.float16)
+    L = np.asarray(L, np.float32)
+    buf = np.empty((block, packed.shape[1]), np.float32)
+    out = np.empty((packed.shape[0], 3), np.float32)
+
+    def run():
+        for i in range(0, packed.shape[0], block):
+            m = min(block, packed.shape[0] - i)
+            b = buf[:m]
+            b[...] = packed[i:i + m]
+            o = out[i:i + m]
+            np.matmul(b[:, :n], L, out=o)
+            o *= b[:, 2 * n:]
+            o += b[:, n:2 * n] @ L
+        return out
+
+    return run, packed.nbytes
+
+
+def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str | None) -> list[str]:
+    from dataclasses import replace
+
     from relight.runtime import Relighter
 
-    rows = ["| what | pixels | time (ms) | ms per megapixel |", "|---|---|---|---|"]
+    old = _baseline_runtime(baseline) if baseline else None
+    head = "| what | pixels | time (ms) | ms per megapixel |"
+    rows = [head + (f" {baseline} (ms) | time / {baseline} |" if old else ""),
+            "|---|---|---|---|" + ("---|---|" if old else "")]
+
+    def row(what, px, fns, digits=1, times=repeats * 5):
+        t = _paired_median_times(fns, times)
+        line = f"| {what} | {px} | {t['new'] * 1e3:.{digits}f} | {t['new'] * 1e3 / (px / 1e6):.1f} |"
+        if "old" in t:
+            line += f" {t['old'] * 1e3:.{digits}f} | {t['new'] / t['old']:.2f} |"
+        elif old:
+            line += " - | - |"
+        rows.append(line)
+        print(line, flush=True)
+
+    def pair(d, fn):
+        fns = {"new": lambda: fn(d)}
+        if old:
+            d_old = _as_baseline(old, d)
+            fns["old"] = lambda: fn(d_old)
+        return fns
+
     r = Relighter(model, threads=2, working_size=512)
     d = r.decompose(_photo(512, 512), np.ones((512, 512), np.float32))
     L = np.random.default_rng(1).normal(0, 0.3, (25, 3))
+    L[0] = 3.0  # a light with a positive mean, like a normalised map
     px = 512 * 512
-    t = _median_time(lambda: d.relight_working(L), repeats * 5)
-    rows.append(f"| dot product rho(T.L')+E.L' at working res (all pixels in matte) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    row("dot product rho(T.L')+E.L' at working res (all pixels in matte)", px,
+        pair(d, lambda x: x.relight_working(L)))
     # reference for a memory-bound loop: copying the arrays the dot product reads
     src = np.concatenate([d._transport_m, d._residual_m, d._albedo_m], axis=1)
     dst = np.empty_like(src)
-    t = _median_time(lambda: np.copyto(dst, src), repeats * 5)
-    rows.append(f"| reference: memcpy of T, E, albedo ({src.nbytes / 2**20:.0f} MiB) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
-    t = _median_time(lambda: d.relight_working(L, rotation_deg=37.0), repeats * 5)
-    rows.append(f"| same, new rotation each call (cached matrix) | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
-    t = _median_time(lambda: d.relight(L), repeats * 5)
-    rows.append(f"| relight() full frame, crop == working size | {px} | {t * 1e3:.1f} | {t * 1e3 / (px / 1e6):.1f} |")
+    row(f"reference: memcpy of T, E, albedo ({src.nbytes / 2**20:.0f} MiB float32)", px,
+        {"new": lambda: np.copyto(dst, src)})
+    half, nbytes = _float16_dot(d, L.astype(np.float32))
+    row(f"the dot product with T, E, albedo stored float16 ({nbytes / 2**20:.0f} MiB), cast per 4096 rows",
+        px, {"new": half})
+    row("dot product, new rotation each call (cached matrix)", px,
+        pair(d, lambda x: x.relight_working(L, rotation_deg=37.0)))
+    row("relight() full frame, crop == working size", px, pair(d, lambda x: x.relight(L)))
     H, W = big
     photo = _photo(H, W, seed=2)
     mask = np.ones((H, W), np.float32)
     d = r.decompose(photo, mask)
     del mask
+    size = f"{W}x{H} photo, working {d.working_size[1]}x{d.working_size[0]}"
     for detail in (True, False):
-        t = _median_time(lambda: d.relight(L, detail=detail), repeats)
-        rows.append(f"| relight() {W}x{H} photo, working {d.working_size[1]}x{d.working_size[0]}, "
-                    f"detail={detail} | {H * W} | {t * 1e3:.0f} | {t * 1e3 / (H * W / 1e6):.1f} |")
-        print(rows[-1], flush=True)
+        row(f"relight() {size}, mask given, detail={detail}", H * W,
+            pair(d, lambda x, detail=detail: x.relight(L, detail=detail)), digits=0, times=repeats)
+    # the network's matte instead of a user mask: alpha is upsampled too
+    matte = replace(d, mask=None)
+    row(f"relight() {size}, predicted matte, detail=True", H * W,
+        pair(matte, lambda x: x.relight(L)), digits=0, times=repeats)
     return rows
 
 
@@ -179,6 +269,9 @@ def main() -> None:
     parser.add_argument("--widths", type=int, nargs="*", default=[8, 16, 32],
                         help="RelightNet widths for the network-cost table at 512 px")
     parser.add_argument("--skip", nargs="*", default=[], choices=["decompose", "widths", "relight", "memory"])
+    parser.add_argument("--baseline", metavar="REV", default=None,
+                        help="also time relight/runtime.py of this git revision (e.g. HEAD), alternating "
+                             "with the working tree's, and print the ratio")
     args = parser.parse_args()
     from export.fp16 import export_fp16
     from export.random_model import export_random_model
@@ -198,7 +291,7 @@ def main() -> None:
         if "widths" not in args.skip and args.widths:
             tables.append(bench_widths(tmp, args.widths, 512, args.repeats))
         if "relight" not in args.skip:
-            tables.append(bench_relight(fp32, args.repeats, big))
+            tables.append(bench_relight(fp32, args.repeats, big, args.baseline))
         if "memory" not in args.skip:
             tables.append(bench_memory(fp32, tmp, big))
         print(f"(load average at end {os.getloadavg()[0]:.1f})")

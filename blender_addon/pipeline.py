@@ -152,16 +152,13 @@ def model_path_for(quality_key: str, override: str = "") -> Path:
             raise ValueError(f"The model file '{override}' does not exist.")
         return p
     from relight import models
+    from relight import quality as core_quality
 
     registry = models.load_registry(models.REGISTRY_PATH)  # looked up now: tests point it elsewhere
-    wanted = quality.preset(quality_key).model
-    entry = registry["models"].get(wanted) if wanted else None
-    if entry is None:
-        default = registry.get("default")
-        entry = registry["models"].get(default) if default else None
-    if entry is None:
+    name = core_quality.model_name(quality.preset(quality_key).key, registry)
+    if name is None:
         raise ValueError("No relighting model is installed: choose a model file (.onnx) in the panel.")
-    p = models.REGISTRY_PATH.parent / entry["file"]
+    p = models.REGISTRY_PATH.parent / registry["models"][name]["file"]
     if not p.is_file():
         raise ValueError(f"The relighting model '{p.name}' is missing from the installation.")
     return p

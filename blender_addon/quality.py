@@ -1,14 +1,18 @@
-"""Quality presets: the one table that maps Draft/Balanced/Best to a model and a working resolution.
+"""Quality presets of the add-on: Draft/Balanced/Best as Blender enum items.
 
-Plain Python (no bpy) so the mapping is testable and the trade-off study can
-edit one place. `working_long_side` is the longest side of the crop around
-the person that the network sees; relight.runtime resamples to it and brings
-the layers back to the photo's own size.
+The table itself (model and working resolution per preset) is
+relight/quality.py, shared with `relight image --quality`; this module only
+gives it the add-on's upper-case enum identifiers (stored in .blend files).
+Plain Python (no bpy), so it is testable. `working_long_side` is the longest
+side of the crop around the person that the network sees; relight.runtime
+resamples to it and brings the layers back to the photo's own size.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from relight import quality as core_quality
 
 
 @dataclass(frozen=True)
@@ -20,19 +24,11 @@ class QualityPreset:
     description: str
 
 
-# Ordered from fastest to best; the sizes are relight.runtime.QUALITY_SIZES.
-# Until several trained models ship, every preset runs the registry's default
-# model and only the working size differs (docs/addon.md has the timings).
-QUALITY_PRESETS: tuple[QualityPreset, ...] = (
-    QualityPreset("DRAFT", "Draft", None, 256,
-                  "Fast preview: the network sees the person at 256 px"),
-    QualityPreset("BALANCED", "Balanced", None, 512,
-                  "The network sees the person at 512 px"),
-    QualityPreset("BEST", "Best", None, 1024,
-                  "The network sees the person at 1024 px (slowest)"),
-)
+# Ordered from fastest to best, as in relight.quality.PRESETS.
+QUALITY_PRESETS: tuple[QualityPreset, ...] = tuple(
+    QualityPreset(p.key.upper(), p.label, p.model, p.working_size, p.description) for p in core_quality.PRESETS)
 
-DEFAULT_QUALITY = "BALANCED"
+DEFAULT_QUALITY = core_quality.DEFAULT.upper()
 
 
 def preset(key: str) -> QualityPreset:

@@ -1,5 +1,15 @@
-"""Relighting network, losses, data loading, training and evaluation (torch)."""
+"""Relighting network, losses, data loading, training and evaluation (torch).
 
-from model.network import RelightNet
+RelightNet is imported on first use, so that the torch-free parts
+(model.metrics, model.evaluate_photos) load without torch.
+"""
 
 __all__ = ["RelightNet"]
+
+
+def __getattr__(name):
+    if name == "RelightNet":
+        from model.network import RelightNet
+
+        return RelightNet
+    raise AttributeError(f"module 'model' has no attribute {name!r}")

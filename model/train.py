@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from model.checkpoint import save_model
+from model.checkpoint import load_model, save_model
 from model.data import (DEFAULT_PADDING, EvaluationPairs, TrainingScenes, find_scenes, held_out_light_names,
                         preset_training_lights, split_by_body)
 from model.losses import LossWeights, relight_losses
@@ -59,10 +59,30 @@ class EpochIndexed(torch.utils.data.Dataset):
 
 
 def build_model_config(args) -> dict:
+    """RelightNet kwargs: the named --preset layout, --width/--depth when given, the ablation flags."""
     lambertian = args.lambertian
-    return dict(sh_order=args.order, width=args.width, depth=args.depth,
+    layout = dict(PRESETS[args.preset])
+    for name in ("width", "depth"):
+        if getattr(args, name) is not None:
+            layout[name] = getattr(args, name)
+    return dict(sh_order=args.order, **layout,
                 with_residual=not (args.no_residual or lambertian), with_matte=not args.no_matte,
                 decomposition=not (args.no_decomposition or lambertian), tstar=args.tstar)
+
+
+def lr_factor(step: int, total: int, warmup: int, schedule: str, floor: float = 0.05) -> float:
+    """Multiplier of the base learning rate at `step`: linear warm-up, then constant or cosine to `floor`.
+
+    A short CPU budget needs a decaying rate: the last steps at a small rate are
+    where the loss settles (constant AdamW rates plateau at the noise level).
+    """
+    if warmup > 0 and step < warmup:
+        return (step + 1) / warmup
+    if schedule == "constant":
+        return 1.0
+    span = max(1, total - warmup)
+    t = min(1.0, (step - warmup) / span)
+    return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
 def loss_weights_from_args(args) -> LossWeights:
@@ -85,11 +105,13 @@ def loss_weights_from_args(args) -> LossWeights:
     return weights
 
 
-def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_decay: float):
+def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_decay: float,
+                          schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
     import lightning as L
 
     class RelightModule(L.LightningModule):
-        def __init__(self, model_config: dict, weights: dict, lr: float, weight_decay: float):
+        def __init__(self, model_config: dict, weights: dict, lr: float, weight_decay: float,
+                     schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
             super().__init__()
             self.save_hyperparameters()  # plain dicts and floats: loadable with weights_only=True
             self.model = RelightNet(**model_config)
@@ -130,10 +152,14 @@ def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_d
                          prog_bar=name == "psnr_relight")
 
         def configure_optimizers(self):
-            return torch.optim.AdamW(self.model.parameters(), lr=self.hparams.lr,
-                                     weight_decay=self.hparams.weight_decay)
+            opt = torch.optim.AdamW(self.model.parameters(), lr=self.hparams.lr,
+                                    weight_decay=self.hparams.weight_decay)
+            hp = self.hparams
+            sched = torch.optim.lr_scheduler.LambdaLR(
+                opt, lambda step: lr_factor(step, hp.total_steps, hp.warmup, hp.schedule))
+            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
-    return RelightModule(model_config, weights, lr, weight_decay)
+    return RelightModule(model_config, weights, lr, weight_decay, schedule, warmup, total_steps)
 
 
 def render_prediction(pred: dict, light: torch.Tensor, tstar: bool) -> torch.Tensor:
@@ -145,7 +171,8 @@ def render_prediction(pred: dict, light: torch.Tensor, tstar: bool) -> torch.Ten
 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, help="dataset folder of scene_NNNNNN.exr/.json")
+    p.add_argument("--data", required=True, nargs="+",
+                   help="dataset folder(s) of scene_NNNNNN.exr/.json (farm runs with different --first)")
     p.add_argument("--out", required=True, help="output folder (checkpoints, final weights, logs)")
     p.add_argument("--steps", type=int, default=10000)
     p.add_argument("--batch", type=int, default=4)
@@ -154,10 +181,17 @@ def parse_args(argv=None):
     p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
     # the default preset (model.network.PRESETS); the paper's width is 32, whose heavy
     # decoders are reachable only through RelightNet(**PAPER_CONFIG)
-    p.add_argument("--width", type=int, default=PRESETS["default"]["width"])
-    p.add_argument("--depth", type=int, default=PRESETS["default"]["depth"])
+    p.add_argument("--preset", choices=tuple(PRESETS), default="default",
+                   help="network layout (model.network.PRESETS); --width/--depth override it")
+    p.add_argument("--width", type=int, default=None)
+    p.add_argument("--depth", type=int, default=None)
     p.add_argument("--order", type=int, default=4, help="SH order N (paper: 4; Kanamori-Endo: 2)")
     p.add_argument("--lr", type=float, default=5e-5)
+    p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                   help="cosine: decay to 5%% of --lr over --steps after the warm-up")
+    p.add_argument("--warmup", type=int, default=0, help="linear warm-up steps")
+    p.add_argument("--init", default=None,
+                   help="start from these .safetensors weights (same layout), e.g. a lower-resolution run")
     p.add_argument("--weight-decay", type=float, default=1e-2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--val-fraction", type=float, default=0.1, help="fraction of bodies held out for validation")
@@ -167,6 +201,8 @@ def parse_args(argv=None):
     p.add_argument("--threads", type=int, default=0,
                    help="torch CPU threads (0: torch's default; 1 is far faster on a busy machine)")
     p.add_argument("--padding", type=int, default=DEFAULT_PADDING)
+    p.add_argument("--cache-scenes", type=int, default=64,
+                   help="cropped scenes kept in memory (reading an EXR costs more than a step)")
     p.add_argument("--extra-light-prob", type=float, default=0.5)
     p.add_argument("--mask-prob", type=float, default=0.5)
     p.add_argument("--flip-prob", type=float, default=0.5, help="horizontal mirror (exact for T and L)")
@@ -183,13 +219,19 @@ def parse_args(argv=None):
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="cpu")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    for name in ("steps", "batch", "accumulate", "size", "width", "depth", "val_every", "ckpt_every"):
-        if getattr(args, name) < 1:
+    for name in ("steps", "batch", "accumulate", "size", "width", "depth", "val_every", "ckpt_every",
+                 "cache_scenes"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.order < 0:
         p.error("--order must be >= 0")
-    if args.size % (2 ** args.depth):
-        p.error(f"--size {args.size} must be a multiple of 2**depth = {2 ** args.depth}")
+    depth = args.depth if args.depth is not None else PRESETS[args.preset]["depth"]
+    if args.size % (2 ** depth):
+        p.error(f"--size {args.size} must be a multiple of 2**depth = {2 ** depth}")
+    if args.warmup < 0:
+        p.error("--warmup must be >= 0")
+    if args.init and args.resume:
+        p.error("--init and --resume exclude each other")
     if not (args.lr > 0 and math.isfinite(args.lr)):
         p.error("--lr must be a positive number")
     return args
@@ -210,14 +252,15 @@ def train(args) -> Path:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
-    scenes = find_scenes(args.data)
+    scenes = [path for folder in args.data for path in find_scenes(folder)]
     train_paths, val_paths = split_by_body(scenes, args.val_fraction, seed=args.seed)
     held_out = held_out_light_names()
     extra = [] if args.no_presets else preset_training_lights(args.order)
     train_set = TrainingScenes(train_paths, args.size, args.order, padding=args.padding, extra_lights=extra,
                                extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob,
                                flip_prob=args.flip_prob,
-                               lambertian=args.lambertian, seed=args.seed, held_out=held_out)
+                               lambertian=args.lambertian, seed=args.seed, held_out=held_out,
+                               cache_size=args.cache_scenes)
     loader_kw = dict(num_workers=args.workers, persistent_workers=args.workers > 0)
     train_loader = torch.utils.data.DataLoader(EpochIndexed(train_set), batch_size=args.batch,
                                                sampler=EpochShuffleSampler(len(train_set), args.seed),
@@ -231,7 +274,15 @@ def train(args) -> Path:
             print(f"model.train: no validation ({exc})", file=sys.stderr)
 
     weights = loss_weights_from_args(args)
-    module = make_lightning_module(build_model_config(args), weights.to_dict(), args.lr, args.weight_decay)
+    model_config = build_model_config(args)
+    module = make_lightning_module(model_config, weights.to_dict(), args.lr, args.weight_decay,
+                                   args.lr_schedule, args.warmup, args.steps)
+    if args.init:
+        start = load_model(args.init)
+        if start.config() != module.model.config():
+            raise ValueError(f"--init {args.init}: its layout {start.config()} differs from this run's "
+                             f"{module.model.config()}")
+        module.model.load_state_dict(start.state_dict())
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
     if args.device == "cuda" and not torch.cuda.is_available():
         raise ValueError("--device cuda: no CUDA device available")
@@ -258,8 +309,8 @@ def train(args) -> Path:
     trainer.save_checkpoint(ckpt_dir / "last.ckpt", weights_only=False)  # full state, for --resume
 
     record = {"seed": args.seed, "steps": int(trainer.global_step), "loss_weights": weights.to_dict(),
-              "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
-              "args": {k: v for k, v in vars(args).items()}}
+              "data": [str(d) for d in args.data], "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
+              "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
     return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})
 
 

@@ -25,7 +25,7 @@ EXIT_FAILED = 1
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
-    from relight.runtime import QUALITY_SIZES
+    from relight import quality
 
     p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
                               description=__doc__.split("\n\n")[0])
@@ -39,14 +39,15 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help="use the map's radiance as is (default: scale to mean luminance 0.8)")
-    p.add_argument("--model", default=None, help="ONNX model (default: the installed model)")
+    p.add_argument("--model", default=None, help="ONNX model (default: the quality preset's installed model)")
     p.add_argument("--out", default=None,
                    help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
                         "(default: PHOTO_relit.png beside the photo)")
     p.add_argument("--layers", action="store_true",
                    help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
-    p.add_argument("--quality", choices=sorted(QUALITY_SIZES), default="balanced",
-                   help="working resolution: draft 256, balanced 512, best 1024 px")
+    p.add_argument("--quality", choices=[q.key for q in quality.PRESETS], default=quality.DEFAULT,
+                   help="preset of relight/quality.py: model and working resolution ("
+                        + ", ".join(f"{q.key} {q.working_size}" for q in quality.PRESETS) + " px)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.set_defaults(func=run_image)
     return p
@@ -79,10 +80,18 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
         mask = None
     d = relighter.decompose(image, mask)
     relit = d.relight(args.light, args.rotate, args.exposure, normalize=args.normalize)
+    stats = d.last_stats
+    if stats is not None and stats.fraction > NEGATIVE_WARN_FRACTION:
+        print(f"relight image: warning: {Path(out_path).name}: negative light (SH ringing) clamped to 0 "
+              f"on {stats.fraction:.1%} of the person", file=sys.stderr)
     if args.layers:
         layers = d.layers(args.light, args.rotate, args.exposure, normalize=args.normalize)
         return write_layers_exr(out_path, relit, layers)
     return write_image(out_path, relit)
+
+
+# above this share of the person's pixels, clamping is visible: say so (the light is too sharp for the order)
+NEGATIVE_WARN_FRACTION = 0.01
 
 
 def _check_light(args, relighter) -> None:
@@ -114,7 +123,10 @@ def run_image(args) -> int:
             raise ValueError("--out must differ from the input folder")
     else:
         out_path = _output_for(source, args.out, args.layers)
-    relighter = Relighter(args.model, threads=args.threads, working_size=args.quality)
+    from relight import quality
+
+    model = args.model if args.model is not None else quality.model_path(args.quality)
+    relighter = Relighter(model, threads=args.threads, working_size=args.quality)
     if args.light_from is not None:
         from relight.photo import read_photo
 

@@ -7,15 +7,17 @@
 The network runs on a crop around the person resized to the working size
 (longest side, default 512), so its cost and memory do not grow with the
 photo. Relighting evaluates rho * (T . L') + E . L' at working resolution
-over the matte's pixels only, then brings the result to the photo's
-resolution with bilinear interpolation, restores the photo's own fine detail
-(ratio of the photo to its working-resolution version), and composites the
-person over the untouched original with the matte. docs/runtime.md explains
+over the matte's pixels only (clamped at 0: negative light is SH ringing),
+then brings the result to the photo's resolution with bilinear interpolation,
+restores the photo's own fine detail (ratio of the photo to its
+working-resolution version), and composites the person over the untouched
+original with the matte, in cache-sized tiles on two threads. docs/runtime.md explains
 these choices. Nothing here imports torch or bpy.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections import OrderedDict
@@ -24,22 +26,24 @@ from pathlib import Path
 
 import numpy as np
 
-from relight import sh
+from relight import quality, sh
 from relight.models import (CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES, REGISTRY_PATH,
                             default_model_path, expected_digest)
 from relight.prt import to_network_input
 
-__all__ = ["Relighter", "Decomposition", "QUALITY_SIZES", "resize_linear", "bilinear_rows"]
+__all__ = ["Relighter", "Decomposition", "RelightStats", "QUALITY_SIZES", "resize_linear", "bilinear_rows"]
 
-QUALITY_SIZES = {"draft": 256, "balanced": 512, "best": 1024}
-DEFAULT_WORKING_SIZE = QUALITY_SIZES["balanced"]
+QUALITY_SIZES = quality.working_sizes()  # the presets' table lives in relight/quality.py
+DEFAULT_WORKING_SIZE = QUALITY_SIZES[quality.DEFAULT]
 FIND_SIZE = 256          # longest side of the first, person-finding pass
 FIND_THRESHOLD = 0.5     # alpha above which a low-res pixel counts as the person
 CROP_MARGIN = 0.05       # context kept around the person's box, as a fraction of its longest side
 ALPHA_FLOOR = 1.0 / 255  # predicted alpha below this is background: those pixels stay untouched
 DETAIL_EPS = 1e-3        # linear radiance added to both sides of the detail ratio (dark pixels)
 DETAIL_MAX = 8.0         # cap on the detail ratio: a speck cannot blow up
-STRIP_ROWS = 128         # full-resolution rows composited at a time (bounds temporaries)
+STRIP_ROWS = 128         # full-resolution rows resampled at a time by layers() (bounds temporaries)
+TILE_VALUES = 1 << 17    # float32 values per 3-channel tile in relight() (512 KiB): buffers stay in cache
+BAND_ROWS = 256          # full-resolution rows per thread task in relight()
 LIGHT_CACHE_SIZE = 32
 
 
@@ -74,11 +78,17 @@ class _Bilinear:
         if self.identity:
             return src, None
         c0, c1, wc = self.cols
-        left = np.take(src, c0, axis=1)
-        wc = wc.reshape((1, -1) + (1,) * (src.ndim - 2))
-        cols = left + (np.take(src, c1, axis=1) - left) * wc
-        diff = np.zeros_like(cols)
-        diff[:-1] = cols[1:] - cols[:-1]  # the last row's next row is itself (clamped edge)
+        cols = np.take(src, c0, axis=1)
+        step = np.take(src, c1, axis=1)
+        step -= cols
+        # the weights repeated per channel: broadcasting a [W, 1] array against [W, C]
+        # makes numpy loop over C elements at a time (an order of magnitude slower)
+        channels = int(np.prod(src.shape[2:], dtype=np.intp))
+        step *= np.repeat(wc, channels).reshape(wc.shape + src.shape[2:])
+        cols += step
+        diff = step  # reused: same shape, no longer needed
+        np.subtract(cols[1:], cols[:-1], out=diff[:-1])
+        diff[-1] = 0  # the last row's next row is itself (clamped edge)
         return cols, diff
 
     def strip(self, prepared, r0: int, r1: int) -> np.ndarray:
@@ -270,6 +280,149 @@ def _exposure_scale(exposure_ev) -> float:
     return 2.0 ** ev
 
 
+# ------------------------------------------------------------------ compositing
+
+
+def _tiles(i0: np.ndarray | None, rows: int, width: int) -> list[tuple[int, int, int | None]]:
+    """Row ranges (r0, r1, k) covering `rows` output rows of `width` pixels: at most
+    TILE_VALUES / 3 pixels each, and every row of a range interpolates between
+    source rows k and k + 1 (k = i0[r0]; None when nothing is resampled)."""
+    cap = max(1, TILE_VALUES // (3 * width))
+    if i0 is None:
+        return [(r, min(r + cap, rows), None) for r in range(0, rows, cap)]
+    edges = [0, *(np.flatnonzero(np.diff(i0)) + 1).tolist(), rows]
+    return [(r, min(r + cap, b), int(i0[a])) for a, b in itertools.pairwise(edges) for r in range(a, b, cap)]
+
+
+def _bands(i0: np.ndarray | None, rows: int, width: int) -> list[list[tuple[int, int, int | None]]]:
+    """The tiles grouped into bands of about BAND_ROWS rows (one thread task each)."""
+    bands, current, start = [], [], 0
+    for tile in _tiles(i0, rows, width):
+        if current and tile[1] - start > BAND_ROWS:
+            bands.append(current)
+            current, start = [], tile[0]
+        current.append(tile)
+    return bands + [current] if current else bands
+
+
+class _SourceRows:
+    """Rows of a small [h, w, C] map interpolated to the output width, with the
+    difference to the next row: what _Bilinear.prepare computes for the whole
+    map, one row at a time, for the rows a band of output needs."""
+
+    def __init__(self, src: np.ndarray, up: _Bilinear, weights: np.ndarray):
+        self.src, self.c0, self.c1, self.weights = src, up.cols[0], up.cols[1], weights
+        self.rows: dict[int, np.ndarray] = {}
+
+    def _row(self, k: int) -> np.ndarray:
+        if k not in self.rows:
+            # the same operations, in the same order, as _Bilinear.prepare: identical values
+            row = np.take(self.src[k], self.c0, axis=0)
+            step = np.take(self.src[k], self.c1, axis=0)
+            step -= row
+            step *= self.weights
+            row += step
+            self.rows[k] = row
+        return self.rows[k]
+
+    def pair(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(row k, row k+1 - row k); the last row's next row is itself (clamped edge)."""
+        row = self._row(k)
+        if k + 1 >= self.src.shape[0]:
+            return row, np.zeros_like(row)
+        return row, self._row(k + 1) - row
+
+
+class _Compositor:
+    """Writes the relit person over the photo into `out`, one cache-sized tile at a time.
+
+    Per full-resolution pixel: person = upsampled source (detail off), or
+    max(0, (photo + eps) * Q - eps * 2^EV) with Q the upsampled, exposure-scaled
+    quotient (detail on); then out = a * person + (1 - a) * photo. Each step is
+    an in-place numpy loop over a tile of at most TILE_VALUES values, so a tile's
+    buffers stay in cache and the photo and `out` cross main memory once.
+    """
+
+    def __init__(self, d: Decomposition, out: np.ndarray, source: np.ndarray, quotient: bool,
+                 scale: np.float32):
+        self.d, self.out, self.source, self.quotient = d, out, source, quotient
+        self.offset = np.float32(DETAIL_EPS) * scale  # eps * 2^EV: exact for whole EV steps
+        if not d._up.identity:
+            # column weights repeated per channel: broadcasting [W, 1] against [W, 3]
+            # makes numpy loop over 3 elements at a time (an order of magnitude slower)
+            wc = d._up.cols[2]
+            self.weights = (np.repeat(wc, 3).reshape(-1, 3), wc.reshape(-1, 1))
+
+    def _upsample(self, rows: _SourceRows, r0: int, r1: int, k: int, dest: np.ndarray) -> np.ndarray:
+        # the same operations, in the same order, as _Bilinear.strip: identical values
+        row, diff = rows.pair(k)
+        np.multiply(diff, self.d._up.rows[2][r0:r1, None, None], out=dest)
+        dest += row
+        return dest
+
+    def band(self, tiles) -> None:
+        d = self.d
+        y0, _, x0, x1 = d.box
+        shape = (max(r1 - r0 for r0, r1, _ in tiles), x1 - x0, 3)
+        person_buf = np.empty(shape, np.float32)
+        quotient_buf = np.empty(shape, np.float32) if self.quotient else None
+        zeros = np.zeros(shape, np.float32) if self.quotient else None
+        alpha3_buf, rest_buf = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        alpha_buf = np.empty(shape[:2] + (1,), np.float32)
+        if not d._up.identity:
+            source_rows = _SourceRows(self.source, d._up, self.weights[0])
+            alpha_rows = _SourceRows(d.alpha[..., None], d._up, self.weights[1])
+        for r0, r1, k in tiles:
+            n = r1 - r0
+            photo = d.photo[y0 + r0:y0 + r1, x0:x1]
+            if k is None:
+                person = self.source[r0:r1]  # no resampling: a view of relight()'s own array
+            elif self.quotient:
+                q = self._upsample(source_rows, r0, r1, k, quotient_buf[:n])
+                person = np.add(photo, np.float32(DETAIL_EPS), out=person_buf[:n])
+                person *= q
+                person -= self.offset
+                # the quotient is >= 0, but a pixel darker than its working-resolution
+                # neighbourhood can land up to eps below 0 (array maximum: numpy's
+                # scalar maximum has no SIMD loop)
+                np.maximum(person, zeros[:n], out=person)
+            else:
+                # bilinear weights in [0, 1] of values >= 0: >= 0 in floating point too
+                person = self._upsample(source_rows, r0, r1, k, person_buf[:n])
+            if d.mask is not None:
+                a = d.mask[y0 + r0:y0 + r1, x0:x1, None]
+            elif k is None:
+                a = d.alpha[r0:r1, :, None]  # already floored at decomposition
+            else:
+                a = self._upsample(alpha_rows, r0, r1, k, alpha_buf[:n])
+                np.copyto(a, np.float32(0.0), where=a < ALPHA_FLOOR)
+            # one alpha per channel: numpy broadcasts [.., 1] against [.., 3] with a
+            # 3-element inner loop, 20x slower than three strided copies
+            a3 = alpha3_buf[:n]
+            for c in range(3):
+                np.copyto(a3[..., c], a[..., 0])
+            # a * person + (1 - a) * photo: exactly the photo where a == 0, the person where a == 1
+            person *= a3
+            rest = np.subtract(np.float32(1.0), a3, out=rest_buf[:n])
+            target = self.out[y0 + r0:y0 + r1, x0:x1]
+            np.multiply(photo, rest, out=target)
+            target += person
+
+
+@dataclass(frozen=True)
+class RelightStats:
+    """Negative light clamped to 0 by one relight, counted at working resolution
+    over the matte's pixels (alpha > 0)."""
+
+    clamped: int    # pixels with a channel of albedo * (T . L') + E . L' below 0
+    pixels: int     # pixels of the matte
+    darkest: float  # the most negative channel value before the clamp (0.0 when none)
+
+    @property
+    def fraction(self) -> float:
+        return self.clamped / self.pixels if self.pixels else 0.0
+
+
 # ------------------------------------------------------------------ decomposition
 
 
@@ -303,9 +456,14 @@ class Decomposition:
         self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
         self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
         self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
+        inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
+        self._inside = inside.astype(np.float32)
+        self._inside_count = int(np.count_nonzero(inside))
+        self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
         y0, y1, x0, x1 = self.box
         self._up = _Bilinear(y1 - y0, x1 - x0, h, w)
         self._alpha_prepared = None
+        self._preview_weights = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -321,11 +479,23 @@ class Decomposition:
     def relight_working(self, light, rotation_deg: float = 0.0, exposure_ev: float = 0.0,
                         normalize: bool = True) -> np.ndarray:
         """The relit person at working resolution, [h, w, 3], zero outside the matte:
-        albedo * (T . L') + E . L' on the matte's pixels (float32 matmuls)."""
+        max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
+
+        A radiance is >= 0; negative values are SH truncation ringing (or network
+        error), not light: they are set to 0 and counted in `last_stats`
+        (docs/conventions.md, "Ringing and negative light").
+        """
         L = self.light_for(light, rotation_deg, exposure_ev, normalize)
         h, w = self.working_size
         relit = self._albedo_m * (self._transport_m @ L)
         relit += self._residual_m @ L
+        # per-pixel minimum as two column minima: relit.min(axis=1) loops 3 values at a time, 30x slower
+        darkest = np.minimum(np.minimum(relit[:, 0], relit[:, 1]), relit[:, 2])
+        np.minimum(darkest, np.float32(0.0), out=darkest)
+        darkest *= self._inside  # only the person's pixels count, not the grown ring
+        self.last_stats = RelightStats(clamped=int(np.count_nonzero(darkest)), pixels=self._inside_count,
+                                       darkest=float(darkest.min()))
+        np.maximum(relit, np.float32(0.0), out=relit)
         if self._matte.size == h * w:  # matte covers the crop: no scatter needed
             return relit.reshape(h, w, 3)
         out = np.zeros((h * w, 3), np.float32)
@@ -336,8 +506,15 @@ class Decomposition:
                 normalize: bool = True) -> np.ndarray:
         """Fast composite at working resolution (the crop only), [h, w, 3]: for interactive use."""
         relit = self.relight_working(light, rotation_deg, exposure_ev, normalize)
-        a = self.alpha[..., None]
-        return a * relit + (1.0 - a) * self.photo_working
+        if self._preview_weights is None:
+            # alpha repeated per channel: numpy broadcasts [h, w, 1] against [h, w, 3]
+            # 3 values at a time, an order of magnitude slower
+            a = np.repeat(self.alpha[..., None], 3, axis=2)
+            self._preview_weights = (a, 1.0 - a)
+        a, rest = self._preview_weights
+        relit *= a
+        relit += rest * self.photo_working
+        return relit
 
     def relight(self, light, rotation_deg: float = 0.0, exposure_ev: float = 0.0,
                 normalize: bool = True, detail: bool = True) -> np.ndarray:
@@ -351,7 +528,8 @@ class Decomposition:
         bit for bit. When the crop was resized for the network, `detail`
         relights the full-resolution photo by the upsampled quotient
         relit / photo of working resolution (keeps the photo's fine texture);
-        without it the relit person is just upsampled.
+        without it the relit person is just upsampled. The relit person is
+        >= 0 (negative light clamped; `last_stats` counts it).
         """
         scale = np.float32(_exposure_scale(exposure_ev))
         relit = self.relight_working(light, rotation_deg, 0.0, normalize)
@@ -359,48 +537,28 @@ class Decomposition:
         out = np.empty_like(self.photo)
         out[:y0], out[y1:] = self.photo[:y0], self.photo[y1:]
         out[y0:y1, :x0], out[y0:y1, x1:] = self.photo[y0:y1, :x0], self.photo[y0:y1, x1:]
-        if self._up.identity or not detail:
-            relit *= scale  # a power of two for whole EV steps: exact
-            source, quotient = self._up.prepare(relit), False
-        else:
-            ratio = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
+        quotient = detail and not self._up.identity
+        if quotient:
+            source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
             # capped: a bright speck averaged away at working resolution would
             # otherwise be multiplied by relit / (its dark surroundings)
-            np.clip(ratio, -DETAIL_MAX, DETAIL_MAX, out=ratio)
-            source = self._up.prepare(ratio)
-            quotient = True
-
-        def strip(r0: int) -> None:
-            r1 = min(r0 + STRIP_ROWS, y1 - y0)
-            original = self.photo[y0 + r0:y0 + r1, x0:x1]
-            a = self._alpha_strip(r0, r1)
-            person = self._up.strip(source, r0, r1)
-            if quotient:
-                # relit = ((photo + eps) * Q - eps) * 2^EV, in place (few full-size passes)
-                q = person
-                person = original + np.float32(DETAIL_EPS)
-                person *= q
-                person -= np.float32(DETAIL_EPS)
-                if scale != 1:
-                    person *= scale
-            else:
-                person = person.copy() if self._up.identity else person
-            # a * relit + (1 - a) * photo: exactly the photo where a == 0, the relit where a == 1
-            person *= a
-            person += (1.0 - a) * original
-            out[y0 + r0:y0 + r1, x0:x1] = person
-
-        self._alpha_strip(0, 1)  # prepares the matte's interpolation before the threads start
-        starts = range(0, y1 - y0, STRIP_ROWS)
-        if len(starts) > 4 and (os.cpu_count() or 1) > 1:
-            # numpy releases the GIL in these large ufuncs: two strips at a time
+            np.clip(source, 0.0, DETAIL_MAX, out=source)
+        else:
+            source = relit
+        # exposure folded into what is upsampled: a power of two for whole EV
+        # steps, so +1 EV still doubles the person exactly
+        source *= scale
+        compose = _Compositor(self, out, source, quotient, scale)
+        bands = _bands(self._up.rows[0] if not self._up.identity else None, y1 - y0, x1 - x0)
+        if len(bands) > 1 and (os.cpu_count() or 1) > 1:
+            # numpy releases the GIL in its loops: one band per core at a time
             from concurrent.futures import ThreadPoolExecutor
 
             with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
-                list(pool.map(strip, starts))
+                list(pool.map(compose.band, bands))
         else:
-            for r0 in starts:
-                strip(r0)
+            for band in bands:
+                compose.band(band)
         return out
 
     def _alpha_strip(self, r0: int, r1: int) -> np.ndarray:
@@ -429,7 +587,8 @@ class Decomposition:
                normalize: bool = True) -> dict[str, np.ndarray]:
         """Full-resolution albedo, shading T . L', residual E . L' ([H, W, 3], zero
         outside the matte) and alpha [H, W]; L' is the photo's own light when
-        `light` is None. albedo * shading + residual is the relit person."""
+        `light` is None. albedo * shading + residual is the relit person before
+        the clamp at 0 (the layers keep their sign: linear, for compositing)."""
         L = self.light_for(self if light is None else light, rotation_deg, exposure_ev,
                            normalize)
         h, w = self.working_size

@@ -23,7 +23,7 @@ from export.random_model import export_random_model, random_relightnet
 from farm.bake import fibonacci_directions
 from relight import envmap, presets, sh
 from relight.prt import lambert_transport
-from relight.runtime import DETAIL_EPS, DETAIL_MAX, Relighter
+from relight.runtime import DETAIL_EPS, DETAIL_MAX, Decomposition, Relighter, resize_linear
 
 ORDER = 4
 SUN = 1e5
@@ -97,6 +97,86 @@ def test_sun_light_through_the_runtime_is_finite(relighter):
     bound = np.abs(d.albedo) * (np.abs(d.transport) @ L) + np.abs(d.residual) @ L
     assert np.all(np.abs(small) <= bound * (1 + 30 * np.finfo(np.float32).eps))
     assert np.abs(small).max() > 1.0  # the sun's power really reached the pixels
+
+
+def _lambertian_ball(size: int = 32, scale: int = 4, mask: bool = True) -> Decomposition:
+    """A white-ish Lambertian ball facing the camera (-Y), as a decomposition of a
+    photo `scale` times the working size: T = Lambert transport of its normals."""
+    v, u = (np.mgrid[0:size, 0:size] + 0.5) / size * 2 - 1  # u: image x, v: image row (down)
+    inside = u ** 2 + v ** 2 < 1
+    normals = np.stack([u, -np.sqrt(np.clip(1 - u ** 2 - v ** 2, 0, 1)), -v], -1)
+    alpha = inside.astype(np.float32)
+    transport = (lambert_transport(normals, ORDER) * inside[..., None]).astype(np.float32)
+    big = size * scale
+    y, x = np.mgrid[0:big, 0:big] / big
+    photo = np.stack([0.2 + 0.5 * x, 0.3 + 0.3 * y, 0.05 + 0.0 * x], -1).astype(np.float32)
+    full_mask = None
+    if mask:
+        yy, xx = (np.mgrid[0:big, 0:big] + 0.5) / big * 2 - 1
+        full_mask = np.clip(8.0 * (1 - np.hypot(xx, yy)), 0, 1).astype(np.float32)  # soft edge
+    return Decomposition(albedo=np.full((size, size, 3), 0.8, np.float32) * alpha[..., None],
+                         transport=transport, residual=np.zeros_like(transport),
+                         light=np.zeros((sh.num_coeffs(ORDER), 3), np.float32), alpha=alpha,
+                         box=(0, big, 0, big), working_size=(size, size), photo=photo,
+                         photo_working=resize_linear(photo, size, size), mask=full_mask, sh_order=ORDER)
+
+
+@pytest.mark.parametrize("kind", [None, "hanning", "lanczos"])
+def test_sun_light_relit_image_is_finite_and_non_negative(kind):
+    # the sun map at order 4, unwindowed and windowed (docs/conventions.md), on a
+    # Lambertian ball: its side away from the sun gets negative shading (ringing);
+    # the runtime clamps the relit person at 0, so with a photo >= 0 and alpha in
+    # [0, 1] the composite a * person + (1 - a) * photo is >= 0. Asserted per image:
+    #   0 <= out <= max(photo.max(), upper), upper = the working-resolution person's
+    #   max without detail transfer (bilinear weights: a convex combination), and
+    #   DETAIL_MAX * (photo.max() + eps) with it
+    c = sh.project_equirect(_sun_map(), ORDER, precision="float64")
+    if kind is not None:
+        c = sh.apply_window(c, kind)
+    for mask in (True, False):
+        d = _lambertian_ball(mask=mask)
+        small = d.relight_working(c)
+        stats = d.last_stats
+        assert stats.clamped > 0 and stats.darkest < 0, kind  # the ringing really went negative
+        assert np.all(np.isfinite(small)) and small.min() >= 0
+        print(f"window {kind}: {stats.clamped} of {stats.pixels} ball pixels clamped, darkest "
+              f"{stats.darkest:.4g} = {stats.darkest / small.max():.2%} of the brightest visible pixel")
+        for detail in (True, False):
+            out = d.relight(c, detail=detail)
+            assert np.all(np.isfinite(out)) and out.min() >= 0, (kind, detail)
+            upper = DETAIL_MAX * (d.photo.max() + DETAIL_EPS) if detail else small.max()
+            assert out.max() <= max(d.photo.max(), upper) * (1 + 1e-5), (kind, detail)
+
+
+def test_relight_image_output_is_non_negative(tmp_path, capsys):
+    from PIL import Image
+
+    from relight.cli import main
+    from relight.exr import read_exr, write_exr
+    from relight.photo import read_photo
+
+    model, _, _ = export_random_model(tmp_path / "m.onnx", seed=12, sh_order=ORDER, width=4, depth=2)
+    sun = _sun_map()
+    write_exr(tmp_path / "sun.exr", {ch: sun[..., i] for i, ch in enumerate("RGB")})
+    rng = np.random.default_rng(5)
+    Image.fromarray(rng.integers(20, 235, (60, 50, 3), dtype=np.uint8)).save(tmp_path / "p.png")
+    # through the API (draft = 256 px): this network and light do ring below 0
+    d = Relighter(model, working_size=256).decompose(read_photo(tmp_path / "p.png")[0])
+    d.relight(str(tmp_path / "sun.exr"))
+    assert d.last_stats.clamped > 0
+    for out, extra in (("o.exr", []), ("l.exr", ["--layers"])):
+        code = main(["image", str(tmp_path / "p.png"), "--light", str(tmp_path / "sun.exr"), "--model",
+                     str(model), "--out", str(tmp_path / out), "--quality", "draft", *extra])
+        err = capsys.readouterr().err
+        assert code == 0, err
+        # the share clamped is reported when it is visible (> 1% of the person)
+        warned = "clamped to 0" in err
+        assert warned == (d.last_stats.fraction > 0.01), (d.last_stats, err)
+        channels = read_exr(tmp_path / out)
+        prefix = "Relight.Relit." if extra else ""
+        relit = [channels[prefix + c] for c in "RGB"]
+        for v in relit:
+            assert np.all(np.isfinite(v)) and v.min() >= 0, out
 
 
 def test_bundled_maps_clamp_negative_texels_and_stay_finite():
@@ -209,7 +289,7 @@ def test_fp16_cancelling_transport_parts(tmp_path):
 BIG_CHILD = r"""
 import sys
 import numpy as np
-from relight.runtime import DETAIL_EPS, DETAIL_MAX, Relighter
+from relight.runtime import DETAIL_EPS, DETAIL_MAX, Decomposition, Relighter, resize_linear
 r = Relighter(sys.argv[1], threads=1, working_size=64)
 side = 8000
 photo = np.empty((side, side, 3), np.float32)

@@ -1,9 +1,11 @@
 """Evaluation pieces: a perfect decomposition scores perfectly; baselines match hand values."""
 
+import json
+
 import numpy as np
 import pytest
 
-from model import evaluate
+from model import evaluate, metrics
 
 
 def _sample(seed=0, n=9, h=4, w=5):
@@ -54,3 +56,191 @@ def test_table_and_contact_sheet_layout():
     sheet = evaluate.contact_sheet([[np.zeros((4, 6, 3)), np.ones((4, 6, 3))]] * 2)
     assert sheet.shape == (2 * 6, 2 * 8, 3) and sheet.dtype == np.uint8
     assert sheet[0, 0].tolist() == [0, 0, 0] and sheet[0, 8].tolist() == [255, 255, 255]
+
+
+def test_parse_baselines_names_paths_and_rejects_clashes(tmp_path):
+    odd = tmp_path / "a=b.onnx"  # an existing file whose name holds "=" stays a path
+    odd.write_bytes(b"")
+    got = evaluate.parse_baselines(["small=runs/small/model.onnx", "runs/ke/model.safetensors", str(odd),
+                                    ("mine", "x.onnx"), "runs/v=2/model.onnx"])
+    assert [name for name, _ in got] == ["small", "baseline (ke/model.safetensors)",
+                                         f"baseline ({tmp_path.name}/a=b.onnx)", "mine",
+                                         "baseline (v=2/model.onnx)"]
+    assert str(got[0][1]) == "runs/small/model.onnx" and got[2][1] == odd
+    assert evaluate.parse_baselines(None) == [] and len(evaluate.parse_baselines("m.onnx")) == 1
+    for bad in (["a=x.onnx", "a=y.onnx"], ["identity=x.onnx"], ["=x.onnx"], ["a|b=x.onnx"]):
+        with pytest.raises(ValueError):
+            evaluate.parse_baselines(bad)
+
+
+@pytest.fixture
+def one_thread():
+    """Tiny tensors: one thread is faster on the shared cores; restored after the test."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch's legacy (TorchScript) exporter
+def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
+    """Ours + an ONNX baseline of the same order + a safetensors baseline of order 2, one run:
+    every baseline's row equals that model's own row when it is evaluated alone."""
+    from export.random_model import export_random_model, random_relightnet
+    from model.checkpoint import save_model
+    from model.synthetic import write_analytic_dataset
+
+    data = tmp_path / "data"
+    write_analytic_dataset(data, n_scenes=2, size=32, order=4, lights=("studio", "city", "venice"))
+    ours = save_model(random_relightnet(1, sh_order=4, width=4, depth=2), tmp_path / "ours" / "model.safetensors")
+    small, _, _ = export_random_model(tmp_path / "small.onnx", seed=2, sh_order=4, width=4, depth=2)
+    ke = save_model(random_relightnet(3, sh_order=2, width=4, depth=2), tmp_path / "ke" / "model.safetensors")
+
+    argv = [str(ours), "--data", str(data), "--out", str(tmp_path / "all"), "--size", "32",
+            "--baseline", f"small={small}", "--baseline", str(ke), "--sheet-rows", "1"]
+    assert evaluate.main(argv) == 0
+    md = (tmp_path / "all" / "evaluation.md").read_text()
+    rows = {line.split("|")[1].strip() for line in md.splitlines() if "| relighting |" in line}
+    ke_name = "baseline (ke/model.safetensors)"
+    assert rows == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW, "small", ke_name}
+    record = json.loads((tmp_path / "all" / "evaluation.json").read_text())
+    assert record["baselines"] == {"small": str(small), ke_name: str(ke)}
+    together = record["methods"]
+    for name, path in (("small", small), (ke_name, ke)):
+        alone = evaluate.evaluate(path, data, tmp_path / name.split()[0], size=32, sheet_rows=1)
+        assert alone["pairs"] == record["pairs"]
+        # same network, same pairs, same order: identical numbers, not merely close
+        assert alone["methods"]["ours"] == together[name], name
+
+    capsys.readouterr()
+    assert evaluate.main(argv + ["--baseline", f"small={ke}"]) == 2
+    assert "used twice" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ real photos (model.evaluate_photos)
+
+
+@pytest.fixture(scope="module")
+def random_onnx(tmp_path_factory):
+    """A small seeded random-weight RelightNet exported to ONNX (+ .sha256)."""
+    import torch
+
+    from export.random_model import export_random_model
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        path, _, _ = export_random_model(tmp_path_factory.mktemp("onnx") / "random.onnx", seed=5,
+                                         sh_order=4, width=4, depth=2)
+    finally:
+        torch.set_num_threads(before)
+    return path
+
+
+def _photos(folder):
+    """Two tiny photos: an opaque JPEG (predicted matte) and an RGBA PNG (the file's alpha)."""
+    from PIL import Image
+
+    rng = np.random.default_rng(3)
+    folder.mkdir()
+    Image.fromarray(rng.integers(0, 256, (40, 28, 3), dtype=np.uint8)).save(folder / "a.jpg", quality=90)
+    rgba = rng.integers(0, 256, (30, 44, 4), dtype=np.uint8)
+    rgba[..., 3] = 0
+    rgba[5:25, 10:30, 3] = 255  # a person-sized opaque box inside a transparent frame
+    Image.fromarray(rgba, "RGBA").save(folder / "b.png")
+    (folder / "notes.txt").write_text("not a photo")
+    return folder
+
+
+def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(random_onnx, tmp_path, capsys):
+    from model import evaluate_photos as ep
+    from relight.runtime import Relighter
+
+    photos = _photos(tmp_path / "photos")
+    out = tmp_path / "out"
+    results = ep.evaluate_photos(random_onnx, photos, out, quality=32, threads=1, tile=24)
+    assert [r.name for r in results] == ["a.jpg", "b.png"]
+    assert [r.matte for r in results] == ["predicted", "file alpha"]
+    md = (out / "photos.md").read_text()
+    assert sum(line.startswith(("| a.jpg |", "| b.png |")) for line in md.splitlines()) == 2
+    record = json.loads((out / "photos.json").read_text())
+    for row in record["photos"]:
+        assert all(np.isfinite(v) for v in row["reconstruction"].values()), row
+    from PIL import Image
+
+    sheet = Image.open(out / "contact_sheet.png")
+    cols = 2 + len(ep.SHEET_PRESETS) * len(ep.SHEET_ROTATIONS)
+    assert sheet.size == (cols * (24 + ep.GUTTER), ep.LABEL_HEIGHT + 2 * (24 + ep.GUTTER))
+
+    # the number is what the table says: max(0, albedo * (T . L) + E . L) with the predicted L (the
+    # runtime clamps negative light), against the photo at working resolution, weighted by the
+    # matte (here the file's alpha)
+    from relight import photo as photo_io
+
+    image, mask = photo_io.read_photo(photos / "b.png")
+    dec = Relighter(random_onnx, threads=1, working_size=32).decompose(image, mask=mask)
+    L = dec.light.astype(np.float64)
+    rerendered = np.maximum(dec.albedo * (dec.transport @ L) + dec.residual @ L, 0.0)
+    w = dec.alpha[..., None]
+    mse = float((w * (rerendered - dec.photo_working) ** 2).sum() / (3 * w.sum()))
+    # float32 matmuls in the runtime vs float64 here: relative error ~1e-6 in the MSE
+    assert record["photos"][1]["reconstruction"]["psnr"] == pytest.approx(-10 * np.log10(mse), abs=1e-3)
+
+
+def test_evaluate_photos_cli_errors_and_presets(random_onnx, tmp_path, capsys):
+    from model import evaluate_photos as ep
+    from relight import presets
+
+    assert not set(ep.SHEET_PRESETS) & presets.HELD_OUT  # never show an evaluation light
+    (tmp_path / "empty").mkdir()
+    assert ep.main([str(random_onnx), "--photos", str(tmp_path / "empty"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no photos" in err[0]
+    assert ep.main([str(tmp_path / "missing.onnx"), "--out", str(tmp_path / "o")]) == 2
+    assert "model file not found" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # nothing half-written
+
+
+def test_evaluate_photos_needs_no_torch():
+    import subprocess
+    import sys
+
+    code = "import sys, model.evaluate_photos; sys.exit('torch' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_oracle_prt_misses_exactly_the_residual():
+    """The oracle (GT albedo and T, no E) is off by exactly E.L: its error is the residual's."""
+    sample, pred = _sample(seed=3)
+    got = evaluate.oracle_prt(sample)
+    mask = evaluate._hwc(sample["alpha"])
+    for setting, light, image in (("reconstruction", "light", "image"),
+                                  ("relighting", "target_light", "target_image")):
+        gt = evaluate._hwc(sample[image])
+        residual = evaluate.shading_np(pred["residual"], sample[light], False)
+        want = metrics.all_metrics(gt - residual, gt, mask)
+        assert got[f"{setting}/image"]["l1"] == pytest.approx(want["l1"], rel=1e-12)
+        assert got[f"{setting}/image"]["l1"] > 1e-3
+
+
+def test_interior_mask_drops_partly_covered_pixels():
+    sample, _ = _sample(seed=4)
+    sample["alpha"][0, 1, 1] = 0.5
+    weighted = evaluate.with_metric_weight(dict(sample), "alpha")["metric_weight"]
+    interior = evaluate.with_metric_weight(dict(sample), "interior")["metric_weight"]
+    assert weighted[0, 1, 1] == 0.5 and interior[0, 1, 1] == 0.0 and interior[0, 0, 0] == 0.0
+    assert interior.sum() == sample["alpha"].size - 2
+    # an error only on the half-covered pixel counts under "alpha", not under "interior"
+    sample["target_image"] = sample["target_image"].copy()
+    bad = dict(sample)
+    bad["input_linear"] = sample["target_image"].copy()
+    bad["input_linear"][:, 1, 1] += 1.0
+    bad["light"] = bad["target_light"]
+    assert evaluate.baseline_identity(evaluate.with_metric_weight(dict(bad), "interior"), False)[
+        "relighting/image"]["l1"] == 0.0
+    assert evaluate.baseline_identity(evaluate.with_metric_weight(dict(bad), "alpha"), False)[
+        "relighting/image"]["l1"] > 0.0
+    with pytest.raises(ValueError, match="mask"):
+        evaluate.with_metric_weight(dict(sample), "edges")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from export.random_model import export_random_model
-from relight import models, sh
+from relight import models, runtime, sh
 from relight.exr import write_exr
 from relight.prt import to_network_input
-from relight.runtime import Relighter, bilinear_rows, resolve_light
+from relight.runtime import DETAIL_EPS, DETAIL_MAX, Relighter, bilinear_rows, resolve_light
 
 ORDER = 4
 N = (ORDER + 1) ** 2
@@ -38,14 +38,15 @@ def _photo(h=48, w=64, seed=0):
 
 
 def _formula(d, L):
-    """albedo * (T . L) + E . L in float64, and a bound on its float32 rounding error."""
+    """max(0, albedo * (T . L) + E . L) in float64, and a bound on its float32 rounding error."""
     L = np.asarray(L, np.float64)
     a, T, E = (np.asarray(v, np.float64) for v in (d.albedo, d.transport, d.residual))
     exact = a * (T @ L) + E @ L
     # float32 dot products of n terms: error <= n * eps * sum |terms| (Higham);
-    # the light itself was rounded to float32 (relative eps per coefficient)
+    # the light itself was rounded to float32 (relative eps per coefficient).
+    # |max(0, x) - max(0, y)| <= |x - y|: the clamp keeps the bound
     bound = (N + 2) * EPS32 * (np.abs(a) * (np.abs(T) @ np.abs(L)) + np.abs(E) @ np.abs(L))
-    return exact, bound + 1e-30
+    return np.maximum(exact, 0.0), bound + 1e-30
 
 
 def test_own_light_reproduces_the_networks_reconstruction(relighter):
@@ -170,8 +171,9 @@ def test_layers_recompose_the_relit_person(relighter):
     out = d.relight(L)
     person = mask == 1
     recomposed = lay["albedo"] * lay["shading"] + lay["residual"]
-    # one extra float32 rounding each for the product and the sum
-    np.testing.assert_allclose(recomposed[person], out[person], rtol=4 * EPS32, atol=1e-7)
+    assert recomposed[person].min() < 0  # this light rings below 0 on some pixels: the layers keep the sign
+    # one extra float32 rounding each for the product and the sum; the relit pass is clamped at 0
+    np.testing.assert_allclose(np.maximum(recomposed[person], 0), out[person], rtol=4 * EPS32, atol=1e-7)
     own = d.layers()
     exact, bound = _formula(d, d.light)
     y0, y1, x0, x1 = d.box
@@ -216,7 +218,7 @@ def test_large_photo_keeps_fine_detail_and_compositing_is_consistent(relighter):
     # detail: the full-resolution photo times the upsampled quotient relit / photo
     eps = 1e-3
     quotient = (d.relight_working(L) + eps) / (d.photo_working + eps)
-    expect = (photo + eps) * bilinear_rows(quotient, H, W) - eps
+    expect = np.maximum((photo + eps) * bilinear_rows(quotient, H, W) - eps, 0)
     np.testing.assert_allclose(detailed, expect, rtol=1e-5, atol=1e-6)
     # a smooth photo has no detail to restore: both ways agree to the resampling error
     smooth = np.broadcast_to(np.linspace(0.3, 0.6, W, dtype=np.float32)[None, :, None], (H, W, 3)).copy()
@@ -323,3 +325,72 @@ def test_preview_is_the_working_resolution_composite(relighter):
     a = d.alpha[..., None]
     np.testing.assert_array_equal(prev, a * d.relight_working("studio", 10) + (1 - a) * d.photo_working)
     np.testing.assert_array_equal(prev[d.alpha == 0], d.photo_working[d.alpha == 0])
+
+
+def _reference_relight(d, L, detail: bool, exposure_ev: float) -> np.ndarray:
+    """relight() written out whole-frame with bilinear_rows and full_alpha (no tiles, no threads)."""
+    s = np.float32(2.0 ** exposure_ev)
+    eps = np.float32(DETAIL_EPS)
+    y0, y1, x0, x1 = d.box
+    crop = d.photo[y0:y1, x0:x1]
+    relit = d.relight_working(L)
+    if detail:
+        q = np.clip((relit + eps) / (d.photo_working + eps), 0, DETAIL_MAX) * s
+        person = np.maximum((crop + eps) * bilinear_rows(q, y1 - y0, x1 - x0) - eps * s, 0)
+    else:
+        person = bilinear_rows(relit * s, y1 - y0, x1 - x0)
+    a = d.full_alpha()[y0:y1, x0:x1, None]
+    out = d.photo.copy()
+    out[y0:y1, x0:x1] = person * a + (1 - a) * crop
+    return out
+
+
+@pytest.mark.parametrize("masked", [True, False])
+def test_tiled_threaded_compositing_equals_the_whole_frame_formula(relighter, monkeypatch, masked):
+    # tiles of 2 rows and bands of 8: many tiles per band, several bands on the thread pool
+    H, W = 150, 200
+    monkeypatch.setattr(runtime, "TILE_VALUES", 3 * W * 2)
+    monkeypatch.setattr(runtime, "BAND_ROWS", 8)
+    photo = _photo(H, W, seed=15)
+    mask = None
+    if masked:
+        mask = np.zeros((H, W), np.float32)
+        mask[20:140, 30:170] = np.linspace(0, 1, 140)[None, :]  # soft edge
+    d = relighter.decompose(photo, mask)
+    assert d.working_size != (d.box[1] - d.box[0], d.box[3] - d.box[2])  # resampled
+    L = np.random.default_rng(16).normal(0, 0.3, (N, 3))
+    L[0] = 2.0
+    for detail in (True, False):
+        for ev in (0.0, 1.3):
+            # same float32 operations in the same order, only split into tiles: equal bit for bit
+            np.testing.assert_array_equal(d.relight(L, exposure_ev=ev, detail=detail),
+                                          _reference_relight(d, L, detail, ev))
+
+
+def test_negative_light_is_clamped_and_counted(relighter):
+    photo = _photo(seed=17)
+    mask = np.zeros((48, 64), np.float32)
+    mask[4:44, 6:58] = 1.0
+    mask[4:44, 6:10] = 0.5
+    d = relighter.decompose(photo, mask, working_size=58)
+    assert d.working_size == (d.box[1] - d.box[0], d.box[3] - d.box[2])  # the crop's own size
+    L = np.random.default_rng(18).normal(0, 0.3, (N, 3))  # no DC bias: T.L rings below 0 often
+    small = d.relight_working(L)
+    assert small.min() >= 0
+    f = (np.asarray(d.albedo, np.float64) * (np.asarray(d.transport, np.float64) @ L)
+         + np.asarray(d.residual, np.float64) @ L)
+    _, bound = _formula(d, L.astype(np.float32))
+    inside = d.alpha > 0
+    # float32 rounding may flip the sign only where |f| is within the rounding bound
+    surely = np.count_nonzero(inside & np.any(f < -bound, axis=-1))
+    maybe = np.count_nonzero(inside & np.any(f < bound, axis=-1))
+    stats = d.last_stats
+    assert 0 < surely <= stats.clamped <= maybe
+    assert stats.pixels == np.count_nonzero(inside)
+    assert stats.fraction == stats.clamped / stats.pixels
+    assert abs(stats.darkest - f[inside].min()) <= bound.max()
+    # where the formula is clearly positive the clamp changes nothing
+    clear = inside[..., None] & (f > bound)
+    np.testing.assert_allclose(small[clear], f[clear], rtol=(N + 2) * EPS32 * 10, atol=bound.max())
+    out = d.relight(L)
+    assert out.min() >= 0 and d.last_stats == stats

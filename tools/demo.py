@@ -1,10 +1,14 @@
 """`make demo`: the main job on a bundled example, and where its output is.
 
-With a shipped model (relight/models/models.json names a default) it relights
-the bundled photo under three presets. Until one ships it runs the smallest
-real farm job (one posed, clothed human, path-traced and baked) and relights
-that scene's ground-truth decomposition, albedo * (T . L'), under the presets,
-next to Cycles' own render under the scene's light.
+With a shipped model (relight/models/models.json names a default) it
+relights the bundled real photo relight/data/examples/astronaut.jpg with
+that model (python -m model.evaluate_photos, torch-free): out/demo/
+contact_sheet.png shows the photo, its albedo and the person relit under
+three presets at 0 and 180 degrees; out/demo/photos.md holds the
+reconstruction numbers. While no model is registered it says so and runs
+the smallest real farm job instead (one posed, clothed human, path-traced
+and baked), relighting that scene's ground-truth decomposition,
+albedo * (T . L'), under the presets, next to Cycles' own render.
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out" / "demo"
-PRESETS = ("sunset", "studio", "forest")
+PRESETS = ("sunset", "studio", "forest")  # training maps, as model.evaluate_photos.SHEET_PRESETS
+EXAMPLE_PHOTO = ROOT / "relight" / "data" / "examples" / "astronaut.jpg"
 
 
 def _sheet(tiles: list[np.ndarray]) -> np.ndarray:
@@ -27,16 +32,11 @@ def _sheet(tiles: list[np.ndarray]) -> np.ndarray:
 
 
 def relight_photo(model: Path) -> list[Path]:
-    from relight import photo
-    from relight.runtime import Relighter
+    from model import evaluate_photos
 
-    src = next((ROOT / "relight" / "data" / "examples").glob("*.png"))
-    image, mask = photo.read_photo(src)
-    dec = Relighter(model).decompose(image, mask=mask)
-    outs = []
-    for name in PRESETS:
-        outs.append(photo.write_png(OUT / f"{src.stem}_{name}.png", dec.relight(name)))
-    return outs
+    print(f"relighting {EXAMPLE_PHOTO.relative_to(ROOT)} with {model}", flush=True)
+    evaluate_photos.evaluate_photos(model, [EXAMPLE_PHOTO], OUT, tile=256)
+    return [OUT / "contact_sheet.png", OUT / "photos.md", OUT / "photos.json"]
 
 
 def relight_farm_scene() -> list[Path]:
@@ -68,12 +68,18 @@ def main() -> int:
         model = models.default_model_path()
     except ValueError:
         model = None
+        print("no default model is registered in relight/models/models.json: relighting a "
+              "rendered farm scene's ground-truth decomposition instead of the bundled photo", flush=True)
     outs = relight_photo(model) if model else relight_farm_scene()
     print("\nwrote:")
     for p in outs:
         print("  ", p.relative_to(ROOT))
     if model is None:
         print("contact sheet: Cycles path-traced | albedo*(T.L) | relit under " + ", ".join(PRESETS))
+    else:
+        from model import evaluate_photos
+
+        print("contact sheet: " + " | ".join(evaluate_photos.column_labels()))
     return 0
 
 

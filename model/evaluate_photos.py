@@ -1,0 +1,206 @@
+"""Evaluate a shipped model on real photos: `python -m model.evaluate_photos MODEL.onnx --photos DIR --out DIR`.
+
+Runs the torch-free runtime (relight.runtime), as a user would, on every
+photo in DIR. Real photos have no ground truth, so the one number is the
+reconstruction: the photo re-rendered from its own decomposition,
+albedo * (T . L) + E . L with the predicted light L (negative values set to
+0, as the runtime returns them), against the photo itself (linear, at the
+network's working resolution, weighted by the predicted matte, or by the
+file's alpha channel when it has one). A contact
+sheet shows each photo relit under three bundled training presets, each at
+0 and 180 degrees. Writes OUT/photos.md, OUT/photos.json and
+OUT/contact_sheet.png, each atomically. Needs no torch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from model import metrics
+from relight import photo as photo_io
+from relight import sh
+from relight.colour import srgb_encode
+from relight.fileio import atomic_path, atomic_write_text
+from relight.runtime import QUALITY_SIZES, Relighter, resize_linear
+
+# training presets (not relight.presets.HELD_OUT): what a user would pick, not an evaluation light
+SHEET_PRESETS = ("sunset", "studio", "forest")
+SHEET_ROTATIONS = (0.0, 180.0)
+EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples"
+TILE = 192          # px: each contact-sheet image is fitted into a TILE x TILE box
+GUTTER = 2
+LABEL_HEIGHT = 14   # px of the header row naming the columns
+BACKDROP = 255      # sheet background (white)
+
+
+@dataclass
+class PhotoResult:
+    name: str
+    size: tuple[int, int]              # (H, W) of the photo
+    working_size: tuple[int, int]      # (h, w) the network saw
+    matte: str                         # "predicted" or "file alpha"
+    coverage: float                    # mean matte over the crop the network saw
+    light_luminance: float             # mean luminance of the predicted light
+    reconstruction: dict[str, float] | None  # l1, l2, psnr; None when the matte is empty
+    tiles: list[np.ndarray]            # linear [H, W, 3] images for the contact sheet
+
+
+def find_photos(folder) -> list[Path]:
+    """Photo files of `folder` (relight.photo.PHOTO_SUFFIXES), sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"photo folder not found: {folder}")
+    found = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in photo_io.PHOTO_SUFFIXES)
+    if not found:
+        raise ValueError(f"no photos ({', '.join(photo_io.PHOTO_SUFFIXES)}) in {folder}")
+    return found
+
+
+def column_labels() -> list[str]:
+    return ["input", "albedo"] + [f"{p} {r:g} deg" for p in SHEET_PRESETS for r in SHEET_ROTATIONS]
+
+
+def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
+    """Decompose one photo, measure its reconstruction and relight it for the sheet."""
+    image, file_mask = photo_io.read_photo(path)
+    dec = relighter.decompose(image, mask=file_mask)
+    # the network's own resolution: the full-resolution result borrows the photo's
+    # detail (runtime docstring), which would flatter a reconstruction measured there
+    rerendered = dec.relight_working(dec)
+    try:
+        recon = metrics.all_metrics(rerendered, dec.photo_working, dec.alpha)
+    except ValueError:  # empty matte: the network found no person
+        recon = None
+    albedo = dec.layers(light=dec)["albedo"]
+    tiles = [image, albedo]
+    for name in SHEET_PRESETS:
+        for rotation in SHEET_ROTATIONS:
+            tiles.append(dec.relight(name, rotation_deg=rotation))
+    return PhotoResult(
+        name=path.name, size=image.shape[:2], working_size=dec.working_size,
+        matte="predicted" if file_mask is None else "file alpha",
+        coverage=float(dec.alpha.mean()), light_luminance=float(sh.mean_luminance(dec.light)),
+        reconstruction=recon, tiles=tiles)
+
+
+def _fit_tile(linear: np.ndarray, tile: int) -> np.ndarray:
+    """sRGB uint8 [tile, tile, 3]: the image scaled to fit, centred on the backdrop."""
+    h, w = linear.shape[:2]
+    s = tile / max(h, w)
+    th, tw = max(1, round(h * s)), max(1, round(w * s))
+    small = resize_linear(np.clip(linear, 0.0, 1.0), th, tw)
+    out = np.full((tile, tile, 3), BACKDROP, np.uint8)
+    y, x = (tile - th) // 2, (tile - tw) // 2
+    out[y:y + th, x:x + tw] = np.rint(srgb_encode(np.clip(small, 0.0, 1.0)) * 255.0)
+    return out
+
+
+def contact_sheet(rows: list[list[np.ndarray]], labels: list[str] | None = None, tile: int = TILE) -> np.ndarray:
+    """uint8 sheet: one row of linear images per photo, each fitted into a tile; optional header."""
+    from PIL import Image, ImageDraw
+
+    cols = max(len(r) for r in rows)
+    top = LABEL_HEIGHT if labels else 0
+    sheet = np.full((top + len(rows) * (tile + GUTTER), cols * (tile + GUTTER), 3), BACKDROP, np.uint8)
+    for i, row in enumerate(rows):
+        for j, img in enumerate(row):
+            y, x = top + i * (tile + GUTTER), j * (tile + GUTTER)
+            sheet[y:y + tile, x:x + tile] = _fit_tile(img, tile)
+    if labels:
+        canvas = Image.fromarray(sheet)
+        draw = ImageDraw.Draw(canvas)
+        for j, text in enumerate(labels[:cols]):
+            draw.text((j * (tile + GUTTER) + 2, 1), text, fill=(0, 0, 0))
+        sheet = np.asarray(canvas)
+    return sheet
+
+
+def write_png_u8(path: Path, pixels: np.ndarray) -> Path:
+    from PIL import Image
+
+    with atomic_path(path, ".png") as tmp:
+        Image.fromarray(pixels, "RGB").save(tmp, format="PNG", compress_level=6)
+    return path
+
+
+def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
+    note = ("Reconstruction: the photo re-rendered from its own decomposition, albedo * (T . L) + E . L "
+            "with the *predicted* light L (clamped at 0 as the runtime returns it), against the photo; "
+            "linear values at the network's working resolution (crop around the person, longest side "
+            f"{working} px), each pixel weighted by the predicted matte (or the file's alpha). L1 and L2 "
+            "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
+            "this measures self-consistency, not relighting accuracy.")
+    lines = [f"# Real photos (`{model}`)", "", note, "",
+             "| photo | size | matte | matte coverage | light mean luminance | L1 | L2 | PSNR |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        m = r.reconstruction
+        cells = ["-", "-", "- (empty matte)"] if m is None else \
+            [f"{100 * m['l1']:.2f}", f"{100 * m['l2']:.3f}", f"{m['psnr']:.2f}"]
+        lines.append(f"| {r.name} | {r.size[1]}x{r.size[0]} | {r.matte} | {100 * r.coverage:.0f}% | "
+                     f"{r.light_luminance:.3f} | " + " | ".join(cells) + " |")
+    measured = [r.reconstruction for r in results if r.reconstruction is not None]
+    if len(measured) > 1:
+        means = {k: float(np.mean([m[k] for m in measured])) for k in ("l1", "l2", "psnr")}
+        lines.append(f"| mean of {len(measured)} | | | | | {100 * means['l1']:.2f} | "
+                     f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
+    lines += ["", "Contact sheet columns: " + ", ".join(column_labels()) +
+              " (presets are bundled training maps, scaled to mean luminance 0.8; "
+              "rotations turn the light about the vertical axis)."]
+    return "\n".join(lines) + "\n"
+
+
+def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced", threads: int | None = None,
+                    tile: int = TILE, sheet_name: str = "contact_sheet.png") -> list[PhotoResult]:
+    """Evaluate `model_path` on `photos` (a folder or a list of files); write the files into `out`."""
+    paths = find_photos(photos) if isinstance(photos, (str, Path)) else [Path(p) for p in photos]
+    if not paths:
+        raise ValueError("no photos to evaluate")
+    if not isinstance(tile, int) or not 16 <= tile <= 2048:
+        raise ValueError(f"tile must be an integer in [16, 2048], got {tile!r}")
+    relighter = Relighter(model_path, threads=threads, working_size=quality)
+    results = [evaluate_photo(relighter, p) for p in paths]
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_png_u8(out / sheet_name, contact_sheet([r.tiles for r in results], column_labels(), tile))
+    model_label = Path(model_path).name
+    atomic_write_text(out / "photos.md", markdown_table(results, model_label, relighter.working_size))
+    record = {"model": str(model_path), "model_sha256": relighter.sha256, "working_size": relighter.working_size,
+              "presets": list(SHEET_PRESETS), "rotations_deg": list(SHEET_ROTATIONS),
+              "photos": [{"name": r.name, "size": list(r.size), "working_size": list(r.working_size),
+                          "matte": r.matte, "coverage": r.coverage, "light_mean_luminance": r.light_luminance,
+                          "reconstruction": r.reconstruction} for r in results]}
+    atomic_write_text(out / "photos.json", json.dumps(record, indent=1) + "\n")
+    return results
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m model.evaluate_photos", description=__doc__.splitlines()[0])
+    p.add_argument("model", help="ONNX model (with its .sha256 beside it, or registered)")
+    p.add_argument("--photos", default=str(EXAMPLES_DIR),
+                   help="folder of photos (default: the bundled relight/data/examples)")
+    p.add_argument("--out", default="evaluation_photos", help="output folder (default: ./evaluation_photos)")
+    p.add_argument("--quality", choices=sorted(QUALITY_SIZES), default="balanced",
+                   help="working resolution, as `relight --quality` (default balanced, 512 px)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    p.add_argument("--tile", type=int, default=TILE, help=f"contact-sheet tile side in px (default {TILE})")
+    args = p.parse_args(argv)
+    try:
+        results = evaluate_photos(args.model, Path(args.photos), args.out, quality=args.quality,
+                                  threads=args.threads, tile=args.tile)
+    except ValueError as exc:
+        print(f"model.evaluate_photos: error: {exc}", file=sys.stderr)
+        return 2
+    print((Path(args.out) / "photos.md").read_text(encoding="utf-8"), end="")
+    print(f"{len(results)} photos; wrote {args.out}/photos.md, photos.json, contact_sheet.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

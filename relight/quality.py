@@ -1,0 +1,74 @@
+"""Quality presets: the one table that maps Draft / Balanced / Best to a model and a
+working size. `relight image --quality`, `Relighter(working_size="draft")` and the
+Blender add-on (blender_addon/quality.py) all read PRESETS.
+
+`model` names an entry of the model registry (relight/models/models.json); the
+precision is a property of that file (its `relight.precision` metadata), so an
+fp16 preset names the fp16 export (e.g. "default-fp16"). None runs the
+registry's default model. `working_size` is the longest side of the crop around
+the person that the network sees (relight.runtime). The figures that should
+decide this table come from benchmarks/bench_tradeoffs.py (docs/TRADEOFFS.md).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset", "working_sizes"]
+
+
+@dataclass(frozen=True)
+class QualityPreset:
+    key: str             # "draft", "balanced", "best": the CLI choice (the add-on uses it upper-cased)
+    label: str           # what a UI shows
+    model: str | None    # registry name; None: the registry's default model
+    working_size: int    # longest side, in pixels, of the crop the network sees
+    description: str
+
+
+# Fastest first. Until measured models ship, every preset runs the default model
+# and only the working size differs.
+PRESETS: tuple[QualityPreset, ...] = (
+    QualityPreset("draft", "Draft", None, 256, "Fast preview: the network sees the person at 256 px"),
+    QualityPreset("balanced", "Balanced", None, 512, "The network sees the person at 512 px"),
+    QualityPreset("best", "Best", None, 1024, "The network sees the person at 1024 px (slowest)"),
+)
+DEFAULT = "balanced"
+
+
+def preset(key: str) -> QualityPreset:
+    """The preset called `key` (any case); ValueError otherwise."""
+    for p in PRESETS:
+        if isinstance(key, str) and p.key == key.lower():
+            return p
+    raise ValueError(f"unknown quality preset {key!r}; expected one of {', '.join(p.key for p in PRESETS)}")
+
+
+def working_sizes() -> dict[str, int]:
+    """{key: working size} of every preset."""
+    return {p.key: p.working_size for p in PRESETS}
+
+
+def model_name(key: str, registry: dict) -> str | None:
+    """Registry name the preset runs: its own model when registered, else the
+    registry's default, else None (no model installed)."""
+    wanted = preset(key).model
+    if wanted and wanted in registry["models"]:
+        return wanted
+    default = registry.get("default")
+    return default if default and default in registry["models"] else None
+
+
+def model_path(key: str, registry_path: str | os.PathLike | None = None) -> Path:
+    """The ONNX file the preset runs (see model_name); ValueError when none is installed."""
+    from relight import models
+
+    registry_path = Path(models.REGISTRY_PATH if registry_path is None else registry_path)
+    registry = models.load_registry(registry_path)
+    name = model_name(key, registry)
+    if name is None:
+        raise ValueError("no relighting model is installed yet: pass --model MODEL.onnx "
+                         "(make one with `python -m export WEIGHTS.safetensors --out MODEL.onnx`)")
+    return registry_path.parent / registry["models"][name]["file"]

@@ -1,0 +1,55 @@
+"""relight/quality.py: the one Draft/Balanced/Best table that the CLI, the runtime and the
+add-on read, and its model lookup."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from relight import models, quality
+
+
+def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
+    from blender_addon import quality as addon_quality
+    from relight.cli import build_parser
+    from relight.runtime import DEFAULT_WORKING_SIZE, QUALITY_SIZES
+
+    keys = [p.key for p in quality.PRESETS]
+    sizes = [p.working_size for p in quality.PRESETS]
+    assert keys == ["draft", "balanced", "best"] and sizes == sorted(sizes) and len(set(sizes)) == 3
+    assert QUALITY_SIZES == dict(zip(keys, sizes))
+    assert DEFAULT_WORKING_SIZE == quality.preset(quality.DEFAULT).working_size
+    assert [(p.key, p.model, p.working_long_side) for p in addon_quality.QUALITY_PRESETS] == \
+        [(p.key.upper(), p.model, p.working_size) for p in quality.PRESETS]
+    args = build_parser().parse_args(["image", "x.png", "--light", "studio"])
+    assert args.quality == quality.DEFAULT
+    assert quality.preset("BEST") is quality.preset("best")
+    with pytest.raises(ValueError, match="unknown quality preset 'ultra'; expected one of draft, balanced, best"):
+        quality.preset("ultra")
+
+
+def _registry(tmp_path, default, names):
+    path = tmp_path / "models.json"
+    entries = {n: {"file": f"{n}.onnx", "sha256": "0" * 64} for n in names}
+    path.write_text(json.dumps({"format": models.REGISTRY_FORMAT, "default": default, "models": entries}))
+    return path
+
+
+def test_model_lookup_prefers_the_presets_model_then_the_default(tmp_path, monkeypatch):
+    best = quality.preset("best")
+    monkeypatch.setattr(quality, "PRESETS", tuple(
+        quality.QualityPreset(p.key, p.label, "big" if p.key == "best" else p.model, p.working_size, p.description)
+        for p in quality.PRESETS))
+    assert quality.preset("best").model == "big" and best.model is None
+    registry = models.load_registry(_registry(tmp_path, "base", ["base", "big"]))
+    assert quality.model_name("best", registry) == "big"
+    assert quality.model_name("draft", registry) == "base"
+    registry = models.load_registry(_registry(tmp_path, "base", ["base"]))  # "big" not installed
+    assert quality.model_name("best", registry) == "base"
+    path = _registry(tmp_path, None, [])
+    assert quality.model_name("best", models.load_registry(path)) is None
+    with pytest.raises(ValueError, match="no relighting model is installed yet"):
+        quality.model_path("best", path)
+    path = _registry(tmp_path, "base", ["base", "big"])
+    assert quality.model_path("best", path) == tmp_path / "big.onnx"

@@ -1,0 +1,268 @@
+"""CI guard: the shipped default model must relight unseen scenes better than doing nothing.
+
+The farm renders a few small scenes lit only by the held-out maps
+(`--light-pool heldout`, never seen in training). For every ordered pair of
+a scene's lights (a, b), the registered default model decomposes the
+path-traced image under a through relight.runtime (as a user would run it,
+with the GT alpha as the mask) and relights it with light b's SH
+coefficients from the sidecar, which are in the photo-camera frame the
+network uses (docs/conventions.md, docs/dataset.md). The relit person is
+compared with Cycles' image under b: PSNR over the person, GT-alpha weighted,
+linear, peak 1 (model/metrics.py). Its mean over the pairs must beat the
+identity baseline (image a as is) and the exposure-matched identity
+(image a times L00_b / L00_a per channel) by the measured margins below.
+
+No registered default model, or margins not yet measured: the guard FAILS.
+
+To measure (prints the per-pair table and the means):
+
+    .venv/bin/python tests/test_shipped_model.py [MODEL.onnx] [--scenes-dir DIR]
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# The scenes: deterministic for a seed (same bodies, poses, lights, samples).
+SCENES, SEED, RES, LIGHTS, SAMPLES, ORDER = 3, 20250, 128, 2, 16, 4
+# The runtime's working size: the network was trained on 256 px crops around the person.
+WORKING_SIZE = 256
+
+# measured: TODO-lead. Fill in from `.venv/bin/python tests/test_shipped_model.py` with the
+# registered default model: "<model name> (sha256 <first 12>): mean PSNR model X dB, identity Y dB,
+# exposure-matched Z dB over 6 pairs"; set each margin to about half the measured advantage
+# (rounded down to 0.1 dB), so a model that loses half its gain fails.
+MARGIN_OVER_IDENTITY_DB: float | None = None
+MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = None
+
+
+# ------------------------------------------------------------------ the measurement
+
+
+def default_model() -> Path:
+    """The registry's default model file; raises ValueError naming what is missing."""
+    from relight import models
+
+    path = models.default_model_path()  # ValueError when no default is registered
+    if not path.is_file():
+        raise ValueError(f"relight/models/models.json names a default model, but {path} does not exist")
+    return path
+
+
+def render_scenes(folder: Path) -> list[Path]:
+    """The guard's scenes in `folder` (rendered by the farm; finished ones are kept)."""
+    import importlib.util
+
+    if importlib.util.find_spec("bpy") is None:
+        raise RuntimeError("the shipped-model guard renders its scenes with the farm: "
+                           "install bpy (pip install -e '.[farm]')")
+    cmd = [sys.executable, "-m", "farm", "--out", str(folder), "--scenes", str(SCENES), "--seed", str(SEED),
+           "--res", str(RES), "--lights", str(LIGHTS), "--samples", str(SAMPLES), "--order", str(ORDER),
+           "--light-pool", "heldout", "--workers", "1", "--resume", "--no-progress"]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"farm failed ({done.returncode}): {' '.join(cmd[1:])}\n{done.stderr[-2000:]}")
+    from relight import dataset
+
+    paths = dataset.list_finished_scenes(folder)
+    if len(paths) != SCENES:
+        raise RuntimeError(f"farm finished {len(paths)} of {SCENES} scenes in {folder}")
+    return paths
+
+
+def _light_label(light: dict) -> str:
+    return f"{light['name']} @{light['rotation_deg']:.0f}"
+
+
+def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
+    """Per ordered light pair (a, b): PSNR of relight_pair(scene, a, b) and of the two identities.
+
+    relight_pair(scene, a, b) -> linear [H, W, 3]: the scene's image under a relit to light b.
+    """
+    from model import metrics
+    from relight import dataset
+
+    rows = []
+    for path in scene_paths:
+        scene = dataset.read_scene(path)
+        if scene.images is None or len(scene.images) < 2:
+            raise ValueError(f"{path.name}: the guard needs two path-traced lights")
+        weight = scene.alpha[..., 0]
+        for a in range(len(scene.images)):
+            for b in range(len(scene.images)):
+                if a == b:
+                    continue
+                target = scene.images[b]
+                la, lb = scene.lights[a]["sh"][0], scene.lights[b]["sh"][0]
+                rows.append({
+                    "scene": scene.index, "a": _light_label(scene.lights[a]), "b": _light_label(scene.lights[b]),
+                    "relit": metrics.psnr(relight_pair(scene, a, b), target, weight),
+                    "identity": metrics.psnr(scene.images[a], target, weight),
+                    "exposure-matched": metrics.psnr(scene.images[a] * (lb / la), target, weight),
+                })
+    return rows
+
+
+def model_relighter(model_path: Path):
+    """relight_pair for pair_psnrs: the runtime's decompose (GT alpha as the mask) + relight."""
+    from relight.runtime import Relighter
+
+    relighter = Relighter(model_path, working_size=WORKING_SIZE)
+
+    def relight_pair(scene, a, b):
+        dec = relighter.decompose(scene.images[a], mask=scene.alpha[..., 0])
+        light_b = scene.lights[b]["sh"][:(relighter.sh_order + 1) ** 2]
+        return dec.relight(light_b)  # SH array: used as given (camera frame, no normalisation)
+
+    return relight_pair
+
+
+def means(rows: list[dict]) -> dict[str, float]:
+    return {k: float(np.mean([r[k] for r in rows])) for k in ("relit", "identity", "exposure-matched")}
+
+
+def table(rows: list[dict], label: str) -> str:
+    lines = [f"| scene | light a -> b | {label} | identity | exposure-matched |", "|---|---|---|---|---|"]
+    lines += [f"| {r['scene']} | {r['a']} -> {r['b']} | {r['relit']:.2f} | {r['identity']:.2f} | "
+              f"{r['exposure-matched']:.2f} |" for r in rows]
+    m = means(rows)
+    lines.append(f"| mean of {len(rows)} | | {m['relit']:.2f} | {m['identity']:.2f} | {m['exposure-matched']:.2f} |")
+    return "\n".join(lines)
+
+
+def shortfalls(rows: list[dict], over_identity: float, over_exposure_matched: float) -> list[str]:
+    """Why the relit mean PSNR fails the margins ([] when it passes)."""
+    m = means(rows)
+    out = []
+    for name, margin in (("identity", over_identity), ("exposure-matched", over_exposure_matched)):
+        if not m["relit"] >= m[name] + margin:
+            out.append(f"mean PSNR {m['relit']:.2f} dB does not beat {name} ({m[name]:.2f} dB) "
+                       f"by {margin:.2f} dB")
+    return out
+
+
+# ------------------------------------------------------------------ the tests
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """A function returning the rendered scenes (rendered on first call, once per module), so
+    that the guard checks the registry before it spends a minute rendering."""
+    rendered: list[Path] = []
+
+    def get() -> list[Path]:
+        if not rendered:
+            try:
+                rendered.extend(render_scenes(tmp_path_factory.mktemp("heldout_scenes")))
+            except RuntimeError as exc:
+                pytest.fail(str(exc))
+        return rendered
+
+    return get
+
+
+def test_shipped_default_model_beats_identity_on_held_out_lights(scenes):
+    try:
+        model = default_model()
+    except ValueError as exc:  # a failure, not a skip: shipping without a model is the bug
+        pytest.fail(f"no shipped default model to guard ({exc}); register one with `python -m export "
+                    "WEIGHTS.safetensors --out relight/models/NAME.onnx --register NAME`")
+    if MARGIN_OVER_IDENTITY_DB is None or MARGIN_OVER_EXPOSURE_MATCHED_DB is None:
+        pytest.fail("tests/test_shipped_model.py: the margins are not measured yet; run "
+                    "`.venv/bin/python tests/test_shipped_model.py` and fill in MARGIN_* and the "
+                    "`# measured:` comment")
+    rows = pair_psnrs(model_relighter(model), scenes())
+    print(table(rows, model.name))
+    problems = shortfalls(rows, MARGIN_OVER_IDENTITY_DB, MARGIN_OVER_EXPOSURE_MATCHED_DB)
+    assert not problems, f"{model.name}: " + "; ".join(problems) + "\n" + table(rows, "model")
+
+
+def test_guard_passes_the_true_decomposition(scenes):
+    """The harness itself: the scene's own albedo and transport (GT), relit by the runtime with
+    light b's sidecar coefficients, must clear the guard. This proves the frames, SH order and
+    compositing line up, so a failing model is the model's fault, not the harness's."""
+    from relight.runtime import Decomposition
+
+    def relight_pair(scene, a, b):
+        h, w = scene.resolution
+        n = (ORDER + 1) ** 2
+        gt = Decomposition(
+            albedo=scene.albedo, transport=np.ascontiguousarray(scene.transport[..., :n]),
+            residual=np.zeros((h, w, n), np.float32), light=scene.lights[a]["sh"][:n].astype(np.float32),
+            alpha=scene.alpha[..., 0], box=(0, h, 0, w), working_size=(h, w), photo=scene.images[a],
+            photo_working=scene.images[a], mask=scene.alpha[..., 0], sh_order=ORDER)
+        return gt.relight(scene.lights[b]["sh"][:n])
+
+    rows = pair_psnrs(relight_pair, scenes())
+    print(table(rows, "GT decomposition"))
+    # measured (these 6 pairs): GT 23.76 dB, identity 18.92, exposure-matched 21.89 (+4.8, +1.9 dB).
+    # The same GT with light b turned 90 degrees about Z (a frame error) measured 21.65 dB, below
+    # exposure-matched: these margins reject it. Order 4 and no residual (specular, interreflection)
+    # keep even the GT well below the path-traced image.
+    assert not shortfalls(rows, 3.0, 1.0), table(rows, "GT decomposition")
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch's legacy (TorchScript) exporter
+def test_guard_rejects_a_random_weight_model(scenes, tmp_path):
+    """The guard can fail: a seeded random-weight network run through the same runtime path
+    gives finite PSNRs that do not even reach the identity baseline."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("onnx")
+    from export.random_model import export_random_model
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        path, _, _ = export_random_model(tmp_path / "random.onnx", seed=0, sh_order=ORDER)
+    finally:
+        torch.set_num_threads(before)
+    rows = pair_psnrs(model_relighter(path), scenes())
+    print(table(rows, "random weights"))
+    assert all(np.isfinite(r["relit"]) for r in rows)
+    assert len(shortfalls(rows, 0.0, 0.0)) == 2, table(rows, "random weights")
+
+
+# ------------------------------------------------------------------ measuring the margins
+
+
+def main(argv=None) -> int:
+    import argparse
+    import tempfile
+
+    p = argparse.ArgumentParser(prog="tests/test_shipped_model.py",
+                                description="Measure the guard's PSNRs for a model (default: the registered default).")
+    p.add_argument("model", nargs="?", help="ONNX model (default: the registry's default)")
+    p.add_argument("--scenes-dir", type=Path, help="keep the rendered scenes here (reused when finished)")
+    args = p.parse_args(argv)
+    try:
+        model = Path(args.model) if args.model else default_model()
+        folder = args.scenes_dir or Path(tempfile.mkdtemp(prefix="relight_guard_"))
+        scene_paths = render_scenes(folder)
+        rows = pair_psnrs(model_relighter(model), scene_paths)
+    except (ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    from relight.fileio import file_sha256
+
+    m = means(rows)
+    print(table(rows, model.name))
+    print(f"\nmeasured: {model.name} (sha256 {file_sha256(model)[:12]}): mean PSNR model {m['relit']:.2f} dB, "
+          f"identity {m['identity']:.2f} dB, exposure-matched {m['exposure-matched']:.2f} dB over {len(rows)} "
+          f"pairs (scenes in {folder})")
+    print(f"advantage: {m['relit'] - m['identity']:+.2f} dB over identity, "
+          f"{m['relit'] - m['exposure-matched']:+.2f} dB over exposure-matched")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+    os.chdir(ROOT)
+    sys.exit(main())
