@@ -51,12 +51,8 @@ SECTIONS = ("network", "sh", "directions", "spp")
 DEFAULT_SIZES = (128, 256, 384, 512, 1024)
 DEFAULT_ORDERS = (2, 3, 4, 6)
 BALANCED_DB = 0.5  # proposal rule: Balanced is the fastest front point within this of the best PSNR
-# Pixels at least this covered are "interior". Partial-coverage pixels mix in the
-# background, which neither PRT nor the network's relit person models (the
-# runtime keeps the photo's own background there), and at edges the path-traced
-# target holds light b's background: that common term dominates alpha-weighted
-# errors on small renders, so the fronts use the interior errors.
-INTERIOR_ALPHA = 0.999
+# "Interior" pixels as model/evaluate.py defines them (why: the comment there).
+from model.evaluate import INTERIOR_ALPHA  # noqa: E402
 
 
 # ------------------------------------------------------------------ Pareto front
@@ -302,9 +298,10 @@ def spp_points(resolution: int, counts, reference: int) -> tuple[str, list[dict]
 # ------------------------------------------------------------------ markdown
 
 
-INTERIOR_NOTE = (f"\"Interior\": pixels with GT alpha > {INTERIOR_ALPHA} (the Pareto front uses these); the plain "
-                 "columns weight every pixel by its alpha as model/evaluate.py does, edges included, where the "
-                 "target holds the other light's background.")
+INTERIOR_NOTE = (f"\"Interior\": pixels with GT alpha > {INTERIOR_ALPHA} (the Pareto front uses these, as "
+                 "model/evaluate.py's default mask does); the plain columns weight every pixel by its alpha "
+                 "(`model.evaluate --mask alpha`), edges included, where the target holds the other light's "
+                 "background.")
 
 
 def _mark(front: bool) -> str:
@@ -492,6 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("--data", help="held-out scene folder (farm --light-pool heldout); network and sh sections")
+    p.add_argument("--sh-data", help="scene folder for the sh section when it differs from --data "
+                                     "(e.g. a held-out set baked at order 6)")
     p.add_argument("--model", action="append", metavar="NAME=PATH.onnx", help="ONNX model, repeatable")
     p.add_argument("--sections", default="network,sh", help=f"comma list of {','.join(SECTIONS)}")
     p.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)), help="working sizes (px)")
@@ -543,7 +542,7 @@ def run(argv=None) -> dict:
                                               held_out_only=args.held_out_only)
             text = network_markdown(*results[section], args.threads, args.repeats)
         elif section == "sh":
-            results[section] = sh_order_points(args.data, orders, repeat=max(args.repeats, 3))
+            results[section] = sh_order_points(args.sh_data or args.data, orders, repeat=max(args.repeats, 3))
             text = sh_markdown(*results[section], max(args.repeats, 3))
         elif section == "directions":
             results[section] = directions_points(int_list(args.directions, "--directions", 16, 65536),

@@ -30,6 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fp16", action="store_true", help="also write OUT stem + .fp16.onnx")
     parser.add_argument("--training-data", default=None,
                         help="description of the training data stored in the metadata")
+    parser.add_argument("--default", action="store_true",
+                        help="with --register: make NAME the registry's default model")
     parser.add_argument("--register", metavar="NAME", default=None,
                         help="record the model in relight/models/models.json (OUT must be in relight/models/)")
     args = parser.parse_args(argv)
@@ -73,8 +75,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.register:
             from relight.models import register_model
 
-            reg = register_model(args.register, path, digest, read_metadata(path))
+            reg = register_model(args.register, path, digest, read_metadata(path), make_default=args.default)
             print(f"registered {args.register} in {reg}")
+            if args.fp16:
+                register_model(f"{args.register}-fp16", path16, digest16, read_metadata(path16))
+                print(f"registered {args.register}-fp16 in {reg}")
     except (ValueError, OSError) as exc:
         print(f"export: error: {exc}", file=sys.stderr)
         return 1

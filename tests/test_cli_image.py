@@ -33,7 +33,7 @@ def _save_photo(path, h=40, w=30, seed=0, alpha=False):
 
 def _run(capsys, *argv):
     if "--quality" not in argv:
-        argv = (*argv, "--quality", "draft")  # 256 px: keeps the tests fast
+        argv = (*argv, "--quality", "draft")  # the smallest working size: keeps the tests fast
     code = main(["image", *map(str, argv)])
     out, err = capsys.readouterr()
     return code, out, err
@@ -47,7 +47,7 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
     assert code == 0, err
     assert f"wrote {out}" in stdout
     img, _ = read_photo(photo)
-    d = Relighter(model, working_size=256).decompose(img)
+    d = Relighter(model, working_size="draft").decompose(img)
     expect = d.relight("studio", 30, 0.5)
     got = np.asarray(Image.open(out)) / 255.0
     # 8-bit sRGB output: within half a code value of the encoded API result
@@ -73,7 +73,7 @@ def test_light_transfer_from_another_photo(model, tmp_path, capsys):
     out = tmp_path / "t.exr"
     code, _, err = _run(capsys, photo, "--light-from", donor, "--model", model, "--out", out)
     assert code == 0, err
-    r = Relighter(model, working_size=256)
+    r = Relighter(model, working_size="draft")
     d = r.decompose(read_photo(photo)[0])
     expect = d.relight(r.decompose(read_photo(donor)[0]))
     # (reading an EXR photo clamps negative radiance, which a random network can produce)

@@ -154,3 +154,26 @@ def test_export_command(tmp_path, capsys):
     assert main([str(tmp_path / "missing.safetensors"), "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("export: error:") for line in err)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_cli_registers_fp32_and_fp16_and_sets_the_default(tmp_path, monkeypatch, capsys):
+    from export.__main__ import main
+    from model.checkpoint import save_model
+
+    reg = tmp_path / "models" / "models.json"
+    reg.parent.mkdir()
+    real_register = models.register_model
+    monkeypatch.setattr(models, "register_model",
+                        lambda *a, **kw: real_register(*a, registry_path=reg, **kw))
+    weights = save_model(random_relightnet(4, sh_order=2, width=4, depth=2), tmp_path / "w.safetensors")
+    for name, extra in (("first", []), ("second", ["--default"])):
+        assert main([str(weights), "--out", str(reg.parent / f"{name}.onnx"), "--fp16",
+                     "--register", name, *extra]) == 0, capsys.readouterr().err
+    data = json.loads(reg.read_text())
+    assert set(data["models"]) == {"first", "first-fp16", "second", "second-fp16"}
+    assert data["default"] == "second"  # --default moves it; the first registered was the default before
+    for name, entry in data["models"].items():
+        path = reg.parent / entry["file"]
+        assert models.file_sha256(path) == entry["sha256"], name
+        assert entry["metadata"]["relight.precision"] == ("fp16" if name.endswith("fp16") else "fp32")

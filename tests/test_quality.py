@@ -37,11 +37,11 @@ def _registry(tmp_path, default, names):
 
 
 def test_model_lookup_prefers_the_presets_model_then_the_default(tmp_path, monkeypatch):
-    best = quality.preset("best")
+    # best names its own model, draft none (the registry's default)
     monkeypatch.setattr(quality, "PRESETS", tuple(
-        quality.QualityPreset(p.key, p.label, "big" if p.key == "best" else p.model, p.working_size, p.description)
+        quality.QualityPreset(p.key, p.label, "big" if p.key == "best" else None, p.working_size, p.description)
         for p in quality.PRESETS))
-    assert quality.preset("best").model == "big" and best.model is None
+    assert quality.preset("best").model == "big" and quality.preset("draft").model is None
     registry = models.load_registry(_registry(tmp_path, "base", ["base", "big"]))
     assert quality.model_name("best", registry) == "big"
     assert quality.model_name("draft", registry) == "base"
@@ -53,3 +53,11 @@ def test_model_lookup_prefers_the_presets_model_then_the_default(tmp_path, monke
         quality.model_path("best", path)
     path = _registry(tmp_path, "base", ["base", "big"])
     assert quality.model_path("best", path) == tmp_path / "big.onnx"
+
+
+def test_shipped_presets_name_registered_models():
+    """Every preset's model is in the shipped registry (else it would silently fall back)."""
+    registry = models.load_registry(models.REGISTRY_PATH)
+    for p in quality.PRESETS:
+        assert p.model is None or p.model in registry["models"], p
+        assert quality.model_path(p.key).is_file()
