@@ -150,13 +150,16 @@ def bench_scene(resolution: int, lights: int, samples: int) -> None:
 
 SPP_COUNTS = (16, 32, 64, 128, 256)
 SPP_REFERENCE = 1024
+# (label, denoise, OIDN guide prefilter): farm.options.DENOISE_PREFILTERS
+DENOISE_MODES = (("off", False, "fast"), ("OIDN fast", True, "fast"), ("OIDN accurate", True, "accurate"))
 
 
 def spp_rows(resolution: int, counts=SPP_COUNTS, reference: int = SPP_REFERENCE) -> tuple[str, list[dict]]:
     """(description, rows): one scene's path-traced image at several spp against `reference` spp.
 
-    Rows: {"spp", "denoise", "error", "seconds"}; error = mean |I - I_ref| / mean I_ref over
-    the person's pixels only (the visible map behind is noise-free).
+    Rows: {"spp", "denoise", "error", "seconds"}, denoise one of DENOISE_LABELS; error =
+    mean |I - I_ref| / mean I_ref over the person's pixels only (the visible map behind is
+    noise-free).
     """
     import bpy
 
@@ -175,10 +178,10 @@ def spp_rows(resolution: int, counts=SPP_COUNTS, reference: int = SPP_REFERENCE)
                 f" {int(person.sum())} pixels, reference {reference} spp without denoising")
         rows = []
         for spp in counts:
-            for denoise in (False, True):
-                r = passes.render_path_traced(scene, work, f"s{spp}", spp, denoise)
+            for label, denoise, prefilter in DENOISE_MODES:
+                r = passes.render_path_traced(scene, work, f"s{spp}", spp, denoise, prefilter=prefilter)
                 err = np.abs(r.image[person] - ref).mean() / np.abs(ref).mean()
-                rows.append({"spp": spp, "denoise": denoise, "error": float(err), "seconds": r.seconds})
+                rows.append({"spp": spp, "denoise": label, "error": float(err), "seconds": r.seconds})
     return info, rows
 
 
@@ -188,7 +191,7 @@ def bench_spp(resolution: int) -> None:
     print("| spp | denoise | relative error | render seconds |")
     print("|---|---|---|---|")
     for r in rows:
-        print(f"| {r['spp']} | {'OIDN' if r['denoise'] else 'off'} | {r['error']:.4f} | {r['seconds']:.2f} |")
+        print(f"| {r['spp']} | {r['denoise']} | {r['error']:.4f} | {r['seconds']:.2f} |")
 
 
 def main() -> None:

@@ -391,7 +391,7 @@ def spp_markdown(info: str, rows: list[dict]) -> str:
     lines = ["## Samples per pixel", "", info + " (benchmarks/bench_bake.py spp_rows).", "",
              "| spp | denoise | render seconds | relative error | Pareto |", "|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['spp']} | {'OIDN' if r['denoise'] else 'off'} | {r['seconds']:.2f} | {r['error']:.4f} "
+        lines.append(f"| {r['spp']} | {r['denoise']} | {r['seconds']:.2f} | {r['error']:.4f} "
                      f"| {_mark(r['front'])} |")
     return "\n".join(lines) + "\n"
 
@@ -442,7 +442,7 @@ def plot(results: dict, out: Path) -> Path:
         rows = results["spp"][1]
         panels.append(("Samples per pixel", "render seconds", "relative error",
                        [(label, [(r["seconds"], r["error"], r["front"], str(r["spp"])) for r in rows
-                                 if r["denoise"] == dn]) for label, dn in (("OIDN", True), ("no denoise", False))],
+                                 if r["denoise"] == label]) for label in dict.fromkeys(r["denoise"] for r in rows)],
                        True, False))
     if not panels:
         raise ValueError("nothing to plot")

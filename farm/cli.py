@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from farm.options import LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
+from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
 
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
@@ -116,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="path-tracing samples per pixel")
     s.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=True,
                    help="OIDN-denoise the path-traced images")
+    s.add_argument("--denoise-prefilter", choices=DENOISE_PREFILTERS, default="fast",
+                   help="OIDN guide prefilter: fast (guides as rendered) or accurate (denoised too; slower)")
     s.add_argument("--order", type=_int_in("--order", 1, 8), default=4, help="SH order N")
     s.add_argument("--directions", type=_int_in("--directions", 16, 65536), default=256,
                    help="transport bake directions per vertex")
@@ -156,6 +158,7 @@ def parse_args(argv: list[str]) -> RunConfig:
         )
     scene = SceneOptions(
         resolution=a.res, lights=a.lights, samples=a.samples, denoise=a.denoise,
+        denoise_prefilter=a.denoise_prefilter,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
         specular=a.specular, light_pool=a.light_pool,
     )

@@ -10,6 +10,10 @@ import numpy as np
 PASS_NAMES = frozenset({"pt", "prt"})
 SPECULAR_MODES = ("auto", "on", "off")
 LIGHT_POOLS = ("train", "heldout")
+# OIDN prefilter of the albedo/normal guides: "fast" trusts them as rendered (they are
+# nearly noise-free: first-hit values through a box filter), "accurate" denoises them
+# too, which cost 20% of path-tracing time (docs/benchmarks/farm_runner.md).
+DENOISE_PREFILTERS = ("fast", "accurate")
 
 
 @dataclass(frozen=True)
@@ -20,6 +24,7 @@ class SceneOptions:
     lights: int = 4
     samples: int = 64
     denoise: bool = True
+    denoise_prefilter: str = "fast"
     sh_order: int = 4
     bake_directions: int = 256
     passes: frozenset = frozenset({"pt", "prt"})
@@ -39,6 +44,9 @@ class SceneOptions:
                 raise ValueError(f"SceneOptions.{name} must be an integer in [{lo}, {hi}], got {value!r}")
         if not isinstance(self.denoise, bool):
             raise ValueError(f"SceneOptions.denoise must be a bool, got {self.denoise!r}")  # noqa: TRY004 (bad option values are ValueErrors project-wide)
+        if self.denoise_prefilter not in DENOISE_PREFILTERS:
+            raise ValueError(f"SceneOptions.denoise_prefilter must be one of {DENOISE_PREFILTERS}, "
+                             f"got {self.denoise_prefilter!r}")
         passes = frozenset(self.passes)
         if not passes <= PASS_NAMES:
             raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
@@ -56,6 +64,8 @@ class SceneOptions:
 
     @classmethod
     def from_json(cls, settings: dict) -> "SceneOptions":
+        # sidecars written before the prefilter was an option rendered with "accurate"
+        settings = {"denoise_prefilter": "accurate", **settings}
         return cls(**dict(settings, passes=frozenset(settings["passes"])))
 
     def expected_channels(self) -> int:

@@ -251,7 +251,8 @@ class PathTracedPass:
 
 
 def render_path_traced(
-    scene: bpy.types.Scene, work_dir: Path, tag: str, samples: int, denoise: bool, bounces: int = 8
+    scene: bpy.types.Scene, work_dir: Path, tag: str, samples: int, denoise: bool, bounces: int = 8,
+    prefilter: str = "fast",
 ) -> PathTracedPass:
     cycles = scene.cycles
     cycles.samples = samples
@@ -259,7 +260,7 @@ def render_path_traced(
     if denoise:
         cycles.denoiser = "OPENIMAGEDENOISE"
         cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-        cycles.denoising_prefilter = "ACCURATE"
+        cycles.denoising_prefilter = prefilter.upper()  # farm.options.DENOISE_PREFILTERS
     cycles.max_bounces = bounces
     cycles.diffuse_bounces = min(4, bounces)
     cycles.glossy_bounces = min(4, bounces)

@@ -250,7 +250,8 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
                     passes.set_environment_world(
                         scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=f"light{k}"
                     )
-                pt = passes.render_path_traced(scene, work_dir, f"light{k}", options.samples, options.denoise)
+                pt = passes.render_path_traced(scene, work_dir, f"light{k}", options.samples, options.denoise,
+                                               prefilter=options.denoise_prefilter)
                 channels[f"image.L{k}"] = pt.image
                 path_trace_seconds.append(round(pt.seconds, 4))
             stage("path_trace", t0)

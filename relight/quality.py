@@ -31,11 +31,9 @@ class QualityPreset:
 # Fastest first. Chosen by the rule of benchmarks/bench_tradeoffs.py on the held-out set
 # (docs/TRADEOFFS.md, 2026-11-21): Draft = fastest Pareto point, Balanced = fastest Pareto
 # point within 0.5 dB of the best, Best = best interior PSNR. Measured: small @128 19.50 dB
-# in 14 ms, small @192 19.71 dB in 30 ms, default @256 20.06 dB in 59 ms (1 thread, 256 px
-# crops). Balanced names the fp32 file although small-fp16 @192 timed 2.5 ms faster: equal
-# error, and fp16 was slower than fp32 at 128 and 384 px in the same run (CPU onnxruntime
-# converts at each layer), so that gap is noise. Larger working sizes did not lower the
-# error of these models (trained on 128 and 256 px crops); the runtime's detail transfer
+# in 14 ms, small @192 19.71 dB in 25 ms, default @256 20.06 dB in 58 ms (1 thread, 256 px
+# crops). fp16 files: same error, 1-5% slower on the CPU provider. Larger working sizes did
+# not lower the error of these models (trained on 128 and 256 px crops); the detail transfer
 # brings back the photo's own fine texture at full resolution whatever the size.
 PRESETS: tuple[QualityPreset, ...] = (
     QualityPreset("draft", "Draft", "small", 128, "Fastest: the small network sees the person at 128 px"),

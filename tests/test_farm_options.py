@@ -24,7 +24,17 @@ def test_expected_channels_follow_the_dataset_table():
     ({"resolution": 4}, "resolution"), ({"lights": 0}, "lights"), ({"denoise": 1}, "denoise"),
     ({"passes": frozenset({"pt", "xyz"})}, "passes"), ({"specular": "maybe"}, "specular"),
     ({"light_pool": "test"}, "light_pool"), ({"sh_order": True}, "sh_order"),
+    ({"denoise_prefilter": "FAST"}, "denoise_prefilter"),
 ])
 def test_bad_values_are_named(change, word):
     with pytest.raises(ValueError, match=word):
         SceneOptions(**change).validate()
+
+
+def test_sidecars_from_before_the_prefilter_option_read_as_accurate():
+    """Older sidecars have no denoise_prefilter: they were rendered with OIDN's ACCURATE prefilter."""
+    old = SceneOptions().to_json()
+    del old["denoise_prefilter"]
+    assert SceneOptions.from_json(old).denoise_prefilter == "accurate"
+    assert SceneOptions().denoise_prefilter == "fast"
+    assert SceneOptions.from_json(SceneOptions().to_json()).denoise_prefilter == "fast"

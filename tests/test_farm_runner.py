@@ -121,9 +121,11 @@ def test_render_py_entry_exit_code_and_blender_argv(tmp_path):
 def test_options_reach_scene_options_one_to_one():
     config = cli.parse_args(["--out", "x", "--scenes", "3", "--seed", "7", "--res", "64", "--lights", "2",
                              "--samples", "8", "--no-denoise", "--order", "2", "--directions", "64",
-                             "--passes", "prt", "--specular", "off", "--light-pool", "heldout"])
+                             "--passes", "prt", "--specular", "off", "--light-pool", "heldout",
+                             "--denoise-prefilter", "accurate"])
     assert config.scene.to_json() == {
-        "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "sh_order": 2,
+        "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "denoise_prefilter": "accurate",
+        "sh_order": 2,
         "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout"}
     assert list(config.indices) == [0, 1, 2]
     # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
@@ -131,9 +133,9 @@ def test_options_reach_scene_options_one_to_one():
 
     options = scene.SceneOptions.from_json(json.loads(json.dumps(config.scene.to_json())))
     options.validate()
-    assert (options.resolution, options.lights, options.samples, options.denoise, options.sh_order,
-            options.bake_directions, options.passes, options.specular, options.light_pool) == (
-        64, 2, 8, False, 2, 64, frozenset({"prt"}), "off", "heldout")
+    assert (options.resolution, options.lights, options.samples, options.denoise, options.denoise_prefilter,
+            options.sh_order, options.bake_directions, options.passes, options.specular, options.light_pool) == (
+        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout")
     assert set(config.scene.to_json()) == {f.name for f in dataclasses.fields(scene.SceneOptions)}
     # Raw float32 channels of a 64x64 prt-only scene: 11 geometry + 9 transport + 2*3*2 per light.
     assert config.scene.expected_channels() == 11 + 9 + 12

@@ -387,3 +387,17 @@ def test_specular_sphere_departs_from_albedo_times_shading(tmp_path):
     geo, image, L, t_pix, noise = _hdr_scene(tmp_path, material, 70.0)
     # Far beyond what noise could explain (the diffuse case stays within 2 x noise + 1.5 %).
     assert _relative_error(geo, image, L, t_pix, 70.0) > 3.0 * (2.0 * noise + 0.015)
+
+
+@pytest.mark.parametrize("prefilter", ["fast", "accurate"])
+def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
+    """The farm option reaches Cycles: OIDN with that guide prefilter, a finite image."""
+    from farm import passes
+
+    sphere = icosphere(2, radius=0.5) + (LAMBERT_WHITE,)
+    scene, _, _ = _cycles_sphere_scene(tmp_path, [sphere], 1, 64, resolution=16)
+    passes.sh_world(scene, 0)
+    pt = passes.render_path_traced(scene, tmp_path, "pt", samples=2, denoise=True, prefilter=prefilter)
+    assert scene.cycles.use_denoising and scene.cycles.denoiser == "OPENIMAGEDENOISE"
+    assert scene.cycles.denoising_prefilter == prefilter.upper()
+    assert np.all(np.isfinite(pt.image)) and pt.image.max() > 0
