@@ -16,13 +16,7 @@ TINY = dict(width=4, depth=2)
 TINY_PAPER = {**PAPER_CONFIG, **TINY}
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny tensors: one thread is faster, and 2 threads crawl when other jobs share the cores."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def _input(b=2, h=16, w=16, seed=0):
