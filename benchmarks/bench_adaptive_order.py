@@ -17,8 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
-import time
 
 import numpy as np
 
@@ -26,6 +24,7 @@ from farm.bake import fibonacci_directions
 from relight import presets, sh
 from relight.envmap import light_from_map
 from relight.prt import lambert_transport
+from timing import median_ms  # benchmarks/timing.py
 
 REF_ORDER = 8
 FIXED_ORDER = 4
@@ -53,13 +52,7 @@ def relight_ms(order: int, repeat: int, pixels: int = 512 * 512) -> float:
         out += E @ L
         return out
 
-    once()
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        once()
-        times.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(times)
+    return median_ms(once, repeat)
 
 
 def main() -> None:

@@ -11,21 +11,16 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import time
 
 import numpy as np
 
 from relight import sh
+import timing  # benchmarks/timing.py
 
 
 def median_ms(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(times)
+    return timing.median_ms(fn, repeat, warmup=0)
 
 
 def bench_projection(repeat: int) -> None:

@@ -36,9 +36,7 @@ import functools
 import json
 import os
 import platform
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -51,8 +49,9 @@ SECTIONS = ("network", "sh", "directions", "spp")
 DEFAULT_SIZES = (128, 256, 384, 512, 1024)
 DEFAULT_ORDERS = (2, 3, 4, 6)
 BALANCED_DB = 0.5  # proposal rule: Balanced is the fastest front point within this of the best PSNR
-# "Interior" pixels as model/evaluate.py defines them (why: the comment there).
-from model.evaluate import INTERIOR_ALPHA  # noqa: E402
+# "Interior" pixels as model/metrics.py defines them (why: the comment there); torch-free.
+from model.metrics import INTERIOR_ALPHA, interior_weight  # noqa: E402
+from timing import median_ms  # noqa: E402  (benchmarks/timing.py)
 
 
 # ------------------------------------------------------------------ Pareto front
@@ -107,17 +106,6 @@ def int_list(text: str, what: str, lo: int, hi: int) -> tuple[int, ...]:
     return values
 
 
-def median_ms(fn, repeats: int) -> float:
-    """Median wall milliseconds of fn() over `repeats` runs after one warm-up run."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
-
-
 # ------------------------------------------------------------------ network section
 
 
@@ -138,7 +126,7 @@ def person_metrics(pred: np.ndarray, target: np.ndarray, alpha: np.ndarray) -> d
     from model import metrics
 
     weighted = metrics.all_metrics(pred, target, alpha)
-    interior = metrics.all_metrics(pred, target, (alpha > INTERIOR_ALPHA).astype(np.float32))
+    interior = metrics.all_metrics(pred, target, interior_weight(alpha))
     return {"psnr": weighted["psnr"], "l1": weighted["l1"],
             "psnr_interior": interior["psnr"], "l1_interior": interior["l1"]}
 

@@ -130,12 +130,10 @@ def baseline_identity(sample: dict, exposure_matched: bool) -> dict[str, dict[st
     return {"relighting/image": metrics.all_metrics(image, _hwc(sample["target_image"]), mask)}
 
 
-# "interior": fully covered pixels only. A partly covered pixel mixes in the background of
-# each light, which no relighting method is asked to predict; weighting those pixels by alpha
-# lets them dominate every method's error (measured on the held-out set: the oracle scores
-# 19.2 dB alpha-weighted, 29.8 dB interior). "alpha": the GT alpha as the weight.
+# "interior": fully covered pixels only (model.metrics.INTERIOR_ALPHA says why);
+# "alpha": the GT alpha as the weight.
 MASK_MODES = ("interior", "alpha")
-INTERIOR_ALPHA = 0.999
+INTERIOR_ALPHA = metrics.INTERIOR_ALPHA
 
 
 def metric_weight(sample: dict) -> np.ndarray:
@@ -147,7 +145,7 @@ def with_metric_weight(sample: dict, mask: str) -> dict:
     if mask not in MASK_MODES:
         raise ValueError(f"mask must be one of {MASK_MODES}, got {mask!r}")
     alpha = np.asarray(sample["alpha"], np.float32)
-    sample["metric_weight"] = (alpha > INTERIOR_ALPHA).astype(np.float32) if mask == "interior" else alpha
+    sample["metric_weight"] = metrics.interior_weight(alpha) if mask == "interior" else alpha
     return sample
 
 

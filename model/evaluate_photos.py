@@ -187,7 +187,8 @@ def main(argv=None) -> int:
                    help="folder of photos (default: the bundled relight/data/examples)")
     p.add_argument("--out", default="evaluation_photos", help="output folder (default: ./evaluation_photos)")
     p.add_argument("--quality", choices=sorted(QUALITY_SIZES), default="balanced",
-                   help="working resolution, as `relight --quality` (default balanced, 512 px)")
+                   help="working resolution, as `relight --quality` (relight/quality.py; default balanced, "
+                        f"{QUALITY_SIZES['balanced']} px)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.add_argument("--tile", type=int, default=TILE, help=f"contact-sheet tile side in px (default {TILE})")
     args = p.parse_args(argv)

@@ -179,8 +179,6 @@ def parse_args(argv=None):
     p.add_argument("--accumulate", type=int, default=1,
                    help="gradient accumulation: effective batch = batch x accumulate (paper: 16)")
     p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
-    # the default preset (model.network.PRESETS); the paper's width is 32, whose heavy
-    # decoders are reachable only through RelightNet(**PAPER_CONFIG)
     p.add_argument("--preset", choices=tuple(PRESETS), default="default",
                    help="network layout (model.network.PRESETS); --width/--depth override it")
     p.add_argument("--width", type=int, default=None)

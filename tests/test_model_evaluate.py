@@ -73,17 +73,6 @@ def test_parse_baselines_names_paths_and_rejects_clashes(tmp_path):
             evaluate.parse_baselines(bad)
 
 
-@pytest.fixture
-def one_thread():
-    """Tiny tensors: one thread is faster on the shared cores; restored after the test."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch's legacy (TorchScript) exporter
 def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     """Ours + an ONNX baseline of the same order + a safetensors baseline of order 2, one run:

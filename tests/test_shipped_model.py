@@ -92,7 +92,6 @@ def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
     relight_pair(scene, a, b) -> linear [H, W, 3]: the scene's image under a relit to light b.
     """
     from model import metrics
-    from model.evaluate import INTERIOR_ALPHA
     from relight import dataset
 
     rows = []
@@ -100,7 +99,7 @@ def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
         scene = dataset.read_scene(path)
         if scene.images is None or len(scene.images) < 2:
             raise ValueError(f"{path.name}: the guard needs two path-traced lights")
-        weight = (scene.alpha[..., 0] > INTERIOR_ALPHA).astype(np.float32)
+        weight = metrics.interior_weight(scene.alpha[..., 0])
         for a in range(len(scene.images)):
             for b in range(len(scene.images)):
                 if a == b:
