@@ -15,6 +15,10 @@ network's size_multiple) and keep it in a small cache. Per training sample:
     probability `mask_prob` multiplied by the GT alpha (the runtime's "mask
     given" case; otherwise the matte head must find the person);
   * relight.prt.to_network_input's encoding (sRGB, [-1, 1]);
+  * with `light_tint` > 0, each of the two lights (and its image) tinted by a
+    random per-channel factor of luminance 1 (exact: light transport is
+    linear per colour channel), so that light colour is not tied to the few
+    training maps;
   * with probability `flip_prob` a horizontal mirror (exact: mirror_signs).
 Splits: by body (validation bodies never train) and by light (held-out maps
 never reach training: asserted on every training sample).
@@ -222,6 +226,19 @@ def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.nda
     return scaled.astype(np.float32)
 
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec.709, as relight.sh.mean_luminance
+
+
+def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
+    """Per-channel factors exp(N(0, sigma^2)) rescaled to Rec.709 luminance 1.
+
+    Multiplying a light by it changes the light's colour, never its reference
+    radiance; the image under it is multiplied by the same factors.
+    """
+    tint = np.exp(rng.normal(0.0, sigma, 3))
+    return (tint / float(LUMINANCE @ tint)).astype(np.float32)
+
+
 def preset_training_lights(order: int) -> list[tuple[str, np.ndarray]]:
     """SH [n, 3] of every bundled HDR preset that is not held out."""
     from relight import envmap, presets
@@ -270,7 +287,7 @@ class TrainingScenes(torch.utils.data.Dataset):
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
                  extra_lights: list[tuple[str, np.ndarray]] | None = None, extra_light_prob: float = 0.5,
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
-                 cache_size: int = 64, held_out: frozenset[str] | None = None):
+                 cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -279,6 +296,9 @@ class TrainingScenes(torch.utils.data.Dataset):
         for name, _ in self.extra_lights:
             assert name.lower() not in self.held_out, f"held-out light {name} in the training light bank"
         self.extra_light_prob, self.mask_prob, self.flip_prob = extra_light_prob, mask_prob, flip_prob
+        if not (math.isfinite(light_tint) and light_tint >= 0):
+            raise ValueError(f"light_tint must be finite and >= 0, got {light_tint}")
+        self.light_tint = light_tint  # sigma of the log tint; 0: no tint (and no extra random draws)
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed, self.epoch = seed, 0
@@ -327,6 +347,10 @@ class TrainingScenes(torch.utils.data.Dataset):
         for name in (name_a, name_b):
             # the split guarantee: held-out maps never reach training
             assert name not in self.held_out, f"held-out light {name!r} reached a training sample"
+        if self.light_tint > 0:
+            tint_a, tint_b = random_light_tint(rng, self.light_tint), random_light_tint(rng, self.light_tint)
+            light_a, image_a = light_a * tint_a, image_a * tint_a[:, None, None]
+            light_b, image_b = light_b * tint_b, image_b * tint_b[:, None, None]
 
         alpha = scene.alpha
         background_kind = rng.integers(4)

@@ -120,6 +120,24 @@ def evaluate_prediction(pred: dict, sample: dict, tstar: bool) -> dict[str, dict
     return out
 
 
+def gain_fitted(pred: dict, sample: dict, tstar: bool) -> dict[str, dict[str, float]]:
+    """Diagnostic: the prediction's albedo and relit image after per-channel gains fitted to the GT.
+
+    Splits the error into a global colour / exposure part (which the gains
+    remove, and which single-image relighting cannot fully know) and the rest.
+    Uses the ground truth: a diagnostic row, never a method.
+    """
+    mask = _hwc(metric_weight(sample))
+    out = {}
+    relit, gt = render_np(pred, sample["target_light"], tstar), _hwc(sample["target_image"])
+    out["relighting/image"] = metrics.all_metrics(relit * metrics.fit_channel_gains(relit, gt, mask), gt, mask)
+    if not tstar:
+        albedo, gt_albedo = _hwc(pred["albedo"]), _hwc(sample["albedo"])
+        gains = metrics.fit_channel_gains(albedo, gt_albedo, mask)
+        out["relighting/albedo"] = metrics.all_metrics(albedo * gains, gt_albedo, mask)
+    return out
+
+
 def baseline_identity(sample: dict, exposure_matched: bool) -> dict[str, dict[str, float]]:
     """The input image as the relit result (optionally scaled per channel by L00_b / L00_a)."""
     image = _hwc(sample["input_linear"])
@@ -216,7 +234,8 @@ def _atomic_write_png(path: Path, pixels: np.ndarray) -> None:
 
 
 ORACLE_ROW = "ground-truth PRT, no E (oracle)"
-RESERVED_ROWS = ("ours", "identity", "identity, exposure-matched", ORACLE_ROW)
+GAIN_ROW = "ours, per-channel gains fitted to GT (diagnostic)"
+RESERVED_ROWS = ("ours", "identity", "identity, exposure-matched", ORACLE_ROW, GAIN_ROW)
 
 
 def baseline_label(path) -> str:
@@ -299,6 +318,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         rows["identity"].append(baseline_identity(sample, exposure_matched=False))
         rows["identity, exposure-matched"].append(baseline_identity(sample, exposure_matched=True))
         rows[ORACLE_ROW].append(oracle_prt(sample))
+        rows[GAIN_ROW].append(gain_fitted(pred, sample, ours.tstar))
         for name, _, b in bases:
             b_order = b.order if b.order is not None else order
             bs = sample if b_order == order else with_metric_weight(

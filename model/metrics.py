@@ -25,6 +25,19 @@ def interior_weight(alpha) -> np.ndarray:
     """float32 weight: 1 where alpha > INTERIOR_ALPHA, else 0."""
     return (np.asarray(alpha) > INTERIOR_ALPHA).astype(np.float32)
 
+def fit_channel_gains(pred, target, mask=None) -> np.ndarray:
+    """Per-channel gains k minimising the weighted squared error of k * pred against target.
+
+    k_c = sum(w p t) / sum(w p^2) (1 where a channel of pred is all zero). A
+    diagnostic: the error left after it is what no global colour or exposure
+    correction could remove.
+    """
+    p, t, m, _ = _prepare(pred, target, mask)
+    num = (m[..., None] * p * t).sum(axis=(0, 1))
+    den = (m[..., None] * p * p).sum(axis=(0, 1))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
+
+
 PSNR_PEAK = 1.0
 MSE_FLOOR = 1e-10  # PSNR cap: 10 log10(1 / 1e-10) = 100 dB
 

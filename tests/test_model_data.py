@@ -1,6 +1,7 @@
 """Scene loading, cropping, splits (held-out lights never train), samples and their physics."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,6 +101,40 @@ def test_training_sample_ranges_physics_and_determinism(scenes):
         err = torch.minimum((s["target_image"] - prt).abs(), (s["target_image"] - prt - GLOSS * shading).abs())
         assert float(err[:, inner].max()) < 0.01
         assert float(err[:, inner].median()) < 1e-5
+
+
+def test_light_tint_keeps_luminance_and_varies_colour():
+    rng = np.random.default_rng(3)
+    tints = np.array([data.random_light_tint(rng, 0.3) for _ in range(200)])
+    # float32 factors: luminance 1 to float32 rounding
+    np.testing.assert_allclose(tints @ data.LUMINANCE, 1.0, atol=1e-6)
+    assert (tints > 0).all()
+    # log(R/B) = N_r - N_b has std sigma * sqrt(2) = 0.42; 200 draws give it within ~10%
+    assert 0.36 < np.std(np.log(tints[:, 0] / tints[:, 2])) < 0.49
+    with pytest.raises(ValueError, match="light_tint"):
+        data.TrainingScenes([Path("x.json")], 32, 4, light_tint=float("nan"))
+
+
+def test_tinted_samples_stay_physically_consistent(scenes):
+    """Tinted light and image together: image = rho (T . L) still holds for both lights."""
+    plain = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT)
+    tinted = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT, light_tint=0.3)
+    ratios = []
+    for epoch in range(6):
+        s = tinted.item(0, epoch)
+        inner = s["alpha"][0] > 0.999
+        for light, image in (("light", "image"), ("target_light", "target_image")):
+            shading = torch.einsum("nhw,nc->chw", s["transport"], s[light])
+            prt = s["albedo"] * shading
+            err = torch.minimum((s[image] - prt).abs(), (s[image] - prt - GLOSS * shading).abs())
+            # same resampling bound as the untinted test, the tint (< e^1.2 here) scales it
+            assert float(err[:, inner].max()) < 0.01 * 3.4
+        dc = s["light"][0]
+        ratios.append(float(dc[0] / dc[2]))
+        assert float(data.LUMINANCE @ dc.double().numpy()) > 0
+    untinted = [float(plain.item(0, e)["light"][0][0] / plain.item(0, e)["light"][0][2]) for e in range(6)]
+    # the tint changes the light colours it is given (same scene, same epochs)
+    assert max(abs(np.log(r / u)) for r, u in zip(ratios, untinted)) > 0.05
 
 
 def test_reference_radiance_of_extra_lights():

@@ -48,6 +48,32 @@ def test_identity_baselines_hand_values():
     assert plain["l1"] == pytest.approx(want, rel=1e-12)
 
 
+def test_gain_fitted_diagnostic_removes_exactly_a_colour_cast():
+    sample, pred = _sample()
+    for d in (sample, pred):  # no residual: the relit image is then linear in the albedo
+        d["residual"] = np.zeros_like(sample["transport"])
+    shading = lambda L: np.einsum("nhw,nc->chw", sample["transport"], L)
+    sample["image"], sample["target_image"] = (sample["albedo"] * shading(L) for L in
+                                               (sample["light"], sample["target_light"]))
+    cast = np.array([2.0, 0.5, 1.25])
+    pred = dict(pred, albedo=sample["albedo"] * cast[:, None, None])
+    plain = evaluate.evaluate_prediction(pred, sample, tstar=False)
+    fitted = evaluate.gain_fitted(pred, sample, tstar=False)
+    assert plain["relighting/image"]["psnr"] < 30 and plain["relighting/albedo"]["psnr"] < 30
+    # a pure per-channel cast is removed to float64 rounding (PSNR capped at 100 dB)
+    assert fitted["relighting/image"]["psnr"] > 90 and fitted["relighting/albedo"]["psnr"] > 90
+    mask = sample["alpha"][0][..., None]
+    np.testing.assert_allclose(
+        metrics.fit_channel_gains(np.moveaxis(pred["albedo"], 0, -1), np.moveaxis(sample["albedo"], 0, -1), mask),
+        1 / cast, rtol=1e-12)
+    # a structural error (noise) is not removed: gains fit, but the error stays
+    rng = np.random.default_rng(9)
+    noisy = dict(pred, albedo=sample["albedo"] * (1 + 0.3 * rng.normal(size=sample["albedo"].shape)))
+    assert evaluate.gain_fitted(noisy, sample, tstar=False)["relighting/albedo"]["psnr"] < 40
+    # an all-zero channel keeps gain 1 instead of dividing by zero
+    assert metrics.fit_channel_gains(np.zeros((2, 2, 3)), np.ones((2, 2, 3))).tolist() == [1.0, 1.0, 1.0]
+
+
 def test_table_and_contact_sheet_layout():
     results = {"ours": {"reconstruction/image": {"l1": 0.01234, "l2": 0.0005, "psnr": 33.0}}}
     md = evaluate.markdown_table(results, 3, "d")
@@ -93,7 +119,8 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     md = (tmp_path / "all" / "evaluation.md").read_text()
     rows = {line.split("|")[1].strip() for line in md.splitlines() if "| relighting |" in line}
     ke_name = "baseline (ke/model.safetensors)"
-    assert rows == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW, "small", ke_name}
+    assert rows == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW, evaluate.GAIN_ROW,
+                    "small", ke_name}
     record = json.loads((tmp_path / "all" / "evaluation.json").read_text())
     assert record["baselines"] == {"small": str(small), ke_name: str(ke)}
     together = record["methods"]

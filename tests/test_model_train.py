@@ -89,7 +89,9 @@ def test_train_resume_evaluate_end_to_end(dataset, tmp_path, one_thread, capsys)
     assert result["pairs"] == 8  # 4 scenes x (studio, city -> venice)
     methods = result["methods"]
     assert set(methods) == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW,
-                            "baseline (base/model.safetensors)"}
+                            evaluate.GAIN_ROW, "baseline (base/model.safetensors)"}
+    # least-squares gains can only lower the squared error of the same prediction
+    assert methods[evaluate.GAIN_ROW]["relighting/image"]["l2"] <= methods["ours"]["relighting/image"]["l2"]
     for table in methods.values():
         for m in table.values():
             assert all(np.isfinite(v) for v in m.values())
