@@ -21,18 +21,22 @@ import argparse
 import sys
 
 import numpy as np
+import torch
+
+from model import metrics
+from model.data import EvaluationPairs, _network_input, find_scenes, held_out_light_names
+from model.evaluate import Predictor, _hwc, _numpy_sample, exposure_ratio, render_np, with_metric_weight
+from model.evaluate import shading_np as _shading_np
+from relight import sh
 
 # a denominator below this is "no light reaches the pixel": the photo-consistent albedo is undefined
 MIN_SHADING = 1e-3
 MAX_ALBEDO = 2.0  # photo-consistent albedo clip: above it the pixel is unexplained by T . L
 
 
-def _hwc(x):
-    return np.ascontiguousarray(np.moveaxis(x, 0, -1))
-
-
 def shading(transport: np.ndarray, light: np.ndarray) -> np.ndarray:
-    return np.einsum("nhw,nc->hwc", transport, light)
+    """T . L [H, W, 3] (model.evaluate.shading_np for a non-T* network)."""
+    return _shading_np(transport, light, False)
 
 
 def photo_consistent_relight(image_a, transport, residual, light_a, light_b) -> np.ndarray:
@@ -44,25 +48,21 @@ def photo_consistent_relight(image_a, transport, residual, light_a, light_b) -> 
 
 def variants(pred: dict, sample: dict) -> dict[str, np.ndarray]:
     """Relit images [H, W, 3] by name; pred and sample hold [C, H, W] maps and [n, 3] lights."""
-    from relight import sh
-
     t, e, rho = pred["transport"], pred["residual"], _hwc(pred["albedo"])
     image_a, light_b = _hwc(sample["image"]), sample["target_light"]
     light = np.asarray(pred["light"], np.float64)
     # a light with mean luminance <= 0 (an untrained network) has no reference scale: kept as is
-    reference = sh.normalize_reference(light, 0.8)[0] if sh.mean_luminance(light) > 0 else light
-    ratio = np.where(np.abs(sample["light"][0]) > 1e-12, light_b[0] / np.where(
-        np.abs(sample["light"][0]) > 1e-12, sample["light"][0], 1.0), 1.0)
+    reference = sh.normalize_reference(light)[0] if sh.mean_luminance(light) > 0 else light
     return {
-        "direct": rho * shading(t, light_b) + shading(e, light_b),
+        "direct": render_np(pred, light_b, False),
         "photo-consistent albedo, predicted light": photo_consistent_relight(image_a, t, e, pred["light"], light_b),
         "photo-consistent albedo, predicted light at 0.8": photo_consistent_relight(image_a, t, e, reference, light_b),
         "photo-consistent albedo, true light a (bound)": photo_consistent_relight(image_a, t, e, sample["light"],
                                                                                   light_b),
-        "GT albedo, predicted T and E (bound)": _hwc(sample["albedo"]) * shading(t, light_b) + shading(e, light_b),
+        "GT albedo, predicted T and E (bound)": render_np(dict(pred, albedo=sample["albedo"]), light_b, False),
         "predicted albedo, GT T, no E (bound)": rho * shading(sample["transport"], light_b),
         "identity": image_a,
-        "identity, exposure-matched": image_a * ratio,
+        "identity, exposure-matched": image_a * exposure_ratio(sample["light"], light_b),
     }
 
 
@@ -76,12 +76,6 @@ def main(argv=None) -> int:
     p.add_argument("--unmasked", action="store_true",
                    help="give the network image a with its rendered background instead of masked by the GT alpha")
     args = p.parse_args(argv)
-
-    import torch
-
-    from model import metrics
-    from model.data import EvaluationPairs, _network_input, find_scenes, held_out_light_names
-    from model.evaluate import Predictor, _numpy_sample, with_metric_weight
 
     torch.set_num_threads(max(1, args.threads))
     try:

@@ -39,6 +39,7 @@ import torch
 from torch.nn import functional as F
 
 from relight import sh as sh_np
+from relight.colour import LUMINANCE_WEIGHTS
 from relight.dataset import list_finished_scenes, read_scene
 from relight.prt import to_network_input
 
@@ -226,9 +227,6 @@ def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.nda
     return scaled.astype(np.float32)
 
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec.709, as relight.sh.mean_luminance
-
-
 def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
     """Per-channel factors exp(N(0, sigma^2)) rescaled to Rec.709 luminance 1.
 
@@ -236,7 +234,7 @@ def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
     radiance; the image under it is multiplied by the same factors.
     """
     tint = np.exp(rng.normal(0.0, sigma, 3))
-    return (tint / float(LUMINANCE @ tint)).astype(np.float32)
+    return (tint / float(LUMINANCE_WEIGHTS @ tint)).astype(np.float32)
 
 
 def preset_training_lights(order: int) -> list[tuple[str, np.ndarray]]:

@@ -138,12 +138,17 @@ def gain_fitted(pred: dict, sample: dict, tstar: bool) -> dict[str, dict[str, fl
     return out
 
 
+def exposure_ratio(light_a: np.ndarray, light_b: np.ndarray) -> np.ndarray:
+    """Per-channel L00_b / L00_a (1 where L00_a is 0): exposure-matched identity's gain."""
+    la, lb = light_a[0], light_b[0]
+    return np.where(np.abs(la) > 1e-12, lb / np.where(np.abs(la) > 1e-12, la, 1.0), 1.0)
+
+
 def baseline_identity(sample: dict, exposure_matched: bool) -> dict[str, dict[str, float]]:
     """The input image as the relit result (optionally scaled per channel by L00_b / L00_a)."""
     image = _hwc(sample["input_linear"])
     if exposure_matched:
-        la, lb = sample["light"][0], sample["target_light"][0]
-        image = image * np.where(np.abs(la) > 1e-12, lb / np.where(np.abs(la) > 1e-12, la, 1.0), 1.0)
+        image = image * exposure_ratio(sample["light"], sample["target_light"])
     mask = _hwc(metric_weight(sample))
     return {"relighting/image": metrics.all_metrics(image, _hwc(sample["target_image"]), mask)}
 

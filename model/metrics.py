@@ -25,6 +25,7 @@ def interior_weight(alpha) -> np.ndarray:
     """float32 weight: 1 where alpha > INTERIOR_ALPHA, else 0."""
     return (np.asarray(alpha) > INTERIOR_ALPHA).astype(np.float32)
 
+
 def fit_channel_gains(pred, target, mask=None) -> np.ndarray:
     """Per-channel gains k minimising the weighted squared error of k * pred against target.
 
