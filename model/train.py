@@ -173,6 +173,9 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True, nargs="+",
                    help="dataset folder(s) of scene_NNNNNN.exr/.json (farm runs with different --first)")
+    p.add_argument("--max-scenes", type=int, default=None, metavar="N",
+                   help="use only the first N scenes of --data (folders in order, scenes by index): "
+                        "data-size curves without copying data")
     p.add_argument("--out", required=True, help="output folder (checkpoints, final weights, logs)")
     p.add_argument("--steps", type=int, default=10000)
     p.add_argument("--batch", type=int, default=4)
@@ -238,6 +241,16 @@ def parse_args(argv=None):
     return args
 
 
+def first_scenes(folders, limit: int | None = None) -> list[Path]:
+    """Finished scenes of `folders` in order (each folder's by index), the first `limit` of them."""
+    scenes = [path for folder in folders for path in find_scenes(folder)]
+    if limit is None:
+        return scenes
+    if not 1 <= limit <= len(scenes):
+        raise ValueError(f"--max-scenes {limit}: the data has {len(scenes)} finished scenes")
+    return scenes[:limit]
+
+
 def train(args) -> Path:
     """Run training; returns the final weights path."""
     import lightning as L
@@ -253,7 +266,7 @@ def train(args) -> Path:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
-    scenes = [path for folder in args.data for path in find_scenes(folder)]
+    scenes = first_scenes(args.data, args.max_scenes)
     train_paths, val_paths = split_by_body(scenes, args.val_fraction, seed=args.seed)
     held_out = held_out_light_names()
     extra = [] if args.no_presets else preset_training_lights(args.order)

@@ -127,6 +127,22 @@ def test_cli_errors_are_one_line(dataset, tmp_path, capsys):
         train.parse_args(["--data", "d", "--out", "o", "--size", "30", "--depth", "2"])
 
 
+def test_max_scenes_takes_the_first_scenes_in_folder_then_index_order(dataset, tmp_path, capsys):
+    every = train.first_scenes([dataset])
+    assert [p.name for p in every] == sorted(p.name for p in dataset.glob("scene_*.json"))
+    assert train.first_scenes([dataset], 3) == every[:3]
+    # two folders: the first's scenes come first, whatever their indices
+    assert train.first_scenes([dataset, dataset], 6) == every + every[:2]
+    assert _run_train(dataset, tmp_path / "ok", 1, "--max-scenes", "3") == 0
+    record = json.loads((tmp_path / "ok" / "model.json").read_text())["training"]
+    assert record["train_scenes"] + record["val_scenes"] == 3 and record["args"]["max_scenes"] == 3
+    capsys.readouterr()
+    for bad in (0, len(every) + 1):
+        assert _run_train(dataset, tmp_path / f"o{bad}", 1, "--max-scenes", str(bad)) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"has {len(every)} finished scenes" in err[0]
+
+
 def test_sampler_reshuffles_per_epoch_and_encodes_the_epoch():
     sampler = train.EpochShuffleSampler(5, seed=1)
     first = list(sampler)
