@@ -11,9 +11,30 @@ import numpy as np
 
 from relight import sh
 
-__all__ = ["EnvMap", "validate_equirect", "load_equirect", "read_radiance_hdr", "light_from_map"]
+__all__ = ["EnvMap", "validate_equirect", "load_equirect", "read_radiance_hdr", "light_from_map",
+           "MAX_MAP_PIXELS"]
 
 log = logging.getLogger(__name__)
+
+MAX_MAP_PIXELS = 16384 * 8192  # a "16k" equirect map; SH lighting needs far less (order 4: 64 x 32)
+MAP_BYTES_PER_PIXEL = 48       # peak while loading and projecting: RGBE, float32 copies, float32 strips
+_HDR_STRIP_ROWS = 256          # rows converted from RGBE to float at a time
+
+
+def _check_map_size(width: int, height: int, source, file_bytes: int | None = None) -> None:
+    """Refuse a declared map size before anything is allocated for it."""
+    from relight.photo import memory_available
+
+    if width < 1 or height < 1:
+        raise ValueError(f"{source}: empty map {width}x{height}")
+    if width * height > MAX_MAP_PIXELS:
+        raise ValueError(f"{source}: map is {width}x{height}, over the limit of {MAX_MAP_PIXELS:,} pixels "
+                         "(16384x8192); SH lighting needs far less: downsample it")
+    free = memory_available()
+    need = width * height * MAP_BYTES_PER_PIXEL
+    if free is not None and need > free:
+        raise ValueError(f"{source}: a {width}x{height} map needs about {need / 2**30:.1f} GiB, "
+                         f"only {free / 2**30:.1f} GiB of memory is free")
 
 
 @dataclass(frozen=True)
@@ -83,6 +104,17 @@ def _rgb_from_exr_channels(channels: dict, source: str) -> np.ndarray:
 
 
 _RESOLUTION_RE = re.compile(rb"^-Y (\d+) \+X (\d+)$")
+_RLE_RUN = 127  # most pixels one two-byte run of the RLE scheme can cover
+
+
+def _min_scanline_bytes(width: int) -> int:
+    """Fewest bytes one scanline of `width` texels can take: flat 4 per texel, or
+    new-style RLE with 4 header bytes and at least one 2-byte run per 127 texels
+    of each of the 4 components."""
+    flat = 4 * width
+    if 8 <= width < 32768:
+        return min(flat, 4 + 4 * 2 * -(-width // _RLE_RUN))
+    return flat
 
 
 def read_radiance_hdr(path) -> np.ndarray:
@@ -92,6 +124,9 @@ def read_radiance_hdr(path) -> np.ndarray:
     "-Y H +X W" orientation; texel = (mantissa + 0.5) * 2^(exponent - 136).
     """
     path = Path(path)
+    size = path.stat().st_size
+    if size > 4 * MAX_MAP_PIXELS + (1 << 20):  # flat RGBE of the largest map, plus a header
+        raise ValueError(f"{path}: {size:,} bytes is larger than any map within the size limit")
     data = path.read_bytes()
     if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
         raise ValueError(f"{path}: not a Radiance HDR file (missing #?RADIANCE header)")
@@ -108,9 +143,16 @@ def read_radiance_hdr(path) -> np.ndarray:
     m = _RESOLUTION_RE.match(data[end + 2 : nl].strip())
     if not m:
         raise ValueError(f"{path}: only the standard '-Y H +X W' orientation is supported")
+    if max(len(m.group(1)), len(m.group(2))) > 9:
+        raise ValueError(f"{path}: Radiance resolution line declares an impossible size")
     height, width = int(m.group(1)), int(m.group(2))
     if height < 1 or width < 1:
         raise ValueError(f"{path}: empty image {width}x{height}")
+    pixel_bytes, least = len(data) - (nl + 1), height * _min_scanline_bytes(width)
+    if pixel_bytes < least:  # checked before allocating: a forged size costs nothing
+        raise ValueError(f"{path}: Radiance pixel data is truncated or corrupt: the header declares "
+                         f"{width}x{height}, at least {least:,} bytes, the file holds {pixel_bytes:,}")
+    _check_map_size(width, height, path)
     buf = np.frombuffer(data, dtype=np.uint8, offset=nl + 1)
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     pos = 0
@@ -149,14 +191,18 @@ def read_radiance_hdr(path) -> np.ndarray:
                 raise truncated
             rgbe[y] = buf[pos : pos + 4 * width].reshape(width, 4)
             pos += 4 * width
-    exponent = rgbe[..., 3].astype(np.int32)
-    scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0)
-    return ((rgbe[..., :3].astype(np.float64) + 0.5) * scale[..., None]).astype(np.float32)
+    out = np.empty((height, width, 3), dtype=np.float32)
+    for r0 in range(0, height, _HDR_STRIP_ROWS):  # strips bound the float64 temporaries
+        strip = rgbe[r0:r0 + _HDR_STRIP_ROWS]
+        exponent = strip[..., 3].astype(np.int32)
+        scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0)
+        out[r0:r0 + _HDR_STRIP_ROWS] = (strip[..., :3] + 0.5) * scale[..., None]
+    return out
 
 
 def load_equirect(path) -> EnvMap:
     """Load and validate an equirect HDR map from an OpenEXR or Radiance .hdr file."""
-    from relight.exr import read_exr
+    from relight.exr import exr_size, read_exr
 
     path = Path(path)
     if not path.is_file():
@@ -164,6 +210,7 @@ def load_equirect(path) -> EnvMap:
     with open(path, "rb") as f:
         magic = f.read(10)
     if magic[:4] == b"\x76\x2f\x31\x01":  # OpenEXR magic number
+        _check_map_size(*exr_size(path), path)
         pixels = _rgb_from_exr_channels(read_exr(path), str(path))
     elif magic.startswith(b"#?"):
         pixels = read_radiance_hdr(path)

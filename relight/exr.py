@@ -1,14 +1,26 @@
-"""OpenEXR read/write (OpenEXR >= 3.3 Python API), all parts, atomic writes."""
+"""OpenEXR read/write (OpenEXR >= 3.3 Python API), all parts, atomic writes.
+
+The library prints its own diagnostics on the process's stdout and stderr
+(C-level, past Python's sys.stderr); every call into it runs with both file
+descriptors captured, and what it said goes into the one ValueError/OSError
+raised for a file that is refused.
+"""
 
 from __future__ import annotations
 
+import ctypes
+import os
+import sys
+import tempfile
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from relight.fileio import atomic_path
 
-__all__ = ["read_exr", "write_exr"]
+__all__ = ["read_exr", "write_exr", "exr_size", "library_output_captured"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
 
@@ -19,6 +31,84 @@ def _openexr():
     return OpenEXR
 
 
+_CAPTURE_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one capture at a time
+_LIBC = ctypes.CDLL(None)
+
+
+@contextmanager
+def library_output_captured():
+    """Point fds 1 and 2 at a temporary file for the duration; yields a list that
+    holds, afterwards, the non-empty lines a C library wrote there.
+
+    C stdio buffers are flushed before the fds are restored, so nothing the
+    library wrote escapes later. Python's own sys.stdout/sys.stderr are flushed
+    first so their pending text is not captured by mistake.
+    """
+    lines: list[str] = []
+    with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (AttributeError, ValueError, OSError):
+                pass
+        saved = []
+        try:
+            for fd in (1, 2):
+                saved.append((fd, os.dup(fd)))
+                os.dup2(sink.fileno(), fd)
+        except OSError:  # no fd 1/2 to borrow (closed): run without capture
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+            yield lines
+            return
+        try:
+            yield lines
+        finally:
+            try:
+                sys.stdout.flush()  # pybind11 prints through sys.stdout
+            except (AttributeError, ValueError, OSError):
+                pass
+            _LIBC.fflush(None)
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+            sink.seek(0)
+            text = sink.read(1 << 16).decode("utf-8", errors="replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
+
+
+def _said(lines: list[str]) -> str:
+    """The library's first message, shortened for a one-line error."""
+    if not lines:
+        return ""
+    first = lines[0] if len(lines[0]) <= 200 else lines[0][:197] + "..."
+    return f" ({first})"
+
+
+def exr_size(path) -> tuple[int, int]:
+    """(width, height) of the largest data window over all parts, from the header only."""
+    path = Path(path)
+    OpenEXR = _openexr()
+    with library_output_captured() as said:
+        try:
+            f = OpenEXR.File(str(path), header_only=True)
+            windows = []
+            for part in f.parts:
+                (x0, y0), (x1, y1) = part.header["dataWindow"]
+                windows.append((int(x1) - int(x0) + 1, int(y1) - int(y0) + 1))
+            failure = None
+        except Exception as exc:  # OpenEXR raises RuntimeError and others for corrupt headers
+            if isinstance(exc, MemoryError):
+                raise
+            failure = f"{type(exc).__name__}: {exc}"
+    if failure is not None:
+        raise ValueError(f"{path}: not a readable EXR ({failure}){_said(said)}")
+    if not windows:
+        raise ValueError(f"{path}: EXR has no parts")
+    return max(w for w, _ in windows), max(h for _, h in windows)
+
+
 def read_exr(path) -> dict[str, np.ndarray]:
     """Every channel of every part, as {name: [H, W] array}.
 
@@ -26,12 +116,27 @@ def read_exr(path) -> dict[str, np.ndarray]:
     multi-part file (Blender 5 writes one part per pass, e.g.
     "ViewLayer.Combined") a channel is named "<part>.<channel>" unless its
     name already starts with the part name. Raises FileNotFoundError for a
-    missing file and ValueError for one that is not a readable EXR.
+    missing file and ValueError for one that is not a readable EXR, including
+    one the library complained about while reading (damaged pixel data).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"EXR file not found: {path}")
     OpenEXR = _openexr()
+    with library_output_captured() as said:
+        channels, failure = _read_channels(OpenEXR, path)
+    if failure is not None:
+        raise ValueError(f"{failure}{_said(said)}")
+    if said:
+        raise ValueError(f"cannot read EXR {path}: damaged data{_said(said)}")
+    if not channels:
+        raise ValueError(f"EXR {path} has no channels")
+    return channels
+
+
+def _read_channels(OpenEXR, path: Path) -> tuple[dict[str, np.ndarray], str | None]:
+    """(channels, None) or ({}, one-line reason); runs with the library's output captured."""
+    channels: dict[str, np.ndarray] = {}
     try:
         f = OpenEXR.File(str(path), separate_channels=True)
         parts = list(f.parts)
@@ -45,18 +150,16 @@ def read_exr(path) -> dict[str, np.ndarray]:
                 else:
                     key = name
                 if key in channels:
-                    raise ValueError(f"EXR {path} has two channels named {key!r}")
+                    return {}, f"EXR {path} has two channels named {key!r}"
                 pixels = np.asarray(channel.pixels)
                 if pixels.dtype != np.uint32:
                     pixels = pixels.astype(np.float32, copy=False)
                 channels[key] = pixels
-    except ValueError:
-        raise
     except Exception as exc:  # OpenEXR raises RuntimeError/others for corrupt data
-        raise ValueError(f"cannot read EXR {path}: {exc}") from None
-    if not channels:
-        raise ValueError(f"EXR {path} has no channels")
-    return channels
+        if isinstance(exc, MemoryError):
+            raise
+        return {}, f"cannot read EXR {path}: {exc}"
+    return channels, None
 
 
 def write_exr(
@@ -107,6 +210,15 @@ def write_exr(
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
     with atomic_path(path, ".exr") as tmp:
-        with OpenEXR.File(header, prepared) as f:
-            f.write(str(tmp))
+        with library_output_captured() as said:
+            try:
+                with OpenEXR.File(header, prepared) as f:
+                    f.write(str(tmp))
+                failure = None
+            except Exception as exc:  # RuntimeError from the library, e.g. a full disk
+                if isinstance(exc, MemoryError):
+                    raise
+                failure = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if failure is not None:
+            raise OSError(f"cannot write EXR {path}: {failure}{_said(said)}")
     return path

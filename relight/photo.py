@@ -4,8 +4,9 @@ Reads PNG/JPEG/TIFF/WebP (sRGB-encoded; EXIF orientation applied; 8- and
 16-bit; grey expanded to RGB; an alpha channel comes back as the mask) and
 EXR (linear). Writes 8-bit sRGB PNG, linear EXR, and a multi-layer EXR whose
 channels follow Blender's "<layer>.<pass>.<channel>" naming so its Image node
-shows every pass. The image size is checked from the header before any pixel
-is decoded; every failure to read is one ValueError. Writes are atomic.
+shows every pass. The declared image size is weighed before any pixel is
+decoded (check_declared_size: a pixel limit, the file's size, the memory
+free); every failure to read is one ValueError. Writes are atomic.
 """
 
 from __future__ import annotations
@@ -20,10 +21,19 @@ from relight.colour import srgb_encode
 from relight.fileio import atomic_path
 
 __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
-           "write_layers_exr", "MAX_SIDE", "MAX_PIXELS", "LAYER_NAME", "PHOTO_SUFFIXES"]
+           "write_layers_exr", "check_declared_size", "check_max_pixels", "memory_available", "MAX_SIDE", "MAX_PIXELS",
+           "DEFAULT_MAX_PIXELS", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
 MAX_SIDE = 40_000            # px: refuse wider/taller images before decoding
-MAX_PIXELS = 150_000_000     # below Pillow's own bomb limit (2 x 89.5 MP) so ours speaks first
+MAX_PIXELS = 150_000_000     # hard ceiling, below Pillow's own bomb limit (2 x 89.5 MP) so ours speaks first
+DEFAULT_MAX_PIXELS = 50_000_000  # without --max-pixels (a 50 MP camera frame): ~2 GB through `relight image`
+BYTES_PER_PIXEL = 40         # peak bytes per photo pixel through `relight image` (24 MP: < 1 GB measured)
+PLAUSIBLE_FROM = 1_000_000   # below this many pixels decoding is cheap: no file-size test
+# most pixels one byte of file can hold: JPEG's Huffman-coded DC term costs at least 1 bit per
+# 8x8 block (512 px/byte; x8 for arithmetic coding), PNG's deflate at most 1032:1 on 1-bit pixels
+# (~8,300 px/byte); other formats get a bound 4x above a uniform lossless WebP (23,500 px/byte)
+MAX_PIXELS_PER_BYTE = {"JPEG": 4_096, "MPO": 4_096, "PNG": 8_400}
+MAX_PIXELS_PER_BYTE_OTHER = 100_000
 STRIP_ROWS = 256             # rows converted at a time: bounds temporaries for huge photos
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
@@ -51,12 +61,82 @@ def _lut(bits: int) -> np.ndarray:
     return _LUT16
 
 
-def _check_size(width: int, height: int, path) -> None:
+def memory_available() -> int | None:
+    """Bytes this process can still allocate: the kernel's MemAvailable, and the
+    headroom under an address-space limit (RLIMIT_AS) when one is set; None if unknown."""
+    bounds = []
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    bounds.append(int(line.split()[1]) * 1024)
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY:
+            with open("/proc/self/status") as f:
+                vm = next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmSize:"))
+            bounds.append(max(0, soft - vm))
+    except (ImportError, OSError, ValueError, StopIteration):
+        pass
+    return min(bounds) if bounds else None
+
+
+def _megapixels(pixels: int) -> str:
+    return f"{pixels / 1e6:.3g} MP"
+
+
+def check_max_pixels(max_pixels: int | None = None) -> int:
+    """Validate a pixel limit (None: DEFAULT_MAX_PIXELS) and return it."""
+    if max_pixels is None:
+        return DEFAULT_MAX_PIXELS
+    if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) \
+            or not 1 <= max_pixels <= MAX_PIXELS:
+        raise ValueError(f"max_pixels must be an integer in [1, {MAX_PIXELS}], got {max_pixels!r}")
+    return int(max_pixels)
+
+
+def check_declared_size(width: int, height: int, path, *, max_pixels: int | None = None,
+                        file_bytes: int | None = None, fmt: str | None = None,
+                        bytes_per_pixel: int = BYTES_PER_PIXEL) -> None:
+    """Weigh a size read from a header before anything is allocated for it.
+
+    Refused: an empty size; more than MAX_SIDE a side; more pixels than
+    `max_pixels` (default DEFAULT_MAX_PIXELS); by default, more pixels than
+    a `file_bytes`-long file of format `fmt` can hold (a forged header: an
+    explicit `max_pixels` allows it); and always, more memory than is free.
+    """
     if width < 1 or height < 1:
         raise ValueError(f"{path}: image is empty ({width}x{height})")
-    if width > MAX_SIDE or height > MAX_SIDE or width * height > MAX_PIXELS:
-        raise ValueError(f"{path}: image is too large ({width}x{height}; limits: {MAX_SIDE} px a side, "
-                         f"{MAX_PIXELS // 1_000_000} megapixels)")
+    pixels = width * height
+    if width > MAX_SIDE or height > MAX_SIDE:
+        raise ValueError(f"{path}: image is too large ({width}x{height}; limit: {MAX_SIDE} px a side)")
+    limit = check_max_pixels(max_pixels)
+    if pixels > limit:
+        hint = (f"--max-pixels {pixels} allows it" if pixels <= MAX_PIXELS
+                else f"{MAX_PIXELS // 1_000_000} MP is the most any setting allows")
+        raise ValueError(f"{path}: image is {width}x{height} ({_megapixels(pixels)}), over the limit of "
+                         f"{_megapixels(limit)} ({hint})")
+    if max_pixels is None and file_bytes is not None and pixels > PLAUSIBLE_FROM:
+        per_byte = MAX_PIXELS_PER_BYTE.get(fmt or "", MAX_PIXELS_PER_BYTE_OTHER)
+        if pixels > file_bytes * per_byte:
+            raise ValueError(f"{path}: header declares {width}x{height} ({_megapixels(pixels)}) in a "
+                             f"{file_bytes:,}-byte {fmt or 'image'} file, more than such a file can hold: "
+                             f"forged or truncated (--max-pixels {pixels} decodes it anyway)")
+    free = memory_available()
+    need = pixels * bytes_per_pixel
+    if free is not None and need > free:
+        raise ValueError(f"{path}: a {width}x{height} image needs about {need / 2**30:.1f} GiB, "
+                         f"only {free / 2**30:.1f} GiB of memory is free")
+
+
+def _check_size(width: int, height: int, path, max_pixels: int | None = None, file_bytes: int | None = None,
+                fmt: str | None = None) -> None:
+    check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=file_bytes, fmt=fmt)
 
 
 def _exists(path: Path) -> None:
@@ -68,18 +148,21 @@ def _exists(path: Path) -> None:
         raise ValueError(f"{path}: file is empty")
 
 
-def read_photo(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+def read_photo(path: str | os.PathLike, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Read a photo as (linear float32 [H, W, 3], mask float32 [H, W] in [0, 1] or None).
 
-    The mask is the file's alpha channel when it has one.
+    The mask is the file's alpha channel when it has one. `max_pixels`
+    (default DEFAULT_MAX_PIXELS, at most MAX_PIXELS) bounds the declared size;
+    see check_declared_size.
     """
     path = Path(path)
+    check_max_pixels(max_pixels)
     _exists(path)
     with open(path, "rb") as f:
         magic = f.read(4)
     if magic == EXR_MAGIC:
-        return _read_exr_photo(path)
-    return _read_pillow_photo(path)
+        return _read_exr_photo(path, max_pixels)
+    return _read_pillow_photo(path, max_pixels)
 
 
 # ------------------------------------------------------------------ Pillow
@@ -101,13 +184,13 @@ def _open_pillow(path: Path):
     return im
 
 
-def _read_pillow_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     from PIL import Image, ImageOps
 
     im = _open_pillow(path)
     try:
         width, height = im.size
-        _check_size(width, height, path)
+        _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
         if getattr(im, "n_frames", 1) > 1:
             im.seek(0)  # animated/multi-page files: the first frame is the photo
         rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
@@ -117,7 +200,7 @@ def _read_pillow_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
                 # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
-                decoded = _read_png16(path)
+                decoded = _read_png16(path, max_pixels)
                 if decoded is not None:
                     return _decode_16bit(*decoded)
             im.load()
@@ -176,7 +259,7 @@ def _decode_16bit(rgb16: np.ndarray, alpha16: np.ndarray | None) -> tuple[np.nda
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _read_png16(path: Path):
+def _read_png16(path: Path, max_pixels: int | None = None):
     """(rgb uint16 [H, W, 3], alpha uint16 [H, W] | None) of a non-interlaced 16-bit
     RGB/RGBA PNG, or None for anything else (then Pillow decodes it)."""
     import struct
@@ -203,7 +286,7 @@ def _read_png16(path: Path):
     width, height, depth, colour, _, _, interlace = header
     if depth != 16 or colour not in (2, 6) or interlace != 0:
         return None
-    _check_size(width, height, path)
+    _check_size(width, height, path, max_pixels, len(data), "PNG")
     channels = 3 if colour == 2 else 4
     bpp = 2 * channels
     stride = width * bpp
@@ -259,24 +342,6 @@ def _png_unfilter(filtered: np.ndarray, kinds: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------ EXR
 
 
-def _exr_size(path: Path) -> tuple[int, int]:
-    import OpenEXR
-
-    try:
-        f = OpenEXR.File(str(path), header_only=True)
-        windows = []
-        for part in f.parts:
-            (x0, y0), (x1, y1) = part.header["dataWindow"]
-            windows.append((int(x1) - int(x0) + 1, int(y1) - int(y0) + 1))
-    except Exception as exc:
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: not a readable EXR ({type(exc).__name__}: {exc})") from None
-    if not windows:
-        raise ValueError(f"{path}: EXR has no parts")
-    return max(w for w, _ in windows), max(h for _, h in windows)
-
-
 def _pick_rgb(channels: dict[str, np.ndarray], path: Path):
     """Choose the colour channels: plain R,G,B; else one "<prefix>.R/G/B" set (Combined first)."""
     for prefix in ("", *sorted({k.rsplit(".", 1)[0] + "." for k in channels if "." in k},
@@ -289,11 +354,12 @@ def _pick_rgb(channels: dict[str, np.ndarray], path: Path):
     raise ValueError(f"{path}: EXR has no R, G, B (or Y) channels (has {sorted(channels)[:8]})")
 
 
-def _read_exr_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    from relight.exr import read_exr
+def _read_exr_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    from relight.exr import exr_size, read_exr
 
-    width, height = _exr_size(path)
-    _check_size(width, height, path)
+    width, height = exr_size(path)
+    # an EXR's header can declare what its (zip-compressed) data cannot hold: same weighing as PNG
+    _check_size(width, height, path, max_pixels, path.stat().st_size, "EXR")
     try:
         channels = read_exr(path)
     except FileNotFoundError:
@@ -309,7 +375,7 @@ def _read_exr_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"{path}: EXR colour channels have different sizes {sorted(shapes)}")
     h, w = rgb[0].shape
-    _check_size(w, h, path)
+    _check_size(w, h, path, max_pixels)
     img = np.empty((h, w, 3), np.float32)
     for i, c in enumerate(rgb):
         if c.dtype == np.uint32:
@@ -330,7 +396,7 @@ def _read_exr_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 # ------------------------------------------------------------------ masks
 
 
-def read_mask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
+def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int | None = None) -> np.ndarray:
     """Read a person mask for a photo of `shape` (H, W): float32 [H, W] in [0, 1].
 
     A file with an alpha channel gives its alpha; otherwise its grey level as
@@ -338,14 +404,15 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
     a size mismatch and an all-zero mask.
     """
     path = Path(path)
+    check_max_pixels(max_pixels)
     _exists(path)
     with open(path, "rb") as f:
         is_exr = f.read(4) == EXR_MAGIC
     if is_exr:
-        img, alpha = _read_exr_photo(path)
+        img, alpha = _read_exr_photo(path, max_pixels)
         mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
     else:
-        mask = _read_pillow_mask(path)
+        mask = _read_pillow_mask(path, max_pixels)
     if mask.shape != tuple(shape):
         raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]} but the photo is "
                          f"{shape[1]}x{shape[0]}")
@@ -354,12 +421,12 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int]) -> np.ndarray:
     return mask
 
 
-def _read_pillow_mask(path: Path) -> np.ndarray:
+def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
     from PIL import Image, ImageOps
 
     im = _open_pillow(path)
     try:
-        _check_size(*im.size, path)
+        _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im.load()

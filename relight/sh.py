@@ -267,7 +267,9 @@ def project_equirect(img, order: int, *, precision: str = "float32") -> np.ndarr
     L_lm = sum over texels of L * Y_lm(texel centre) * texel solid angle.
     Validates: rank 3, 3 or 4 channels, finite RGB; negative texels are
     clamped to zero. `precision` "float32" sums over columns in float32
-    (relative error ~1e-7, docs/benchmarks/sh.md), "float64" throughout.
+    (relative error ~1e-7, docs/benchmarks/sh.md), "float64" throughout. In
+    float32, texels beyond its range are refused, and row sums that overflow
+    it (texels near 3.4e38) are redone in float64: the result is finite.
     """
     order = _check_order(order)
     if precision not in ("float32", "float64"):
@@ -298,7 +300,10 @@ def project_equirect(img, order: int, *, precision: str = "float32") -> np.ndarr
     if low < 0:
         flat = np.maximum(flat, 0)
     table = _interleaved_azimuth(height, width, order, channels, np.dtype(dtype).name)
-    per_row = (flat @ table).reshape(height, 3, -1)  # [H, 3, n_az]: sums over columns
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below
+        per_row = (flat @ table).reshape(height, 3, -1)  # [H, 3, n_az]: sums over columns
+    if dtype is np.float32 and not np.all(np.isfinite(per_row)):
+        return project_equirect(a, order, precision="float64")  # row sums beyond float32 range
     _, rows = _projection_tables(height, width, order)
     # then the latitude quadrature per coefficient, in float64: [n, 3]
     return np.einsum("hka,hca->kc", rows, per_row.astype(np.float64), optimize=True)
