@@ -2,7 +2,7 @@
 
     relight image PHOTO (--light HDR_OR_PRESET | --light-from PHOTO2) [--rotate DEG] [--exposure EV]
                   [--mask MASK] [--no-normalize] [--model PATH] [--out OUT.png|OUT.exr]
-                  [--layers] [--quality draft|balanced|best] [--threads N]
+                  [--layers] [--quality draft|balanced|best] [--threads N] [--max-pixels N]
     relight image DIR --light ... --out OUTDIR
 
 A photo with an alpha channel uses it as the mask unless --mask is given.
@@ -21,11 +21,14 @@ from pathlib import Path
 import numpy as np
 
 EXIT_FAILED = 1
+EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (runtime.py refuses beyond)
 
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
     from relight import quality
+    from relight.cli import ROTATE_LIMIT, bounded_int, cores_available, finite_float
+    from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
 
     p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
                               description=__doc__.split("\n\n")[0])
@@ -34,8 +37,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     source.add_argument("--light", help="equirect HDR map (.exr/.hdr) or preset name (see `relight presets`)")
     source.add_argument("--light-from", metavar="PHOTO",
                         help="light transfer: use the light the network estimates in another photo")
-    p.add_argument("--rotate", type=float, default=0.0, metavar="DEG", help="turn the light about world Z")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="EV", help="scale the light by 2**EV")
+    p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"), default=0.0,
+                   metavar="DEG",
+                   help="turn the light about world Z")
+    p.add_argument("--exposure", type=finite_float(-EXPOSURE_LIMIT, EXPOSURE_LIMIT, what="exposure (EV)"),
+                   default=0.0, metavar="EV",
+                   help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help="use the map's radiance as is (default: scale to mean luminance 0.8)")
@@ -48,7 +55,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--quality", choices=[q.key for q in quality.PRESETS], default=quality.DEFAULT,
                    help="preset of relight/quality.py: model and working resolution ("
                         + ", ".join(f"{q.key} {q.working_size}" for q in quality.PRESETS) + " px)")
-    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
+    cores = cores_available()  # more intra-op threads than cores only slows onnxruntime down
+    p.add_argument("--threads", type=bounded_int(1, cores, " (the CPU cores available)"), default=None,
+                   help=f"onnxruntime threads, 1..{cores} (default: all cores)")
+    p.add_argument("--max-pixels", type=bounded_int(1, MAX_PIXELS), default=None, metavar="N",
+                   help=f"largest photo to decode, in pixels (default {DEFAULT_MAX_PIXELS:,}; also allows a "
+                        f"header that claims more than its file can hold; at most {MAX_PIXELS:,})")
     p.set_defaults(func=run_image)
     return p
 
@@ -71,9 +83,9 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     """Read, decompose, relight and write one photo; nothing is written on failure."""
     from relight.photo import read_mask, read_photo, write_image, write_layers_exr
 
-    image, alpha = read_photo(photo_path)
+    image, alpha = read_photo(photo_path, args.max_pixels)
     if mask_path is not None:
-        mask = read_mask(mask_path, image.shape[:2])
+        mask = read_mask(mask_path, image.shape[:2], args.max_pixels)
     elif alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0:
         mask = alpha  # the file's own alpha marks the person
     else:
@@ -130,7 +142,7 @@ def run_image(args) -> int:
     if args.light_from is not None:
         from relight.photo import read_photo
 
-        donor, donor_alpha = read_photo(args.light_from)
+        donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
         usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
         args.light = relighter.decompose(donor, donor_alpha if usable else None).light
     _check_light(args, relighter)
@@ -159,8 +171,8 @@ def _run_folder(relighter, source: Path, out_dir: Path, args) -> int:
     for photo in bar:
         try:
             _process(relighter, photo, out_dir / names[photo], args, None)
-        except (ValueError, OSError) as exc:
-            failures.append((photo, str(exc)))
+        except (ValueError, OSError, MemoryError) as exc:
+            failures.append((photo, str(exc) or "out of memory"))
             bar.write(f"relight image: failed: {photo.name}: {exc}", file=sys.stderr)
     done = len(photos) - len(failures)
     print(f"relit {done} of {len(photos)} photos into {out_dir}")

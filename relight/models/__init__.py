@@ -94,14 +94,25 @@ def register_model(name: str, model_path: str | os.PathLike, digest: str, metada
 
 
 def registered_digest(model_path: str | os.PathLike, registry_path: str | os.PathLike = REGISTRY_PATH) -> str | None:
-    """The registry's SHA-256 for a model file in the registry's folder, else None."""
+    """The registry's SHA-256 for a model file, else None.
+
+    An entry's ``file`` is resolved against the registry's folder, so an entry
+    naming an absolute path (or ../) elsewhere is matched too: a model the
+    registry lists is checked against the registry's hash wherever it lives,
+    never only against a .sha256 file beside it. An entry that matches but
+    records no valid SHA-256 is refused.
+    """
     registry_path = Path(registry_path)
     model_path = Path(model_path).resolve()
-    if model_path.parent != registry_path.resolve().parent:
-        return None
-    for entry in load_registry(registry_path)["models"].values():
-        if entry.get("file") == model_path.name:
-            return str(entry.get("sha256", "")).lower() or None
+    folder = registry_path.resolve().parent
+    for name, entry in load_registry(registry_path)["models"].items():
+        file = entry.get("file") if isinstance(entry, dict) else None
+        if not isinstance(file, str) or not file or (folder / file).resolve() != model_path:
+            continue
+        digest = str(entry.get("sha256", "")).lower()
+        if len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
+            raise ValueError(f"{registry_path}: model {name!r} ({file}) records no valid SHA-256")
+        return digest
     return None
 
 
