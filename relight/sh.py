@@ -215,13 +215,15 @@ def equirect_directions(height: int, width: int):
 
 
 @functools.lru_cache(maxsize=8)
-def _projection_tables(height: int, width: int, order: int):
-    """Separable projection tables for an H x W map.
+def _projection_factors(height: int, width: int, order: int):
+    """Separable projection factors for an H x W map.
 
     On the equirect grid Y_lm = q_lm(z_row) cos(elev)^|m| * trig(m phi_col):
-    azimuth [W, 2*order+1] columns (1, cos phi, sin phi, cos 2phi, ...),
-    rows [H, n, 2*order+1] with q * cos(elev)^|m| * solid angle scattered to
-    the azimuth column each coefficient uses.
+    azimuth [W, 2*order+1] columns (1, cos phi, sin phi, cos 2phi, ...), and
+    per azimuth column a, (k, weights [H, len(k)]): the coefficients k that
+    use column a and their row weights q * cos(elev)^|m| * solid angle. Each
+    coefficient uses one column, so this holds H * n row weights, not the
+    H * n * (2 order + 1) of the dense form (2.2 GB at order 64 on 256 rows).
     """
     phi, elevation, solid_angle = _equirect_axes(height, width)
     n_az = 2 * order + 1
@@ -233,16 +235,36 @@ def _projection_tables(height: int, width: int, order: int):
     q = _legendre_table(np.sin(elevation), order)
     ce = np.cos(elevation)
     sqrt2 = math.sqrt(2.0)
-    rows = np.zeros((height, (order + 1) ** 2, n_az))
+    n = (order + 1) ** 2
+    weights = np.empty((height, n))
+    column = np.empty(n, dtype=np.intp)
     for l in range(order + 1):
         centre = l * l + l
-        rows[:, centre, 0] = q[0][l] * solid_angle
+        weights[:, centre], column[centre] = q[0][l] * solid_angle, 0
         for m in range(1, l + 1):
             w = sqrt2 * q[m][l - m] * ce**m * solid_angle
-            rows[:, centre + m, 2 * m - 1] = w
-            rows[:, centre - m, 2 * m] = w
-    for arr in (azimuth, rows):
-        arr.flags.writeable = False
+            weights[:, centre + m], column[centre + m] = w, 2 * m - 1
+            weights[:, centre - m], column[centre - m] = w, 2 * m
+    groups = []
+    for a in range(n_az):
+        k = np.flatnonzero(column == a)
+        w = np.ascontiguousarray(weights[:, k])
+        k.flags.writeable = w.flags.writeable = False
+        groups.append((k, w))
+    azimuth.flags.writeable = False
+    return azimuth, tuple(groups)
+
+
+@functools.lru_cache(maxsize=2)
+def _projection_tables(height: int, width: int, order: int):
+    """The dense form of _projection_factors: azimuth [W, 2*order+1] and rows
+    [H, n, 2*order+1] with each coefficient's row weights in its azimuth
+    column (benchmarks/bench_sh.py compares methods with it)."""
+    azimuth, groups = _projection_factors(height, width, order)
+    rows = np.zeros((height, (order + 1) ** 2, azimuth.shape[1]))
+    for a, (k, w) in enumerate(groups):
+        rows[:, k, a] = w
+    rows.flags.writeable = False
     return azimuth, rows
 
 
@@ -251,7 +273,7 @@ def _interleaved_azimuth(height: int, width: int, order: int, channels: int, dty
     """Azimuth table for pixels stored interleaved ([H, W*C] rows): entry
     [w*C + c, c*A + a] = azimuth[w, a] for c < 3; alpha (c = 3) gets weight 0.
     One plain 2D GEMM then sums over columns for all channels, no transpose."""
-    azimuth, _ = _projection_tables(height, width, order)
+    azimuth, _ = _projection_factors(height, width, order)
     n_az = azimuth.shape[1]
     table = np.zeros((width, channels, 3, n_az), dtype=dtype)
     for c in range(3):
@@ -304,9 +326,13 @@ def project_equirect(img, order: int, *, precision: str = "float32") -> np.ndarr
         per_row = (flat @ table).reshape(height, 3, -1)  # [H, 3, n_az]: sums over columns
     if dtype is np.float32 and not np.all(np.isfinite(per_row)):
         return project_equirect(a, order, precision="float64")  # row sums beyond float32 range
-    _, rows = _projection_tables(height, width, order)
+    _, groups = _projection_factors(height, width, order)
     # then the latitude quadrature per coefficient, in float64: [n, 3]
-    return np.einsum("hka,hca->kc", rows, per_row.astype(np.float64), optimize=True)
+    per_row = per_row.astype(np.float64)
+    coeffs = np.empty((num_coeffs(order), 3))
+    for a, (k, w) in enumerate(groups):
+        coeffs[k] = w.T @ per_row[:, :, a]
+    return coeffs
 
 
 # ---------------------------------------------------------------- rotation
