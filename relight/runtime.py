@@ -31,7 +31,8 @@ from relight.models import (CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_
                             default_model_path, expected_digest)
 from relight.prt import to_network_input
 
-__all__ = ["Relighter", "Decomposition", "RelightStats", "QUALITY_SIZES", "resize_linear", "bilinear_rows"]
+__all__ = ["Relighter", "Decomposition", "RelightStats", "QUALITY_SIZES", "open_session", "resize_linear",
+           "bilinear_rows"]
 
 QUALITY_SIZES = quality.working_sizes()  # the presets' table lives in relight/quality.py
 DEFAULT_WORKING_SIZE = QUALITY_SIZES[quality.DEFAULT]
@@ -615,6 +616,41 @@ class Decomposition:
 # ------------------------------------------------------------------ the session
 
 
+def open_session(path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
+                 registry_path: str | os.PathLike = REGISTRY_PATH):
+    """(onnxruntime session, SHA-256) of a model file whose hash matches its record.
+
+    The one loader of every shipped ONNX file (relighting networks and the
+    person matte): the bytes are read once, hashed, compared with the
+    registry's entry or the .sha256 file beside the model, and only then
+    handed to onnxruntime, so nothing unchecked is ever loaded.
+    """
+    import hashlib
+
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"model file not found: {path}")
+    want = expected_digest(path, registry_path)
+    data = path.read_bytes()  # hash exactly the bytes the session loads
+    got = hashlib.sha256(data).hexdigest()
+    if got != want:
+        raise ValueError(f"{path}: SHA-256 mismatch (file {got[:16]}..., expected {want[:16]}...): "
+                         "the model file is corrupt or was modified; refusing to load it")
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads or 0
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    try:
+        session = ort.InferenceSession(data, opts, providers=providers or ["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types
+        raise ValueError(f"{path}: onnxruntime cannot load it ({exc})") from None
+    return session, got
+
+
 class Relighter:
     """An onnxruntime session of a relighting network (SHA-256 checked first).
 
@@ -627,33 +663,10 @@ class Relighter:
     def __init__(self, model_path: str | os.PathLike | None = None, threads: int | None = None,
                  providers: list | None = None, working_size: int = DEFAULT_WORKING_SIZE,
                  registry_path: str | os.PathLike = REGISTRY_PATH):
-        import onnxruntime as ort
-
         path = Path(model_path) if model_path is not None else default_model_path(registry_path)
-        if not path.is_file():
-            raise ValueError(f"model file not found: {path}")
-        want = expected_digest(path, registry_path)
-        data = path.read_bytes()  # hash exactly the bytes the session loads
-        import hashlib
-
-        got = hashlib.sha256(data).hexdigest()
-        if got != want:
-            raise ValueError(f"{path}: SHA-256 mismatch (file {got[:16]}..., expected {want[:16]}...): "
-                             "the model file is corrupt or was modified; refusing to load it")
-        if threads is not None and (not isinstance(threads, int) or threads < 1):
-            raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
         self.working_size = self._check_size(working_size)
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads or 0
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        try:
-            self.session = ort.InferenceSession(data, opts, providers=providers or ["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise ValueError(f"{path}: onnxruntime cannot load it ({exc})") from None
-        del data
+        self.session, self.sha256 = open_session(path, threads, providers, registry_path)
         self.model_path = path
-        self.sha256 = got
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
         self._read_metadata()
 
