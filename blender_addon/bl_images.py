@@ -1,32 +1,95 @@
-"""bpy image datablocks <-> numpy arrays (top row first), looked up by name.
+"""bpy image datablocks <-> numpy arrays (top row first), and the stable identity of photos.
 
 Blender stores pixels bottom row first, RGBA float. Byte images hold their
 encoded values (/255); float images hold scene-linear values.
+
+Every pixel transfer is one `foreach_get` / `foreach_set` of a preallocated
+float32 buffer (a memory copy inside Blender); the conversions around it
+(flip, sRGB decode, RGBA packing) are plain numpy in `pipeline`, so the worker
+thread does them. A photo that is an unmodified 8-bit file on disk is even
+decoded by the worker from its file, so the main thread does not touch its
+pixels at all.
+
+Photos and outputs are found by custom properties, not by name: renaming the
+photo in Blender keeps its outputs and its saved decomposition attached.
 """
 
 from __future__ import annotations
 
+import os
+import uuid
+
 import bpy
 import numpy as np
 
-from relight.colour import srgb_decode
+from . import pipeline
 
 LINEAR = "Linear Rec.709"
 NON_COLOR = "Non-Color"
 _SRGB_NAMES = {"sRGB", "sRGB 2.2"}  # Blender names for the sRGB transfer
+PHOTO_ID = "relight_photo_id"        # on a photo: its stable identity
+OUTPUT_OF = "relight_photo_of"       # on an output: the photo id it belongs to
+OUTPUT_LAYER = "relight_photo_layer"  # on an output: which layer it is
+# file types Pillow decodes exactly as Blender does (8-bit, no colour management of their own)
+_PILLOW_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp"}
+
+
+# ------------------------------------------------------------------ identity
+
+def photo_id(image, create: bool = False) -> str:
+    """The photo's stable id ('' when it has none and `create` is False).
+
+    A duplicated image copies the property: with `create`, a photo whose id
+    another photo already carries gets a fresh one, so the copy relights on
+    its own.
+    """
+    pid = str(image.get(PHOTO_ID, ""))
+    if create and (not pid or any(other.get(PHOTO_ID) == pid and other != image for other in bpy.data.images)):
+        pid = uuid.uuid4().hex
+        image[PHOTO_ID] = pid
+    return pid
+
+
+def photo_by_id(pid: str):
+    """The photo datablock carrying id `pid`, or None (deleted)."""
+    if not pid:
+        return None
+    for image in bpy.data.images:
+        if image.get(PHOTO_ID) == pid and OUTPUT_OF not in image:
+            return image
+    return None
+
+
+def output_by_tag(pid: str, layer: str):
+    for image in bpy.data.images:
+        if image.get(OUTPUT_OF) == pid and image.get(OUTPUT_LAYER) == layer:
+            return image
+    return None
+
+
+def owner_of(image) -> str:
+    """The photo id an output image belongs to ('' for a photo)."""
+    return str(image.get(OUTPUT_OF, ""))
+
+
+# ------------------------------------------------------------------ reading
+
+def has_pixels(image: bpy.types.Image) -> bool:
+    """True when Blender can give the image's pixels (loading its file if needed)."""
+    if not image.has_data:
+        _load(image)
+    return image.has_data and image.size[0] > 0 and image.size[1] > 0
 
 
 def rgba_pixels(image: bpy.types.Image) -> np.ndarray:
-    """The image's pixels as float32 [H, W, C] (C = image.channels), top row first."""
-    if not image.has_data:
-        _load(image)
-    width, height = image.size
-    if width == 0 or height == 0 or not image.has_data:
+    """The image's pixels as float32 [H, W, C] (C = image.channels), top row first (a view)."""
+    if not has_pixels(image):
         raise ValueError(f"The image '{image.name}' has no pixels: is its file missing?")
+    width, height = image.size
     channels = image.channels
     flat = np.empty(width * height * channels, dtype=np.float32)
     image.pixels.foreach_get(flat)
-    return flat.reshape(height, width, channels)[::-1].copy()
+    return flat.reshape(height, width, channels)[::-1]
 
 
 def _load(image: bpy.types.Image) -> None:
@@ -39,39 +102,107 @@ def _load(image: bpy.types.Image) -> None:
         pass
 
 
+def _is_srgb_bytes(image) -> bool:
+    return not image.is_float and image.colorspace_settings.name in _SRGB_NAMES
+
+
+def _wants_alpha(image) -> bool:
+    return image.channels == 4 and image.alpha_mode != "NONE"
+
+
+def photo_reader(image):
+    """A function for the worker thread returning pipeline.PhotoPixels of `image`.
+
+    An unmodified 8-bit sRGB file on disk is decoded from the file by the
+    worker (Pillow; same codes as Blender reads); anything else (packed,
+    painted, float, other colour spaces) is copied out of Blender here, in one
+    foreach_get, and converted by the worker.
+    """
+    if not has_pixels(image):
+        raise ValueError(f"The image '{image.name}' has no pixels: is its file missing?")
+    width, height = image.size
+    pipeline.check_photo_size(width, height)
+    name, with_alpha = image.name, _wants_alpha(image)
+    path = _plain_file(image)
+    if path is not None:
+        def read_file():
+            return pipeline.read_8bit_file(path, (height, width), with_alpha, name)
+        return read_file
+    channels = image.channels
+    flat = np.empty(width * height * channels, dtype=np.float32)
+    image.pixels.foreach_get(flat)
+    srgb = _is_srgb_bytes(image)
+
+    def convert():
+        return pipeline.photo_from_blender(flat, (height, width, channels), srgb=srgb,
+                                           with_alpha=with_alpha, name=name)
+    return convert
+
+
+def _plain_file(image) -> str | None:
+    """The image's file when Pillow can read exactly what Blender shows, else None."""
+    if image.source != "FILE" or image.packed_file is not None or image.is_dirty or image.library is not None:
+        return None
+    if not _is_srgb_bytes(image) or image.depth not in (24, 32):
+        return None
+    path = bpy.path.abspath(image.filepath)
+    if os.path.splitext(path)[1].lower() not in _PILLOW_EXTENSIONS or not os.path.isfile(path):
+        return None
+    return path
+
+
 def linear_rgb_and_alpha(image: bpy.types.Image) -> tuple[np.ndarray, np.ndarray | None]:
-    """(linear RGB [H, W, 3] float32, alpha [H, W] or None when the image has no alpha)."""
+    """(linear RGB [H, W, 3] float32, alpha [H, W] or None when the image has no alpha), on this thread."""
     px = rgba_pixels(image)
-    if px.shape[2] == 1:
-        rgb = np.repeat(px, 3, axis=2)
-    else:
-        rgb = px[..., :3]
-    if not image.is_float and image.colorspace_settings.name in _SRGB_NAMES:
-        rgb = srgb_decode(rgb).astype(np.float32)
-    alpha = px[..., 3] if px.shape[2] == 4 and image.alpha_mode != "NONE" else None
-    if not np.all(np.isfinite(rgb)):
-        raise ValueError(f"The image '{image.name}' contains NaN or infinite pixels.")
-    return np.ascontiguousarray(rgb), alpha
+    flat = np.ascontiguousarray(px[::-1]).reshape(-1)  # back to Blender's layout
+    pixels = pipeline.photo_from_blender(flat, px.shape, srgb=_is_srgb_bytes(image),
+                                         with_alpha=px.shape[2] == 4 and image.alpha_mode != "NONE",
+                                         name=image.name)
+    return pixels.rgb, pixels.alpha
 
 
-def write_image(name: str, pixels: np.ndarray, *, colorspace: str = LINEAR) -> bpy.types.Image:
+# ------------------------------------------------------------------ writing
+
+def write_image(name: str, pixels: np.ndarray, *, colorspace: str = LINEAR, owner: str = "",
+                layer: str = "") -> bpy.types.Image:
     """Create or overwrite float image `name` with pixels [H, W] or [H, W, 1|3|4] (top row first)."""
     px = np.asarray(pixels, dtype=np.float32)
-    if px.ndim == 2:
-        px = px[..., None]
-    height, width, channels = px.shape
-    # one strided copy into Blender's layout: RGBA, bottom row first
-    rgba = np.ones((height, width, 4), dtype=np.float32)
-    rgba[..., :3] = px[::-1, :, :3] if channels >= 3 else px[::-1, :, :1]
-    if channels == 4:
-        rgba[..., 3] = px[::-1, :, 3]
-    image = bpy.data.images.get(name)
-    if image is not None and (tuple(image.size) != (width, height) or not image.is_float):
+    height, width = px.shape[:2]
+    return write_rgba(name, pipeline.to_blender_rgba(px), width, height, colorspace=colorspace,
+                      owner=owner, layer=layer)
+
+
+def write_rgba(name: str, rgba: np.ndarray, width: int, height: int, *, colorspace: str = LINEAR,
+               owner: str = "", layer: str = "") -> bpy.types.Image:
+    """Put a buffer already in Blender's layout (RGBA, bottom row first) into image `name`.
+
+    The image is found by its (owner, layer) tags first, so a renamed photo's
+    outputs are reused and renamed; it keeps its datablock when its size
+    changes (a generated image is resized in place), so an editor showing it
+    keeps showing it.
+    """
+    image = output_by_tag(owner, layer) if owner else None
+    if image is None:
+        image = bpy.data.images.get(name)
+        if image is not None and owner and image.get(OUTPUT_OF) not in (None, owner):
+            image = None  # that name belongs to another photo's output
+    if image is not None and image.name != name and bpy.data.images.get(name) is None:
+        image.name = name
+    if image is not None and not image.is_float:
         bpy.data.images.remove(image)
         image = None
+    if image is not None and tuple(image.size) != (width, height):
+        if image.source == "GENERATED":
+            image.generated_width, image.generated_height = width, height
+        else:
+            bpy.data.images.remove(image)
+            image = None
     if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
-    image.colorspace_settings.name = colorspace
-    image.pixels.foreach_set(rgba.ravel())
+    if owner:
+        image[OUTPUT_OF], image[OUTPUT_LAYER] = owner, layer
+    if image.colorspace_settings.name != colorspace:
+        image.colorspace_settings.name = colorspace
+    image.pixels.foreach_set(rgba)
     image.update()
     return image

@@ -1,6 +1,14 @@
-"""Operators: Relight (network off the UI thread, Esc cancels) and Save Layers."""
+"""Operators: Relight (network off the UI thread, Esc cancels) and Save Layers; the
+dial, World, save and load handlers.
+
+The main thread only gathers inputs (settings, the light) and hands finished
+buffers to Blender (one foreach_set per image); reading and decoding the
+photo, the network, relighting and packing pixels run on a worker thread.
+"""
 
 import math
+import os
+import time
 
 import bpy
 import numpy as np
@@ -9,7 +17,10 @@ from bpy.props import BoolProperty, StringProperty
 from . import bl_images, bl_world, engine, jobs, pipeline, quality, state
 
 SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, scripts)
-POLL_SECONDS = 0.1
+POLL_SECONDS = 0.05               # how often the main thread looks at a running job
+PREVIEW_LONG_SIDE = 1280          # px: the screen-sized preview shown while a dial moves on a large photo
+REST_SECONDS = 0.3                # a dial untouched this long is at rest: the full-size relight starts
+LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual")  # relit first: it is what the user sees
 
 
 # ------------------------------------------------------------------ helpers
@@ -44,23 +55,32 @@ def source_image(context, image_name: str = ""):
         image = _editor_image(context)
         if image is None:
             raise ValueError("Open a photo in the Image Editor first.")
+    owner = bl_images.owner_of(image)
+    if owner:
+        photo = bl_images.photo_by_id(owner)
+        if photo is None:
+            raise ValueError(f"'{image.name}' is a relit output whose photo was deleted: open the photo itself.")
+        return photo
     name = pipeline.source_of(image.name, set(bpy.data.images.keys()))
     return bpy.data.images[name]
 
 
-def _mask_for(settings, image, photo_alpha, shape):
-    mask_rgb = mask_alpha = None
-    mask_name = ""
-    if settings.mask_mode == "IMAGE" and settings.mask_image is not None:
-        mask_name = settings.mask_image.name
-        # stored values (code values of 8/16-bit files), not decoded colour: a mask is data
-        stored = bl_images.rgba_pixels(settings.mask_image)
-        mask_rgb = stored[..., :3] if stored.shape[2] >= 3 else np.repeat(stored[..., :1], 3, axis=2)
-        mask_alpha = stored[..., 3] if stored.shape[2] == 4 else None
-    if settings.mask_mode == "IMAGE_ALPHA" and not _has_alpha(image):
-        photo_alpha = None
-    mask = pipeline.choose_mask(settings.mask_mode, shape, photo_alpha, mask_rgb, mask_alpha, mask_name)
-    return mask, (settings.mask_mode, mask_name)
+def current_session(context):
+    """The session the dials drive (its photo still exists), or None."""
+    session = state.SESSIONS.get(_settings(context).last_photo_id)
+    if session is None:
+        return None
+    photo = bl_images.photo_by_id(session.photo_id)
+    if photo is None:
+        return None
+    session.source = photo.name  # follows a rename
+    return session
+
+
+def session_of(image):
+    """The session of a photo datablock, or None."""
+    pid = bl_images.photo_id(image)
+    return state.SESSIONS.get(pid) if pid else None
 
 
 def _has_alpha(image) -> bool:
@@ -68,17 +88,48 @@ def _has_alpha(image) -> bool:
     return image.alpha_mode != "NONE" and image.depth in (16, 32, 64, 128)
 
 
+def _mask_inputs(settings, image) -> dict:
+    """What the worker needs to make the mask; errors a user can fix are raised here, at once."""
+    width, height = image.size
+    inputs = dict(mode=settings.mask_mode, rgb=None, alpha=None, name="", use_photo_alpha=False)
+    if settings.mask_mode == "IMAGE":
+        mask_image = settings.mask_image
+        if mask_image is not None:
+            # stored values (code values of 8/16-bit files), not decoded colour: a mask is data
+            stored = bl_images.rgba_pixels(mask_image)
+            inputs["rgb"] = stored[..., :3] if stored.shape[2] >= 3 else np.repeat(stored[..., :1], 3, axis=2)
+            inputs["alpha"] = stored[..., 3] if stored.shape[2] == 4 else None
+            inputs["name"] = mask_image.name
+        pipeline.choose_mask("IMAGE", (height, width), None, inputs["rgb"], inputs["alpha"], inputs["name"])
+    elif settings.mask_mode == "IMAGE_ALPHA":
+        if not _has_alpha(image):
+            raise ValueError("The photo has no alpha channel to use as the mask.")
+        inputs["use_photo_alpha"] = True
+    return inputs
+
+
+def _make_mask(inputs: dict, pixels: pipeline.PhotoPixels):
+    alpha = pixels.alpha if inputs["use_photo_alpha"] else None
+    return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
+                                inputs["name"])
+
+
+def _mask_key(inputs: dict) -> tuple:
+    return (inputs["mode"], inputs["name"])
+
+
 def _light_image_key(settings, model_path: str) -> tuple | None:
     if settings.light_kind != "IMAGE" or settings.light_image is None:
         return None
-    return (settings.light_image.name, model_path, settings.quality)
+    return (bl_images.photo_id(settings.light_image, create=True), model_path, settings.quality)
 
 
 def target_light(context, order: int, model_path: str):
     """(light for relight.runtime, extra rotation in degrees) for the current settings.
 
-    The light is a preset name, an HDR path, SH coefficients (the World) or
-    the Decomposition of another photo; ValueError says what is missing.
+    The light is a preset name, an HDR path, SH coefficients (the World or a
+    restored light transfer) or the Decomposition of another photo;
+    ValueError says what is missing.
     """
     settings = _settings(context)
     kind = settings.light_kind
@@ -97,54 +148,88 @@ def target_light(context, order: int, model_path: str):
     if kind == "IMAGE":
         if settings.light_image is None:
             raise ValueError("Choose the photo to take the light from.")
-        decomposition = state.LIGHT_SOURCES.get(_light_image_key(settings, model_path))
-        if decomposition is None:
+        light = state.LIGHT_SOURCES.get(_light_image_key(settings, model_path))
+        if light is None:
             raise ValueError(f"Press Relight to estimate the light of '{settings.light_image.name}'.")
-        return decomposition, 0.0
+        return light, 0.0
     raise ValueError(f"Unknown light kind {kind!r}.")
 
 
 def _world_light(world, order: int):
-    """(SH light, rotation) of the world, read (or baked) and projected again only
-    when its nodes changed."""
+    """(SH light, rotation) of the world, read (or baked) and projected once per
+    state of its nodes (a hash of them: bl_world.fingerprint)."""
     key = bl_world.fingerprint(world)
-    cached = state.WORLDS.get(world.name)
-    if cached is None or cached[0] != key:
-        cached = state.WORLDS[world.name] = (key, bl_world.read_world(world), {})
-    _, light, projected = cached
+    cached = state.WORLDS.get(key)
+    if cached is None:
+        cached = (bl_world.read_world(world), {})
+        state.remember_world(key, cached)
+    light, projected = cached
     if order not in projected:
         projected[order] = pipeline.equirect_light(light.equirect, order)
     return projected[order], light.rotation_deg
 
 
 def _dials(context, session: state.PhotoSession):
+    """(light, rotation degrees, exposure EV, strength) of the current settings."""
     settings = _settings(context)
     light, extra_rotation = target_light(context, session.decomposition.sh_order, session.model_path)
-    return light, math.degrees(settings.rotation) + extra_rotation, settings.exposure
+    return light, math.degrees(settings.rotation) + extra_rotation, settings.exposure, settings.strength
 
 
 def compute_relit(context, session: state.PhotoSession, dials=None):
     """Linear RGB [H, W, 3] of the cached decomposition relit with the current dials."""
-    light, rotation, exposure = dials or _dials(context, session)
+    light, rotation, exposure, strength = dials or _dials(context, session)
     relit = engine.relight(session.decomposition, light, rotation, exposure)
-    return pipeline.blend(relit, session.photo, _settings(context).strength)
+    return pipeline.blend(relit, session.photo, strength)
 
 
-def render_relit(context, session: state.PhotoSession, dials=None) -> bpy.types.Image:
-    """Relight the cached decomposition with the current dials and write '<photo>.relit'."""
-    rgb = compute_relit(context, session, dials)
-    return bl_images.write_image(pipeline.output_name(session.source, "relit"), rgb)
+def _write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size: tuple[int, int]):
+    colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
+    height, width = size
+    return bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
+                                colorspace=colorspace, owner=session.photo_id, layer=layer)
 
 
-def refresh_relit(context) -> None:
-    """Property-update hook: redo the relit image from the cache (no network run)."""
-    settings = _settings(context)
-    session = state.SESSIONS.get(settings.last_source)
-    if session is None or bpy.data.images.get(session.source) is None:
+def render_relit(context, session: state.PhotoSession, dials=None):
+    """Relight the cached decomposition with the current dials and write '<photo>.relit' (this thread)."""
+    dials = dials or _dials(context, session)
+    rgba = engine.relit_rgba(session.decomposition, *dials)
+    return _write_output(session, "relit", rgba, session.photo.shape[:2])
+
+
+def layer_buffers(session: state.PhotoSession, dials, token=None) -> dict:
+    """Every output layer as a buffer in Blender's layout (worker-safe)."""
+    light, rotation, exposure, strength = dials
+    buffers = {"relit": engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)}
+    for layer, pixels in engine.layers(session.decomposition, light, rotation, exposure).items():
+        if token is not None:
+            token.check()
+        buffers[layer] = pipeline.to_blender_rgba(pixels)
+    return buffers
+
+
+# ------------------------------------------------------------------ dials
+
+def refresh_relit(context, preview: bool = False) -> None:
+    """Property-update hook: redo the relit image from the cache (no network run).
+
+    With `preview` (a UI is there) a large photo gets its screen-sized
+    preview now and the full-size image from a worker once the dial rests.
+    """
+    session = current_session(context)
+    if session is None:
         return
+    session.dial_generation += 1
     try:
-        render_relit(context, session)
-        _set_status(context, "")
+        dials = _dials(context, session)
+        if preview and session.preview is not None:
+            rgba = engine.relit_rgba(session.preview, *dials)
+            _write_output(session, "relit", rgba, session.preview.size)
+            _set_status(context, "Preview: the full-size image follows when the dial rests.")
+            _arm_full_size()
+        else:
+            render_relit(context, session, dials)
+            _set_status(context, "")
     except ValueError as exc:
         _set_status(context, str(exc), is_error=True)
 
@@ -155,7 +240,7 @@ def _updates_immediately() -> bool:
 
 
 def _deferred_refresh():
-    refresh_relit(bpy.context)
+    refresh_relit(bpy.context, preview=True)
     return None  # run once
 
 
@@ -163,8 +248,7 @@ def schedule_refresh(context) -> None:
     """A dial moved: relight now without a UI, else once the UI is idle.
 
     Dragging a slider sends an update per mouse move; deferring to a timer
-    coalesces them, so a drag stays smooth even when one relight takes
-    a noticeable fraction of a second on a large photo.
+    coalesces them, so a drag stays smooth.
     """
     if _updates_immediately():
         refresh_relit(context)
@@ -172,13 +256,75 @@ def schedule_refresh(context) -> None:
         bpy.app.timers.register(_deferred_refresh, first_interval=0.0)
 
 
-def _write_layers(context, session: state.PhotoSession, dials=None) -> None:
-    """'<photo>.albedo/.shading/.residual/.alpha' under the current light."""
-    light, rotation, exposure = dials or _dials(context, session)
-    for layer, pixels in engine.layers(session.decomposition, light, rotation, exposure).items():
-        colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
-        bl_images.write_image(pipeline.output_name(session.source, layer), pixels, colorspace=colorspace)
+def _arm_full_size() -> None:
+    """(Re)start the rest timer: the full-size relight waits until the dial stops moving."""
+    if bpy.app.timers.is_registered(_full_when_resting):
+        bpy.app.timers.unregister(_full_when_resting)
+    bpy.app.timers.register(_full_when_resting, first_interval=REST_SECONDS)
 
+
+def start_full_size(session: state.PhotoSession, dials, with_layers: bool = False):
+    """Relight the full-size photo on a worker; _poll_full_size writes it if no dial moved since."""
+    generation = session.dial_generation
+    if with_layers:
+        job = jobs.BackgroundJob(lambda: layer_buffers(session, dials), label="full-size")
+    else:
+        job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials)},
+                                 label="full-size")
+    job.session, job.generation = session, generation
+    state.RUNNING["dial"] = job
+    if not bpy.app.timers.is_registered(_poll_full_size):
+        bpy.app.timers.register(_poll_full_size, first_interval=POLL_SECONDS)
+    return job
+
+
+def _full_when_resting():
+    context = bpy.context
+    session = current_session(context)
+    if session is None:
+        return None
+    running = state.RUNNING.get("dial")
+    if running is not None and not running.finished:
+        return POLL_SECONDS  # one full-size relight at a time: start when that one ends
+    try:
+        dials = _dials(context, session)
+    except ValueError as exc:
+        _set_status(context, str(exc), is_error=True)
+        return None
+    start_full_size(session, dials)
+    return None
+
+
+def _poll_full_size():
+    job = state.RUNNING.get("dial")
+    if job is None:
+        return None
+    job_state = job.poll()
+    if job_state is jobs.JobState.RUNNING:
+        return POLL_SECONDS
+    del state.RUNNING["dial"]
+    finish_full_size(bpy.context, job)
+    return None
+
+
+def finish_full_size(context, job) -> bool:
+    """Write a finished full-size job's images unless a dial moved since it started."""
+    session = job.session
+    if job.poll() is jobs.JobState.FAILED:
+        _set_status(context, str(engine.user_error(job.error)), is_error=True)
+        return False
+    if job.poll() is not jobs.JobState.DONE or state.SESSIONS.get(session.photo_id) is not session \
+            or session.dial_generation != job.generation or bl_images.photo_by_id(session.photo_id) is None:
+        return False
+    session.source = bl_images.photo_by_id(session.photo_id).name
+    for layer in LAYER_ORDER:
+        if layer in job.result:
+            _write_output(session, layer, job.result[layer], session.photo.shape[:2])
+    _set_status(context, "")
+    return True
+
+
+# ------------------------------------------------------------------ World edits
 
 _in_handler = False
 
@@ -187,41 +333,207 @@ _in_handler = False
 def on_depsgraph_update(scene, depsgraph) -> None:
     """A World edit that changes its light (mapping, sky, image) relights live."""
     global _in_handler
-    if _in_handler or not depsgraph.id_type_updated("WORLD"):
-        return
+    if _in_handler or bl_world.baking() or not depsgraph.id_type_updated("WORLD"):
+        return  # bl_world.baking(): the updates our own bake scene causes
     settings = getattr(scene, "relight_photo", None)
-    if settings is None or settings.light_kind != "WORLD" or settings.last_source not in state.SESSIONS:
+    if settings is None or settings.light_kind != "WORLD" or scene.world is None:
         return
-    cached = state.WORLDS.get(scene.world.name) if scene.world is not None else None
-    if cached is not None and cached[0] == bl_world.fingerprint(scene.world):
-        return  # an update that does not change the light (or our own bake)
+    if current_session(bpy.context) is None:
+        return
+    if bl_world.fingerprint(scene.world) in state.WORLDS:
+        return  # an update that does not change the light
     _in_handler = True
     try:
-        refresh_relit(bpy.context)
+        schedule_refresh(bpy.context)
     finally:
         _in_handler = False
 
 
+# ------------------------------------------------------------------ save and reopen
+
+def _lights_to_save() -> list:
+    out = []
+    for (pid, model_path, quality_key), light in state.LIGHT_SOURCES.items():
+        coeffs = getattr(light, "light", light)  # a Decomposition's estimate, or restored coefficients
+        out.append([pid, model_path, quality_key, np.asarray(coeffs, np.float64).tolist()])
+    return out
+
+
 @bpy.app.handlers.persistent
-def on_load(_dummy) -> None:
-    """A new .blend: the cached photos belong to the old file."""
+def on_save_post(*_args) -> None:
+    """Keep each decomposition next to the .blend (`<name>_relight/<photo id>.npz`), so
+    reopening the file restores the results without a network run."""
+    blend = bpy.data.filepath
+    if not blend:
+        return
+    for session in list(state.SESSIONS.values()):
+        if bl_images.photo_by_id(session.photo_id) is None:
+            continue
+        path = pipeline.saved_relight_path(blend, session.photo_id)
+        if session.saved_to == path and os.path.isfile(path):
+            continue
+        meta = dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
+                    quality=session.quality, mask_key=list(session.mask_key), source=session.source,
+                    lights=_lights_to_save())
+        try:
+            engine.save_decomposition(path, session.decomposition, meta)
+        except OSError as exc:
+            _set_status(bpy.context, f"The relight of '{session.source}' could not be saved next to the "
+                        f".blend ({exc.strerror or exc}): it will need Relight after reopening.", is_error=True)
+            continue
+        session.saved_to = path
+
+
+def _restore_plan(context, image, path: str) -> dict:
+    arrays, meta = engine.load_decomposition_arrays(path)
+    reader = bl_images.photo_reader(image)
+    mode, mask_name = meta["mask_key"]
+    inputs = dict(mode=mode, rgb=None, alpha=None, name=mask_name, use_photo_alpha=mode == "IMAGE_ALPHA")
+    if mode == "IMAGE":
+        mask_image = bpy.data.images.get(mask_name)
+        if mask_image is None:
+            raise ValueError(f"The mask image '{mask_name}' of '{image.name}' is gone: press Relight.")
+        stored = bl_images.rgba_pixels(mask_image)
+        inputs["rgb"] = stored[..., :3] if stored.shape[2] >= 3 else np.repeat(stored[..., :1], 3, axis=2)
+        inputs["alpha"] = stored[..., 3] if stored.shape[2] == 4 else None
+    for pid, model_path, quality_key, coeffs in meta.get("lights", []):
+        state.LIGHT_SOURCES.setdefault((pid, model_path, quality_key), np.asarray(coeffs, np.float64))
+    return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path)
+
+
+def _restore_work(plan: dict) -> state.PhotoSession:
+    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition."""
+    meta = plan["meta"]
+    pixels = plan["reader"]()
+    if pixels.digest != meta["digest"]:
+        raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
+    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, _make_mask(plan["mask"], pixels))
+    return state.PhotoSession(
+        photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
+        model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
+        digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
+        saved_to=plan["path"])
+
+
+def restore_saved(context) -> int:
+    """Bring back every photo's saved decomposition and its outputs; returns how many.
+
+    Without a UI this runs here; with one, the photos are re-read on a worker
+    and the outputs written when it is done (a large photo's preview first).
+    """
+    blend = bpy.data.filepath
+    if not blend:
+        return 0
+    plans = []
+    for image in bpy.data.images:
+        pid = bl_images.photo_id(image)
+        if not pid or bl_images.owner_of(image):
+            continue
+        path = pipeline.saved_relight_path(blend, pid)
+        if not os.path.isfile(path):
+            continue
+        try:
+            plans.append(_restore_plan(context, image, path))
+        except ValueError as exc:
+            _set_status(context, str(exc), is_error=True)
+    if not plans:
+        return 0
+    job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
+    state.RUNNING["restore"] = job
+    if _updates_immediately():
+        job.wait()
+        _finish_restore(context, job, preview_first=False)
+    else:
+        bpy.app.timers.register(_poll_restore, first_interval=POLL_SECONDS)
+    return len(plans)
+
+
+def _poll_restore():
+    job = state.RUNNING.get("restore")
+    if job is None:
+        return None
+    if job.poll() is jobs.JobState.RUNNING:
+        return POLL_SECONDS
+    _finish_restore(bpy.context, job, preview_first=True)
+    return None
+
+
+def _finish_restore(context, job, preview_first: bool) -> None:
+    state.RUNNING.pop("restore", None)
+    if job.poll() is jobs.JobState.FAILED:
+        _set_status(context, str(engine.user_error(job.error)), is_error=True)
+        return
+    if job.poll() is not jobs.JobState.DONE:
+        return
+    settings = _settings(context)
+    for session in job.result:
+        state.SESSIONS[session.photo_id] = session
+        try:
+            dials = _dials(context, session)
+        except ValueError as exc:
+            _set_status(context, str(exc), is_error=True)
+            continue
+        if preview_first and session.preview is not None:
+            _write_output(session, "relit", engine.relit_rgba(session.preview, *dials), session.preview.size)
+            start_full_size(session, dials, with_layers=True)
+        else:
+            for layer, rgba in layer_buffers(session, dials).items():
+                _write_output(session, layer, rgba, session.photo.shape[:2])
+    if settings.last_photo_id not in state.SESSIONS and job.result:
+        settings.last_photo_id = job.result[0].photo_id
+
+
+@bpy.app.handlers.persistent
+def on_load(*_args) -> None:
+    """A new .blend: forget the old file's photos, bring back this file's saved relights."""
     state.clear()
+    try:
+        restore_saved(bpy.context)
+    except Exception as exc:  # a handler must never raise into Blender's file loading
+        _set_status(bpy.context, f"Saved relights could not be restored ({exc}): press Relight.", is_error=True)
 
 
-def _run_network(plan: dict):
-    """The worker thread's whole job: plain data in, decompositions out (no bpy)."""
-    relighter, long_side = plan["relighter"], plan["long_side"]
-    decomposition = engine.decompose(relighter, plan["photo"], plan["mask"], long_side)
-    light_decomposition = None
-    if plan["light_photo"] is not None:
-        light_decomposition = engine.decompose(relighter, plan["light_photo"], None, long_side)
-    return decomposition, light_decomposition
+# ------------------------------------------------------------------ the Relight job
+
+def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> dict:
+    """The worker thread's whole job: plain data in, a session and image buffers out (no bpy)."""
+    progress.enter("Reading the photo", 0.02)
+    pixels = plan["read_photo"]()
+    token.check()
+    pipeline.check_photo_content(pixels.rgb)
+    mask = _make_mask(plan["mask"], pixels)
+    progress.enter("Finding the person and running the network", 0.10)
+    network_start = time.monotonic()
+    decomposition = engine.decompose(plan["relighter"], pixels.rgb, mask, plan["long_side"], token)
+    light, light_decomposition = plan["light"], None
+    if plan["light_reader"] is not None:
+        progress.enter("Estimating the light of the other photo", 0.45)
+        other = plan["light_reader"]()
+        pipeline.check_photo_content(other.rgb)
+        light_decomposition = engine.decompose(plan["relighter"], other.rgb, None, plan["long_side"], token)
+        light = light_decomposition
+    elif light is None:
+        light = plan["light_cached"]
+    network_seconds = time.monotonic() - network_start
+    session = state.PhotoSession(
+        photo_id=plan["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
+        model_path=plan["model_path"], quality=plan["quality"], mask_key=_mask_key(plan["mask"]),
+        digest=pixels.digest)
+    progress.enter("Relighting at full size", 0.60)
+    dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
+    token.check()
+    buffers = layer_buffers(session, dials, token)
+    progress.enter("Preparing the preview", 0.90)
+    session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
+    progress.enter("Writing the images", 0.95)
+    return dict(session=session, buffers=buffers, light_decomposition=light_decomposition,
+                network_seconds=network_seconds)
 
 
-def _release(job) -> None:
+def _release(job, slot: str = "job") -> None:
     """Forget the running job, if it is still this one."""
-    if job is not None and state.RUNNING.get("job") is job:
-        del state.RUNNING["job"]
+    if job is not None and state.RUNNING.get(slot) is job:
+        del state.RUNNING[slot]
 
 
 # ------------------------------------------------------------------ operators
@@ -241,68 +553,97 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
     _job = None
     _timer = None
     _plan = None
+    _pending = None     # output layers still to hand to Blender, one per timer tick
+    _result = None
+    _started = 0.0
 
     # the plan gathers every input on the main thread before the worker starts
     def _make_plan(self, context) -> dict:
         settings = _settings(context)
         image = source_image(context, self.image_name)
-        photo, photo_alpha = bl_images.linear_rgb_and_alpha(image)
-        mask, mask_key = _mask_for(settings, image, photo_alpha, photo.shape[:2])
+        read_photo = bl_images.photo_reader(image)  # checks the photo has pixels and a usable size
+        mask = _mask_inputs(settings, image)
         model_path = str(pipeline.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
         relighter = engine.open_relighter(model_path)
         long_side = quality.preset(settings.quality).working_long_side
-        light_photo = None
+        light = light_cached = light_reader = None
         light_key = _light_image_key(settings, model_path)
+        rotation = math.degrees(settings.rotation)
         if settings.light_kind == "IMAGE":
             if settings.light_image is None:
                 raise ValueError("Choose the photo to take the light from.")
-            if light_key not in state.LIGHT_SOURCES:
-                light_photo, _ = bl_images.linear_rgb_and_alpha(settings.light_image)
-        if settings.light_kind != "IMAGE":
-            # check the target light before spending time on the network
-            target_light(context, relighter.sh_order, model_path)
-        return dict(source=image.name, photo=photo, mask=mask, mask_key=mask_key, model_path=model_path,
-                    relighter=relighter, long_side=long_side, quality=settings.quality,
-                    light_photo=light_photo, light_key=light_key)
+            light_cached = state.LIGHT_SOURCES.get(light_key)
+            if light_cached is None:
+                light_reader = bl_images.photo_reader(settings.light_image)
+        else:
+            # the target light is checked before any time goes into the network
+            light, extra = target_light(context, relighter.sh_order, model_path)
+            rotation += extra
+        return dict(photo_id=bl_images.photo_id(image, create=True), source=image.name, read_photo=read_photo,
+                    mask=mask, model_path=model_path, relighter=relighter, long_side=long_side,
+                    quality=settings.quality, light=light, light_cached=light_cached, light_reader=light_reader,
+                    light_key=light_key, rotation=rotation, exposure=settings.exposure,
+                    strength=settings.strength, dials_at_start=self._dial_values(settings))
 
-    def _finish(self, context, result, seconds: float) -> set:
-        plan = self._plan
-        decomposition, light_decomposition = result
-        if light_decomposition is not None:
-            state.LIGHT_SOURCES[plan["light_key"]] = light_decomposition
-        session = state.PhotoSession(
-            source=plan["source"], photo=plan["photo"],
-            decomposition=decomposition, model_path=plan["model_path"], quality=plan["quality"],
-            mask_key=plan["mask_key"])
-        state.SESSIONS[session.source] = session
-        _settings(context).last_source = session.source
-        try:
-            dials = _dials(context, session)
-            relit = render_relit(context, session, dials)
-            _write_layers(context, session, dials)
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
-            _set_status(context, str(exc), is_error=True)
-            return {"CANCELLED"}
-        space = getattr(context, "space_data", None)
-        if space is not None and space.type == "IMAGE_EDITOR":
-            space.image = relit
-        message = f"Relit '{session.source}' in {seconds:.1f} s."
-        _set_status(context, message)
-        self.report({"INFO"}, message)
-        return {"FINISHED"}
+    @staticmethod
+    def _dial_values(settings) -> tuple:
+        return (settings.light_kind, settings.preset, settings.hdr_path, settings.rotation, settings.exposure,
+                settings.strength, settings.light_image.name if settings.light_image else "")
 
     def _start(self, context):
         if "job" in state.RUNNING:
             raise ValueError("A relight is already running; press Esc to cancel it first.")
+        self._started = time.monotonic()
         self._plan = self._make_plan(context)
         plan = self._plan
+        token, progress = engine.CancelToken(), jobs.Progress()
         # the thread gets plain data only: never the operator, which Blender may free
-        self._job = jobs.BackgroundJob(lambda: _run_network(plan), label="decompose")
+        self._job = jobs.BackgroundJob(lambda: _relight_work(plan, progress, token), label="relight",
+                                       cancel_token=token, progress=progress)
         state.RUNNING["job"] = self._job
 
-    def _error(self, context, exc: Exception) -> set:
-        message = str(exc) if isinstance(exc, ValueError) else f"Relighting failed: {exc}"
+    def _install(self, context, result: dict) -> None:
+        """The worker is done: keep its session; its images are written next."""
+        plan = self._plan
+        session = result["session"]
+        if result["light_decomposition"] is not None:
+            state.LIGHT_SOURCES[plan["light_key"]] = result["light_decomposition"]
+        photo = bl_images.photo_by_id(session.photo_id)
+        if photo is None:
+            raise ValueError(f"The photo '{session.source}' was deleted while it was being relit.")
+        session.source = photo.name
+        state.SESSIONS[session.photo_id] = session
+        _settings(context).last_photo_id = session.photo_id
+        self._result = result
+        self._pending = [layer for layer in LAYER_ORDER if layer in result["buffers"]]
+
+    def _write_next(self, context) -> None:
+        session = self._result["session"]
+        layer = self._pending.pop(0)
+        image = _write_output(session, layer, self._result["buffers"].pop(layer), session.photo.shape[:2])
+        if layer == "relit":
+            space = getattr(context, "space_data", None)
+            if space is not None and getattr(space, "type", "") == "IMAGE_EDITOR":
+                space.image = image
+
+    def _done(self, context) -> set:
+        session = self._result["session"]
+        wall = time.monotonic() - self._started
+        message = (f"Relit '{session.source}' in {wall:.1f} s "
+                   f"(network {self._result['network_seconds']:.1f} s).")
+        _set_status(context, message)
+        self.report({"INFO"}, message)
+        if self._dial_values(_settings(context)) != self._plan["dials_at_start"]:
+            schedule_refresh(context)  # a dial moved while the network ran
+        self._result = None
+        return {"FINISHED"}
+
+    def _error(self, context, exc: BaseException) -> set:
+        if isinstance(exc, engine.Cancelled):
+            self.report({"WARNING"}, "Relighting cancelled.")
+            _set_status(context, "Relighting cancelled.")
+            return {"CANCELLED"}
+        message = str(exc) if isinstance(exc, ValueError) else str(engine.user_error(exc))
         self.report({"ERROR"}, message)
         _set_status(context, message, is_error=True)
         return {"CANCELLED"}
@@ -311,14 +652,18 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         # synchronous path: tests, scripts and background mode
         try:
             self._start(context)
-            state_ = self._job.wait()
-        except ValueError as exc:
+            job_state = self._job.wait()
+            if job_state is jobs.JobState.FAILED:
+                raise engine.user_error(self._job.error) \
+                    if not isinstance(self._job.error, engine.Cancelled) else self._job.error
+            self._install(context, self._job.result)
+            while self._pending:
+                self._write_next(context)
+        except (ValueError, engine.Cancelled) as exc:
             return self._error(context, exc)
         finally:
             _release(self._job)
-        if state_ is jobs.JobState.FAILED:
-            return self._error(context, engine.user_error(self._job.error))
-        return self._finish(context, self._job.result, self._job.elapsed)
+        return self._done(context)
 
     def invoke(self, context, event):
         if self.synchronous or pipeline.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
@@ -342,32 +687,58 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         wm.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        _status(context).running = False
+        status = _status(context)
+        status.running, status.stage, status.progress = False, "", 0.0
         _release(self._job)
+
+    def _show_progress(self, context) -> None:
+        progress = self._job.progress
+        elapsed = time.monotonic() - self._started
+        fraction = progress.fraction
+        if progress.stage.startswith("Finding") and self._plan:
+            expected = engine.expected_seconds(self._plan["model_path"], self._plan["long_side"])
+            if expected:  # inside the network stage, interpolate by the last run's time
+                share = min(1.0, (time.monotonic() - progress.stage_started) / expected)
+                fraction += share * (0.45 if self._plan["light_reader"] is None else 0.30)
+        status = _status(context)
+        status.stage, status.progress, status.elapsed = progress.stage, min(fraction, 0.99), elapsed
+        context.window_manager.progress_update(int(100 * status.progress))
+        if context.workspace is not None:
+            context.workspace.status_text_set(
+                f"Relight Photo: {progress.stage.lower()} ({elapsed:.1f} s), Esc to cancel")
 
     def modal(self, context, event):
         if event.type == "ESC":
             self._job.cancel()
             self._cleanup(context)
-            self.report({"WARNING"}, "Relighting cancelled.")
-            _set_status(context, "Relighting cancelled.")
-            return {"CANCELLED"}
+            return self._error(context, engine.Cancelled())
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
+        if self._result is not None:
+            try:
+                self._write_next(context)  # one image per tick: the UI stays responsive
+            except ValueError as exc:
+                self._cleanup(context)
+                return self._error(context, exc)
+            if self._pending:
+                return {"PASS_THROUGH"}
+            self._cleanup(context)
+            return self._done(context)
         job_state = self._job.poll()
         if job_state is jobs.JobState.RUNNING:
-            expected = engine.expected_seconds(self._plan["model_path"], self._plan["long_side"])
-            fraction = min(0.99, self._job.elapsed / expected) if expected else 0.0
-            context.window_manager.progress_update(int(100 * fraction))
-            if context.workspace is not None:
-                context.workspace.status_text_set(
-                    f"Relight Photo: running the network on '{self._plan['source']}' "
-                    f"({self._job.elapsed:.1f} s), Esc to cancel")
+            self._show_progress(context)
             return {"PASS_THROUGH"}
-        self._cleanup(context)
         if job_state is jobs.JobState.FAILED:
-            return self._error(context, engine.user_error(self._job.error))
-        return self._finish(context, self._job.result, self._job.elapsed)
+            self._cleanup(context)
+            error = self._job.error
+            return self._error(context, error if isinstance(error, engine.Cancelled) else engine.user_error(error))
+        try:
+            self._install(context, self._job.result)
+        except ValueError as exc:
+            self._cleanup(context)
+            return self._error(context, exc)
+        _status(context).stage = "Writing the images"
+        return {"PASS_THROUGH"}
 
 
 class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
@@ -383,10 +754,10 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
     image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"})
 
     def _session(self, context):
-        name = self.image_name or _settings(context).last_source
-        if self.image_name == "" and _editor_image(context) is not None:
-            name = source_image(context).name
-        session = state.SESSIONS.get(name)
+        if self.image_name or _editor_image(context) is not None:
+            session = session_of(source_image(context, self.image_name))
+        else:
+            session = current_session(context)
         if session is None:
             raise ValueError("Relight the photo first: there are no layers to save yet.")
         return session
@@ -410,7 +781,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
             dials = _dials(context, session)
             relit = compute_relit(context, session, dials)
-            engine.save_layers(path, relit, engine.layers(session.decomposition, *dials))
+            engine.save_layers(path, relit, engine.layers(session.decomposition, *dials[:3]))
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -425,7 +796,9 @@ CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)
 
 
 _HANDLERS = ((bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
-             (bpy.app.handlers.load_post, on_load))
+             (bpy.app.handlers.load_post, on_load),
+             (bpy.app.handlers.save_post, on_save_post))
+_TIMERS = (_deferred_refresh, _full_when_resting, _poll_full_size, _poll_restore)
 
 
 def register() -> None:
@@ -437,8 +810,9 @@ def register() -> None:
 
 
 def unregister() -> None:
-    if bpy.app.timers.is_registered(_deferred_refresh):
-        bpy.app.timers.unregister(_deferred_refresh)
+    for timer in _TIMERS:
+        if bpy.app.timers.is_registered(timer):
+            bpy.app.timers.unregister(timer)
     for handlers, fn in _HANDLERS:
         while fn in handlers:
             handlers.remove(fn)

@@ -59,11 +59,14 @@ class RelightPhotoSettings(bpy.types.PropertyGroup):
     quality: EnumProperty(name="Quality", items=quality.enum_items(), default=quality.DEFAULT_QUALITY)
     model_path: StringProperty(name="Model", subtype="FILE_PATH",
                                description="Custom ONNX model; empty uses the quality preset's shipped model")
-    last_source: StringProperty(name="Last Photo", description="Photo the dials currently relight")
+    last_photo_id: StringProperty(name="Last Photo", description="Id of the photo the dials currently relight")
 
 
 class RelightPhotoStatus(bpy.types.PropertyGroup):
     running: BoolProperty(default=False)
+    stage: StringProperty(default="")            # what the running job does now, in the artist's words
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
+    elapsed: FloatProperty(default=0.0)          # seconds since Relight was pressed
     message: StringProperty(default="")
     is_error: BoolProperty(default=False)
 

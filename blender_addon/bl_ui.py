@@ -55,11 +55,13 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
         row.enabled = not status.running
         row.operator("relight_photo.relight", icon="LIGHT_SUN")
         row = layout.row()
-        row.enabled = settings.last_source in state.SESSIONS
+        row.enabled = settings.last_photo_id in state.SESSIONS
         row.operator("relight_photo.save_layers", icon="FILE_IMAGE")
 
         if status.running:
-            layout.label(text="Running the network... (Esc cancels)", icon="SORTTIME")
+            layout.label(text=f"{status.stage}: {100 * status.progress:.0f}% ({status.elapsed:.1f} s)",
+                         icon="SORTTIME")
+            layout.label(text="Esc cancels")
         elif status.message:
             layout.label(text=status.message, icon="ERROR" if status.is_error else "CHECKMARK")
 

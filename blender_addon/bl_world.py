@@ -8,9 +8,11 @@ rendering a small equirectangular panorama of it with Cycles.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import bpy
@@ -74,10 +76,50 @@ def _mapping_z_rotation(env_node) -> float | None:
     return sign * math.degrees(rot[2])
 
 
+def _upstream_nodes(world) -> list:
+    """Every node that feeds the active World Output (directly or through others)."""
+    tree = world.node_tree
+    if tree is None:
+        return []
+    outputs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
+    active = [n for n in outputs if n.is_active_output] or outputs
+    seen, todo = {}, list(active[:1])
+    while todo:
+        node = todo.pop()
+        if node.name in seen:
+            continue
+        seen[node.name] = node
+        for socket in node.inputs:
+            for link in socket.links:
+                if link.is_valid and not link.is_muted:
+                    todo.append(link.from_node)
+    return list(seen.values())
+
+
+def check_textures(world) -> None:
+    """ValueError naming the first image texture of the World that has no pixels.
+
+    Blender renders a texture node without an image (or with a missing file)
+    as magenta; baking it would light the person magenta without a warning.
+    """
+    for node in _upstream_nodes(world):
+        if node.type not in {"TEX_ENVIRONMENT", "TEX_IMAGE"}:
+            continue
+        label = node.label or node.name
+        if node.image is None:
+            raise ValueError(f"The World's texture node '{label}' has no image, which Blender shows as "
+                             "magenta: open an HDR image in it, or choose another light.")
+        if not bl_images.has_pixels(node.image):
+            raise ValueError(f"The World's image '{node.image.name}' cannot be read (is its file missing?), "
+                             "which Blender shows as magenta: fix its file path, or choose another light.")
+
+
 def read_world(world) -> WorldLight:
-    """The world's light as an equirect map; ValueError when there is no world."""
+    """The world's light as an equirect map; ValueError when there is no world or a
+    texture of it has no pixels."""
     if world is None:
         raise ValueError("The scene has no World to take the light from.")
+    check_textures(world)
     background = _world_output_background(world)
     if background is not None and not background.inputs["Strength"].is_linked:
         env = _linked_node(background.inputs["Color"])
@@ -95,8 +137,30 @@ def read_world(world) -> WorldLight:
     return WorldLight(bake_world(world), 0.0, "baked procedural world")
 
 
+_baking = 0  # > 0 while bake_world renders: the depsgraph updates it causes are our own
+
+
+def baking() -> bool:
+    return _baking > 0
+
+
+@contextmanager
+def _bake_guard():
+    global _baking
+    _baking += 1
+    try:
+        yield
+    finally:
+        _baking -= 1
+
+
 def bake_world(world, width: int = BAKE_WIDTH) -> np.ndarray:
     """Render `world` as a width x width/2 equirect map with Cycles; [H, W, 3] linear."""
+    with _bake_guard():
+        return _bake(world, width)
+
+
+def _bake(world, width: int) -> np.ndarray:
     # a copy, so the user's world is never touched: importance sampling off
     # (the camera sees the world directly; building its map costs seconds)
     world = world.copy()
@@ -148,6 +212,8 @@ def bake_world(world, width: int = BAKE_WIDTH) -> np.ndarray:
 def _value(v):
     if isinstance(v, (int, float, str, bool)) or v is None:
         return v
+    if isinstance(v, bpy.types.Image):
+        return ("IMAGE", v.name, v.filepath, v.source, tuple(v.size))
     if isinstance(v, bpy.types.ID):
         return ("ID", v.name)
     try:
@@ -156,14 +222,20 @@ def _value(v):
         return repr(v)
 
 
-def fingerprint(world) -> tuple:
-    """Everything in the world's node tree that can change its light (node settings,
-    socket values, links), so a cached light is reused exactly while this is equal."""
+def fingerprint(world) -> str:
+    """A hash of everything in the world's node tree that can change its light (node
+    settings, socket values, links, the images used), so a cached light is reused
+    exactly while it is equal. The World's name is not part of it: renaming or
+    duplicating a World does not bake again."""
+    return hashlib.sha256(repr(_node_state(world)).encode()).hexdigest()
+
+
+def _node_state(world) -> tuple:
     if world is None:
         return ()
     tree = world.node_tree
-    if tree is None:
-        return (world.name, _value(world.color))
+    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
+        return (_value(world.color),)
     nodes = []
     for node in tree.nodes:
         settings = []
@@ -180,4 +252,4 @@ def fingerprint(world) -> tuple:
         nodes.append((node.name, node.bl_idname, tuple(settings), inputs))
     links = tuple(sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
                          for l in tree.links if l.is_valid and not l.is_muted))
-    return world.name, tuple(sorted(nodes, key=lambda n: n[0])), links
+    return tuple(sorted(nodes, key=lambda n: n[0])), links

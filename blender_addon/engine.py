@@ -7,10 +7,16 @@ the next run can estimate how far along it is.
 
 from __future__ import annotations
 
+import json
+import math
+import os
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
+
+from . import pipeline
 
 _RELIGHTERS: dict[tuple, object] = {}
 _SECONDS: dict[tuple, float] = {}   # (model path, working size) -> last network time
@@ -36,12 +42,153 @@ def open_relighter(model_path: str):
     return relighter
 
 
-def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int):
-    """Run the network once (the slow step; called on the worker thread)."""
+class Cancelled(Exception):
+    """The user pressed Esc: the work stopped where it was."""
+
+
+class CancelToken:
+    """Shared by the main thread (cancel) and the worker (check); terminates a running inference."""
+
+    def __init__(self):
+        self._event = threading.Event()
+        self._run_options = []
+
+    def cancel(self) -> None:
+        self._event.set()
+        for options in list(self._run_options):
+            options.terminate = True  # onnxruntime stops the running session.run and raises
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def check(self) -> None:
+        if self._event.is_set():
+            raise Cancelled()
+
+    def run_options(self):
+        import onnxruntime as ort
+
+        options = ort.RunOptions()
+        self._run_options.append(options)
+        if self._event.is_set():
+            options.terminate = True
+        return options
+
+
+def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
+              cancel: CancelToken | None = None):
+    """Run the network once (the slow step; called on the worker thread).
+
+    With `cancel`, each inference runs with onnxruntime RunOptions that
+    CancelToken.cancel() terminates, so Esc stops even a running network pass.
+    relight.runtime.Relighter.run takes no run options, so its `run` is
+    shadowed on the instance for this call (one network job runs at a time).
+    """
     start = time.monotonic()
-    decomposition = relighter.decompose(photo, mask=mask, working_size=working_size)
+    if cancel is not None:
+        cancel.check()
+        relighter.run = _cancellable_run(relighter, cancel)
+    try:
+        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size)
+    except Exception:
+        if cancel is not None and cancel.cancelled:
+            raise Cancelled() from None
+        raise
+    finally:
+        if cancel is not None:
+            del relighter.run  # the class's own method again
     _SECONDS[(str(relighter.model_path), working_size)] = time.monotonic() - start
     return decomposition
+
+
+def _cancellable_run(relighter, cancel: CancelToken):
+    from relight.models import INPUT_NAME, OUTPUT_NAMES
+
+    def run(net_input: np.ndarray) -> dict[str, np.ndarray]:
+        cancel.check()
+        feed = {INPUT_NAME: np.ascontiguousarray(net_input, np.float32)}
+        values = relighter.session.run(list(OUTPUT_NAMES), feed, cancel.run_options())
+        return dict(zip(OUTPUT_NAMES, values))
+    return run
+
+
+def preview_decomposition(decomposition, long_side: int):
+    """The decomposition over a copy of the photo scaled to `long_side` (a screen), for
+    relighting while a dial moves; None when the photo is not much larger than that.
+
+    Same network outputs (working resolution), so the preview is the full
+    result, only smaller.
+    """
+    from relight.runtime import Decomposition, resize_linear
+
+    H, W = decomposition.size
+    if max(H, W) <= 1.5 * long_side:
+        return None
+    s = long_side / max(H, W)
+    h, w = max(1, round(H * s)), max(1, round(W * s))
+    y0, y1, x0, x1 = decomposition.box
+    box = (int(y0 * h / H), max(int(y0 * h / H) + 1, math.ceil(y1 * h / H)),
+           int(x0 * w / W), max(int(x0 * w / W) + 1, math.ceil(x1 * w / W)))
+    mask = None
+    if decomposition.mask is not None:
+        mask = np.clip(resize_linear(decomposition.mask[..., None], h, w)[..., 0], 0.0, 1.0)
+    return Decomposition(
+        albedo=decomposition.albedo, transport=decomposition.transport, residual=decomposition.residual,
+        light=decomposition.light, alpha=decomposition.alpha, box=box, working_size=decomposition.working_size,
+        photo=resize_linear(decomposition.photo, h, w), photo_working=decomposition.photo_working,
+        mask=mask, sh_order=decomposition.sh_order)
+
+
+def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, strength: float,
+               out: np.ndarray | None = None) -> np.ndarray:
+    """The relit photo blended by `strength`, as a buffer in Blender's layout (worker-safe)."""
+    relit = decomposition.relight(light, rotation_deg=rotation_deg, exposure_ev=exposure_ev)
+    return pipeline.to_blender_rgba(pipeline.blend(relit, decomposition.photo, strength), out)
+
+
+# ------------------------------------------------------------------ saved decompositions
+
+SAVE_FORMAT = "relight-photo-decomposition/1"
+_HALF = ("albedo", "transport", "residual", "photo_working")  # fp16: ample for 8-bit photos and light
+
+
+def save_decomposition(path: str | os.PathLike, decomposition, meta: dict) -> Path:
+    """Write the decomposition (network outputs at working resolution, no photo) as a
+    compressed .npz, atomically; `meta` (plain values) is stored with it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {name: getattr(decomposition, name).astype(np.float16 if name in _HALF else np.float32)
+              for name in (*_HALF, "alpha", "light")}
+    info = dict(meta, format=SAVE_FORMAT, box=list(decomposition.box),
+                working_size=list(decomposition.working_size), sh_order=int(decomposition.sh_order))
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, meta=np.array(json.dumps(info)), **arrays)
+    os.replace(tmp, path)
+    return path
+
+
+def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:
+    """(arrays as float32, meta) of a saved decomposition; ValueError when unreadable."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            arrays = {k: data[k].astype(np.float32) for k in data.files if k != "meta"}
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"The saved relight '{Path(path).name}' cannot be read ({_sentence(exc)})") from None
+    if meta.get("format") != SAVE_FORMAT:
+        raise ValueError(f"The saved relight '{Path(path).name}' is from another version of the add-on.")
+    return arrays, meta
+
+
+def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None):
+    """A relight.runtime.Decomposition from saved arrays over the (re-read) photo."""
+    from relight.runtime import Decomposition
+
+    return Decomposition(albedo=arrays["albedo"], transport=arrays["transport"], residual=arrays["residual"],
+                         light=arrays["light"], alpha=arrays["alpha"], box=tuple(meta["box"]),
+                         working_size=tuple(meta["working_size"]), photo=photo,
+                         photo_working=arrays["photo_working"], mask=mask, sh_order=int(meta["sh_order"]))
 
 
 def expected_seconds(model_path: str, working_size: int) -> float | None:

@@ -1,9 +1,10 @@
 """A function run on a worker thread, polled from Blender's main thread.
 
 Plain Python (no bpy). onnxruntime releases the GIL during inference, so the
-UI keeps drawing while the network runs. Cancelling cannot interrupt a running
-inference; it marks the job so its result is dropped when the thread ends and
-the caller can return at once.
+UI keeps drawing while the network runs. Cancelling marks the job so the
+caller can return at once and any late result is dropped; with a cancel token
+(engine.CancelToken) it also stops the work itself, a running inference
+included. The worker reports its stage through a Progress object.
 """
 
 from __future__ import annotations
@@ -21,11 +22,30 @@ class JobState(enum.Enum):
     CANCELLED = "cancelled"
 
 
+class Progress:
+    """The worker's current stage (artist words) and the fraction of the whole job done.
+
+    Written by the worker, read by the main thread: two plain attributes,
+    each replaced whole, so no lock is needed.
+    """
+
+    def __init__(self):
+        self.stage = "Starting"
+        self.fraction = 0.0
+        self.stage_started = time.monotonic()
+
+    def enter(self, stage: str, fraction: float) -> None:
+        self.stage, self.fraction, self.stage_started = stage, float(fraction), time.monotonic()
+
+
 class BackgroundJob:
     """Runs `fn()` once on a daemon thread; `poll()` reports its state without blocking."""
 
-    def __init__(self, fn: Callable[[], Any], label: str = "job"):
+    def __init__(self, fn: Callable[[], Any], label: str = "job", cancel_token=None,
+                 progress: Progress | None = None):
         self.label = label
+        self.progress = progress or Progress()
+        self._token = cancel_token
         self._fn = fn
         self._result: Any = None
         self._error: BaseException | None = None
@@ -44,8 +64,15 @@ class BackgroundJob:
             self._finished.set()
 
     def cancel(self) -> None:
-        """Drop the result; the thread finishes in the background."""
+        """Drop the result; with a cancel token the work stops too, else the thread finishes unseen."""
         self._cancelled.set()
+        if self._token is not None:
+            self._token.cancel()
+
+    @property
+    def finished(self) -> bool:
+        """True once the thread has returned (also after a cancel)."""
+        return self._finished.is_set()
 
     @property
     def elapsed(self) -> float:

@@ -8,7 +8,9 @@ one sentence each.
 
 from __future__ import annotations
 
+import hashlib
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,11 @@ from . import quality
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
 EMPTY_MASK_LEVEL = 1e-3  # a mask whose largest value is below this selects nothing
+MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
+BLACK_LEVEL = 3e-3       # linear luminance (sRGB code ~11/255): a photo whose brightest pixel is below is black
+WHITE_LEVEL = 0.98       # a photo whose darkest channel value everywhere is above this is blown out
+FLAT_SPREAD = 0.02       # luminance spread (1st to 99th percentile) below this fraction of its level: one colour
+CHECK_SAMPLES = 1 << 18  # pixels looked at by check_photo_content (a regular subsample)
 
 
 # ------------------------------------------------------------------ names
@@ -35,6 +42,148 @@ def source_of(name: str, existing: set[str] | frozenset[str] = frozenset()) -> s
         if name.endswith(suffix) and name[: -len(suffix)] in existing:
             return name[: -len(suffix)]
     return name
+
+
+def saved_relight_path(blend_path: str, photo_id: str) -> str:
+    """Where the decomposition of photo `photo_id` is kept for the .blend at `blend_path`:
+    a folder next to it, '<name>_relight/<photo id>.npz'."""
+    folder, name = os.path.split(blend_path)
+    stem = os.path.splitext(name)[0]
+    return os.path.join(folder, f"{stem}_relight", f"{photo_id}.npz")
+
+
+# ------------------------------------------------------------------ photo pixels
+
+@dataclass
+class PhotoPixels:
+    """A photo as the add-on works on it."""
+
+    rgb: np.ndarray             # linear RGB [H, W, 3] float32, top row first
+    alpha: np.ndarray | None    # [H, W] in [0, 1], or None when the image has no alpha
+    digest: str                 # hash of the stored pixel values: the key of a saved decomposition
+
+
+_SRGB_LUT: list = []
+
+
+def srgb_lut() -> np.ndarray:
+    """Linear value of each 8-bit sRGB code: one table look-up instead of a power per value."""
+    if not _SRGB_LUT:
+        from relight.colour import srgb_decode
+
+        _SRGB_LUT.append(srgb_decode(np.arange(256, dtype=np.float32) / np.float32(255.0)).astype(np.float32))
+    return _SRGB_LUT[0]
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        h.update(repr(a.shape).encode())
+        h.update(np.ascontiguousarray(a).data)  # hashlib releases the GIL on large buffers
+    return h.hexdigest()
+
+
+def _from_codes(codes: np.ndarray, alpha_codes: np.ndarray | None) -> PhotoPixels:
+    rgb = srgb_lut()[codes]
+    alpha = None if alpha_codes is None else alpha_codes.astype(np.float32) * np.float32(1.0 / 255.0)
+    parts = (codes,) if alpha_codes is None else (codes, alpha_codes)
+    return PhotoPixels(rgb, alpha, _digest(*parts))
+
+
+def read_8bit_file(path: str, shape: tuple[int, int], with_alpha: bool, name: str) -> PhotoPixels:
+    """Decode an 8-bit sRGB photo file (worker thread); `shape` is (H, W) as Blender loaded it."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im = im.convert("RGBA" if with_alpha else "RGB")
+            codes = np.asarray(im)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"The photo file of '{name}' cannot be read ({_first_line(exc)}).") from None
+    if codes.shape[:2] != tuple(shape):
+        raise ValueError(f"The photo file of '{name}' changed on disk since Blender loaded it: "
+                         "reload the image (Image > Reload) and relight.")
+    if with_alpha:
+        return _from_codes(np.ascontiguousarray(codes[..., :3]), np.ascontiguousarray(codes[..., 3]))
+    return _from_codes(codes, None)
+
+
+def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: bool, with_alpha: bool,
+                       name: str) -> PhotoPixels:
+    """Pixels copied out of Blender (flat, bottom row first, `shape` = (H, W, C)) as a PhotoPixels.
+
+    8-bit sRGB images hold code / 255: the codes are recovered exactly and
+    decoded by table; float images are taken as scene-linear.
+    """
+    h, w, c = shape
+    px = flat.reshape(h, w, c)[::-1]
+    rgb = px[..., :3] if c >= 3 else np.repeat(px[..., :1], 3, axis=2)
+    alpha = px[..., 3] if c == 4 and with_alpha else None
+    if srgb:
+        codes = np.rint(np.clip(rgb, 0.0, 1.0) * np.float32(255.0)).astype(np.uint8)
+        alpha_codes = None if alpha is None else np.rint(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+        return _from_codes(codes, alpha_codes)
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    if not np.all(np.isfinite(rgb)):
+        raise ValueError(f"The image '{name}' contains NaN or infinite pixels.")
+    alpha = None if alpha is None else np.ascontiguousarray(alpha)
+    return PhotoPixels(rgb, alpha, _digest(rgb) if alpha is None else _digest(rgb, alpha))
+
+
+def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """[H, W] or [H, W, 1|3|4] top row first -> flat float32 RGBA, bottom row first (Blender's layout).
+
+    `out` (H * W * 4 float32) is reused when given: the worker prepares the
+    buffer and the main thread only hands it to foreach_set.
+    """
+    px = np.asarray(pixels, dtype=np.float32)
+    if px.ndim == 2:
+        px = px[..., None]
+    h, w, c = px.shape
+    rgba = np.empty(h * w * 4, np.float32) if out is None else out
+    view = rgba.reshape(h, w, 4)
+    flipped = px[::-1]
+    if c >= 3:
+        view[..., :3] = flipped[..., :3]
+    else:
+        for k in range(3):  # one strided copy per channel: broadcasting [.., 1] is much slower
+            view[..., k] = flipped[..., 0]
+    if c == 4:
+        view[..., 3] = flipped[..., 3]
+    else:
+        view[..., 3] = 1.0
+    return rgba
+
+
+# ------------------------------------------------------------------ photo checks
+
+def check_photo_size(width: int, height: int) -> None:
+    """ValueError in the artist's words when the photo is too small to show a person."""
+    if min(width, height) < MIN_PHOTO_SIDE:
+        raise ValueError(f"The photo is only {width} x {height} pixels, too small to show a person: "
+                         f"use a photo at least {MIN_PHOTO_SIDE} pixels on each side.")
+
+
+def check_photo_content(photo: np.ndarray) -> None:
+    """ValueError when the photo cannot hold a visible person: black, blown-out white, or one flat colour.
+
+    The network would still return layers for such a photo, relit from nothing,
+    which would look like a result; these are caught first. A regular subsample
+    of about CHECK_SAMPLES pixels is enough for levels and percentiles.
+    """
+    h, w = photo.shape[:2]
+    check_photo_size(w, h)
+    step = max(1, int(np.sqrt(h * w / CHECK_SAMPLES)))
+    sample = np.asarray(photo[::step, ::step, :3], dtype=np.float32).reshape(-1, 3)
+    luminance = sample @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    if float(luminance.max()) < BLACK_LEVEL:
+        raise ValueError("The photo is black: there is no person to see in it. "
+                         "Check the photo's exposure, or open another photo.")
+    if float(sample.min()) > WHITE_LEVEL:
+        raise ValueError("The photo is white (blown out): there is no person to see in it. Open another photo.")
+    low, high = np.percentile(luminance, [1.0, 99.0])
+    if high - low < FLAT_SPREAD * max(float(high), BLACK_LEVEL):
+        raise ValueError("The photo is one flat colour: there is no person to relight in it. Open another photo.")
 
 
 # ------------------------------------------------------------------ masks
@@ -92,6 +241,9 @@ def hdr_file_light(path: str, order: int) -> str:
     try:
         resolve_light(str(p), order)  # projected once, then cached by the runtime
     except (ValueError, OSError) as exc:
+        if _is_black_light(exc):
+            raise ValueError(f"The HDR file '{p.name}' is black, so it gives no light: "
+                             "choose another file.") from None
         raise ValueError(f"The HDR file '{p.name}' cannot be read as an equirectangular map "
                          f"({_first_line(exc)}).") from None
     return str(p)
@@ -120,10 +272,27 @@ def equirect_light(pixels: np.ndarray, order: int) -> np.ndarray:
     if w != 2 * h:
         raise ValueError(f"The World's environment image is {w}x{h}; an equirectangular map "
                          "is twice as wide as high.")
+    rgb = np.ascontiguousarray(pixels[..., :3])
+    if not np.all(np.isfinite(rgb)):
+        raise ValueError("The World's light has invalid (infinite or NaN) values: "
+                         "check its environment image and Background strength.")
+    if float(rgb.max(initial=0.0)) <= 0.0:
+        raise ValueError(BLACK_WORLD)
     try:
-        return envmap.light_from_map(np.ascontiguousarray(pixels[..., :3]), order, normalize=True)
+        return envmap.light_from_map(rgb, order, normalize=True)
     except ValueError as exc:
+        if _is_black_light(exc):
+            raise ValueError(BLACK_WORLD) from None
         raise ValueError(f"The World gives no usable light ({_first_line(exc)}).") from None
+
+
+BLACK_WORLD = ("The World is black, so it gives no light: raise its Background colour or Strength, "
+               "or choose another light.")
+
+
+def _is_black_light(exc: BaseException) -> bool:
+    # relight.sh refuses to scale a light whose mean luminance is not positive
+    return "mean luminance" in str(exc)
 
 
 def preset_names() -> list[str]:

@@ -1,39 +1,56 @@
 """What the add-on remembers between operator runs: plain Python, no bpy datablocks.
 
-Only names of images are kept (never bpy ID references), so undo, file reload
-or deleting an image cannot leave a dangling pointer here.
+Photos are keyed by their stable id (a custom property on the image, see
+bl_images), never by bpy ID references, so undo, file reload, renaming or
+deleting an image cannot leave a dangling pointer here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+WORLD_CACHE_SIZE = 4  # lights of recent World node states (an environment map can be large)
 
 
 @dataclass
 class PhotoSession:
     """A photo decomposed once; relighting it again needs no network run."""
 
-    source: str                 # name of the photo's image datablock
+    photo_id: str               # the photo's stable id (bl_images.PHOTO_ID)
+    source: str                 # the photo's name when last seen (for messages)
     photo: np.ndarray           # linear RGB [H, W, 3] at the photo's size
     decomposition: Any          # relight.runtime.Decomposition
     model_path: str
     quality: str
     mask_key: tuple             # what mask it was run with (mode, image name)
+    digest: str = ""            # hash of the photo's pixel values (the saved decomposition's key)
+    preview: Any = None         # the decomposition over a screen-sized photo (large photos only)
+    saved_to: str = ""          # the file this decomposition was last saved to
+    dial_generation: int = 0    # bumped on every dial change: a late full-size result is dropped
+    extras: dict = field(default_factory=dict)
 
 
-SESSIONS: dict[str, PhotoSession] = {}        # photo name -> session
-LIGHT_SOURCES: dict[tuple, Any] = {}          # (image name, model, quality) -> Decomposition
-WORLDS: dict[str, tuple] = {}                 # world name -> (fingerprint, WorldLight, {order: SH})
-RUNNING: dict[str, Any] = {}                  # "job" -> the one BackgroundJob in flight
+SESSIONS: dict[str, PhotoSession] = {}        # photo id -> session
+LIGHT_SOURCES: dict[tuple, Any] = {}          # (photo id, model, quality) -> Decomposition
+WORLDS: OrderedDict = OrderedDict()           # World node-state hash -> (WorldLight, {order: SH})
+RUNNING: dict[str, Any] = {}                  # "job": the one network job; "dial": a full-size dial job
+
+
+def remember_world(key: str, value: tuple) -> None:
+    WORLDS[key] = value
+    WORLDS.move_to_end(key)
+    while len(WORLDS) > WORLD_CACHE_SIZE:
+        WORLDS.popitem(last=False)
 
 
 def clear() -> None:
     SESSIONS.clear()
     LIGHT_SOURCES.clear()
     WORLDS.clear()
-    job = RUNNING.pop("job", None)
-    if job is not None:
+    for key in list(RUNNING):
+        job = RUNNING.pop(key)
         job.cancel()

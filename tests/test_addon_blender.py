@@ -16,7 +16,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_ops, bl_world, state
+from blender_addon import bl_images, bl_ops, bl_world, state
 from relight import envmap, presets, sh
 from relight.exr import read_exr, write_exr
 from relight.runtime import resolve_light
@@ -109,6 +109,11 @@ def settings(addon):
     s.light_kind = "PRESET"
 
 
+def session(image_name: str) -> state.PhotoSession:
+    """The add-on's session of a photo, found by the photo's stable id."""
+    return state.SESSIONS[bpy.data.images[image_name][bl_images.PHOTO_ID]]
+
+
 def relight(image_name: str, **kw):
     return bpy.ops.relight_photo.relight(image_name=image_name, synchronous=True, **kw)
 
@@ -145,14 +150,14 @@ def test_relight_writes_every_layer(addon, settings):
     assert albedo.min() >= 0 and albedo.max() <= 1 + TIGHT
     assert alpha.min() >= 0 and alpha.max() <= 1
     # the relit image is the runtime's relight of the cached decomposition
-    session = state.SESSIONS[name]
-    expected = session.decomposition.relight("studio")
+    run = session(name)
+    expected = run.decomposition.relight("studio")
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
     # and the photo is the PNG decoded to linear (what relight.photo reads)
     from relight.photo import read_photo
 
     linear, _ = read_photo(addon["folder"] / "person.png")
-    np.testing.assert_allclose(session.photo, linear, atol=1e-6)
+    np.testing.assert_allclose(run.photo, linear, atol=1e-6)
 
 
 def test_invoking_without_a_window_runs_synchronously(addon, settings):
@@ -165,9 +170,9 @@ def test_rotating_the_light_follows_the_sh_rotation(addon, settings):
     name = addon["photo"]
     relight(name)
     before = pixels(f"{name}.relit")[..., :3].copy()
-    network_runs = state.SESSIONS[name]
+    network_runs = session(name)
     settings.rotation = math.radians(90.0)  # property update: no network run
-    assert state.SESSIONS[name] is network_runs
+    assert session(name) is network_runs
     after = pixels(f"{name}.relit")[..., :3]
     L = resolve_light("studio", ORDER)  # normalised map light
     rotated = sh.rotate(L, sh.z_rotation(90.0))
@@ -179,8 +184,8 @@ def test_rotating_the_light_follows_the_sh_rotation(addon, settings):
 def test_exposure_and_strength_update_live(addon, settings):
     name = addon["photo"]
     relight(name)
-    d = state.SESSIONS[name].decomposition
-    photo = state.SESSIONS[name].photo
+    d = session(name).decomposition
+    photo = session(name).photo
     settings.exposure = 1.0
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight("studio", exposure_ev=1.0),
                                atol=2 * TIGHT)
@@ -204,7 +209,7 @@ def test_with_a_ui_dial_changes_are_coalesced_into_one_timer(addon, settings, mo
         assert bpy.app.timers.is_registered(bl_ops._deferred_refresh)
         np.testing.assert_array_equal(pixels(f"{name}.relit"), before)
         assert bl_ops._deferred_refresh() is None  # what Blender's timer calls, once
-        expected = state.SESSIONS[name].decomposition.relight("studio", rotation_deg=20.0, exposure_ev=0.5)
+        expected = session(name).decomposition.relight("studio", rotation_deg=20.0, exposure_ev=0.5)
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
     finally:
         if bpy.app.timers.is_registered(bl_ops._deferred_refresh):
@@ -216,7 +221,7 @@ def test_output_image_in_the_editor_maps_back_to_its_photo(addon, settings):
     relight(name)
     # running again on the '.relit' image relights the photo, not the output
     assert relight(f"{name}.relit") == {"FINISHED"}
-    assert settings.last_source == name
+    assert settings.last_photo_id == bpy.data.images[name][bl_images.PHOTO_ID]
     assert f"{name}.relit.relit" not in bpy.data.images
 
 
@@ -238,7 +243,7 @@ def test_mask_from_the_photos_alpha(addon, settings):
     # the user's mask is the matte: alpha 0 outside, 1 inside the figure
     np.testing.assert_allclose(alpha, source, atol=1e-6)
     relit = pixels(f"{name}.relit")[..., :3]
-    np.testing.assert_array_equal(relit[source == 0], state.SESSIONS[name].photo[source == 0])
+    np.testing.assert_array_equal(relit[source == 0], session(name).photo[source == 0])
 
 
 def test_mask_from_another_image_uses_its_grey_code_values(addon, settings, tmp_path):
@@ -267,9 +272,9 @@ def test_light_transfer_from_another_photo(addon, settings):
     settings.light_image = src
     name = addon["photo"]
     assert relight(name) == {"FINISHED"}
-    key = (src.name, str(addon["model"]), "DRAFT")
+    key = (src[bl_images.PHOTO_ID], str(addon["model"]), "DRAFT")
     other = state.LIGHT_SOURCES[key]
-    expected = state.SESSIONS[name].decomposition.relight(other)
+    expected = session(name).decomposition.relight(other)
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
 
 
@@ -282,7 +287,7 @@ def test_hdr_file_light(addon, settings, tmp_path):
     settings.hdr_path = str(path)
     name = addon["photo"]
     assert relight(name) == {"FINISHED"}
-    expected = state.SESSIONS[name].decomposition.relight(str(path))
+    expected = session(name).decomposition.relight(str(path))
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
 
 
@@ -358,7 +363,7 @@ def test_editing_the_world_relights_live(addon, settings):
         settings.light_kind = "WORLD"
         name = addon["photo"]
         relight(name)
-        d = state.SESSIONS[name].decomposition
+        d = session(name).decomposition
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(str(path)), atol=TIGHT)
         # the user turns the Mapping node: Blender sends a depsgraph update
         world.node_tree.nodes["Mapping"].inputs["Rotation"].default_value[2] = math.radians(45.0)
@@ -378,7 +383,7 @@ def test_float_exr_photo_is_taken_as_linear(addon, settings, tmp_path):
     image = bpy.data.images.load(str(path))
     try:
         assert relight(image.name) == {"FINISHED"}
-        np.testing.assert_array_equal(state.SESSIONS[image.name].photo, linear)
+        np.testing.assert_array_equal(session(image.name).photo, linear)
     finally:
         for n in [i.name for i in bpy.data.images if i.name.startswith("hdr_photo.exr")]:
             bpy.data.images.remove(bpy.data.images[n])
@@ -553,9 +558,11 @@ def _modal_operator(image_name):
 
     cls = bl_ops.RELIGHT_PHOTO_OT_relight
     op = types.SimpleNamespace(image_name=image_name, synchronous=False, _job=None, _timer=None,
-                               _plan=None, reports=[])
+                               _plan=None, _pending=None, _result=None, _started=0.0, reports=[],
+                               _dial_values=cls._dial_values)
     op.report = lambda kind, text: op.reports.append((set(kind), text))
-    for name in ("_make_plan", "_start", "_finish", "_error", "_cleanup", "modal"):
+    for name in ("_make_plan", "_start", "_install", "_write_next", "_done", "_error", "_cleanup",
+                 "_show_progress", "modal"):
         setattr(op, name, getattr(cls, name).__get__(op))
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_FakeWindowManager(),
                                     workspace=_FakeWorkspace(), space_data=None, window=None)
@@ -567,7 +574,7 @@ def test_modal_run_polls_the_worker_then_finishes(addon, settings):
     import types
 
     name = addon["photo"]
-    state.SESSIONS.pop(name, None)
+    state.SESSIONS.clear()
     op, context = _modal_operator(name)
     op._start(context)
     assert "job" in state.RUNNING
@@ -578,7 +585,7 @@ def test_modal_run_polls_the_worker_then_finishes(addon, settings):
         time.sleep(0.02)
         result = op.modal(context, timer)
     assert result == {"FINISHED"}
-    assert "job" not in state.RUNNING and name in state.SESSIONS
+    assert "job" not in state.RUNNING and session(name) is not None
     assert context.window_manager.progress[-1] == "end"
     assert context.workspace.status[-1] is None  # the header text is given back
     assert op.reports and op.reports[-1][1].startswith(f"Relit '{name}' in")

@@ -118,8 +118,88 @@ def test_world_pixels_are_scaled_like_hdr_files():
     np.testing.assert_allclose(coeffs, raw * scale, rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError, match="twice as wide as high"):
         pipeline.equirect_light(env[:, :20], 4)
-    with pytest.raises(ValueError, match="The World gives no usable light"):
+    # a black World: the artist's words, not "mean luminance 0 <= 0"
+    with pytest.raises(ValueError, match=r"^The World is black, so it gives no light: raise its Background"):
         pipeline.equirect_light(np.zeros((8, 16, 3), np.float32), 4)
+
+
+def test_black_hdr_file_is_named_in_the_artists_words(tmp_path):
+    black = tmp_path / "black.exr"
+    write_exr(black, {c: np.zeros((8, 16), np.float32) for c in "RGB"})
+    with pytest.raises(ValueError) as info:
+        pipeline.hdr_file_light(str(black), 4)
+    assert str(info.value) == "The HDR file 'black.exr' is black, so it gives no light: choose another file."
+
+
+# ------------------------------------------------------------------ photo checks
+
+def _textured(h=64, w=48):
+    rng = np.random.default_rng(0)
+    return rng.uniform(0.05, 0.8, (h, w, 3)).astype(np.float32)
+
+
+@pytest.mark.parametrize("photo, message", [
+    (np.full((4, 4, 3), 0.5, np.float32), "The photo is only 4 x 4 pixels, too small to show a person"),
+    (np.zeros((64, 48, 3), np.float32), "The photo is black: there is no person to see in it."),
+    (np.full((64, 48, 3), 1e-3, np.float32), "The photo is black"),
+    (np.ones((64, 48, 3), np.float32), "The photo is white (blown out)"),
+    (np.full((64, 48, 3), 0.4, np.float32), "The photo is one flat colour"),
+])
+def test_photos_without_a_visible_person_are_refused(photo, message):
+    with pytest.raises(ValueError) as info:
+        pipeline.check_photo_content(photo)
+    assert str(info.value).startswith(message), str(info.value)
+
+
+def test_ordinary_and_dark_but_real_photos_pass_the_checks():
+    pipeline.check_photo_content(_textured())
+    pipeline.check_photo_content(_textured() * 0.02)   # a dark photo (max ~0.016 linear) is not black
+    pipeline.check_photo_size(32, 32)
+    with pytest.raises(ValueError, match="31 x 200 pixels"):
+        pipeline.check_photo_size(31, 200)
+
+
+def test_blender_pixels_decode_like_the_file_and_round_trip():
+    from relight.colour import srgb_decode
+
+    rng = np.random.default_rng(1)
+    codes = rng.integers(0, 256, (5, 7, 4)).astype(np.uint8)
+    # Blender gives code / 255, bottom row first
+    flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
+    px = pipeline.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p")
+    np.testing.assert_allclose(px.rgb, srgb_decode(codes[..., :3] / np.float32(255)), atol=1e-7)
+    np.testing.assert_allclose(px.alpha, codes[..., 3] / 255.0, atol=1e-7)
+    # the digest is of the stored codes: equal for equal pixels, different otherwise
+    again = pipeline.photo_from_blender(flat.copy(), (5, 7, 4), srgb=True, with_alpha=True, name="p")
+    assert again.digest == px.digest
+    flat[0] = 0.5
+    assert pipeline.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p").digest != px.digest
+    # to_blender_rgba is the inverse layout: RGBA, bottom row first
+    rgb = rng.uniform(0, 1, (5, 7, 3)).astype(np.float32)
+    out = pipeline.to_blender_rgba(rgb).reshape(5, 7, 4)
+    np.testing.assert_array_equal(out[::-1, :, :3], rgb)
+    np.testing.assert_array_equal(out[..., 3], 1.0)
+    grey = pipeline.to_blender_rgba(rgb[..., 0]).reshape(5, 7, 4)
+    np.testing.assert_array_equal(grey[::-1, :, 2], rgb[..., 0])
+
+
+def test_an_8bit_file_read_by_the_worker_equals_blenders_codes(tmp_path):
+    from PIL import Image
+
+    rng = np.random.default_rng(2)
+    codes = rng.integers(0, 256, (6, 9, 3)).astype(np.uint8)
+    Image.fromarray(codes, "RGB").save(tmp_path / "p.png")
+    from_file = pipeline.read_8bit_file(str(tmp_path / "p.png"), (6, 9), False, "p.png")
+    flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
+    from_blender = pipeline.photo_from_blender(flat, (6, 9, 3), srgb=True, with_alpha=False, name="p.png")
+    np.testing.assert_array_equal(from_file.rgb, from_blender.rgb)
+    assert from_file.digest == from_blender.digest
+    with pytest.raises(ValueError, match="changed on disk since Blender loaded it"):
+        pipeline.read_8bit_file(str(tmp_path / "p.png"), (7, 9), False, "p.png")
+
+
+def test_saved_relight_sits_next_to_the_blend():
+    assert pipeline.saved_relight_path("/a/b/shot.blend", "abc") == "/a/b/shot_relight/abc.npz"
 
 
 # ------------------------------------------------------------------ compositing
@@ -203,6 +283,31 @@ def test_background_job_runs_off_the_calling_thread():
     assert job.wait(10) is jobs.JobState.DONE
     assert job.result == 42
     assert seen["thread"] is not threading.main_thread()
+
+
+def test_cancel_token_stops_the_job_between_steps_and_sets_run_options():
+    token = engine.CancelToken()
+    options = token.run_options()
+    assert options.terminate is False
+    started, steps = threading.Event(), []
+
+    def work():
+        for i in range(1000):
+            token.check()
+            steps.append(i)
+            started.set()
+            threading.Event().wait(0.005)
+        return "all"
+
+    job = jobs.BackgroundJob(work, label="t", cancel_token=token)
+    started.wait(10)
+    job.cancel()
+    assert job.poll() is jobs.JobState.CANCELLED
+    job.wait(10)
+    assert job.finished and len(steps) < 1000           # the work itself stopped
+    assert isinstance(job.error, engine.Cancelled)
+    assert options.terminate is True                    # a running inference is told to stop
+    assert token.run_options().terminate is True        # and a later one never starts
 
 
 def test_cancelled_job_drops_its_result_and_failed_job_keeps_its_error():
