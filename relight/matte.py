@@ -32,8 +32,8 @@ __all__ = ["PersonMatte", "NoPersonError", "person_matte", "find_people", "matte
 
 MATTE_MODEL_NAME = "person-matte"       # its entry in relight/models/models.json
 MATTE_MODEL_FILE = "person_matte.onnx"
-NET_SIZE = (256, 256)                   # (h, w) the segmenter takes
-GUIDE_SIZE = 1024                       # longest side the edge is refined at
+NET_SIDE = 256                          # the shipped segmenter's input is NET_SIDE x NET_SIDE
+GUIDE_SIZE = 512                        # longest side the edge is refined at
 PERSON_THRESHOLD = 0.5                  # network probability above which a pixel is a person
 MIN_PERSON_FRACTION = 0.002             # parts smaller than this share of the frame are noise
 KEEP_RADIUS = 3                         # network pixels kept around the chosen person's part (its soft fringe)
@@ -107,19 +107,19 @@ def _session(model_path=None, threads: int | None = None, registry_path=REGISTRY
         if key not in _SESSIONS:
             session, _ = open_session(path, threads=threads, registry_path=registry_path)
             inputs, outputs = session.get_inputs(), session.get_outputs()
+            shape = list(inputs[0].shape)
             if [i.name for i in inputs] != ["image"] or [o.name for o in outputs] != ["mask"] \
-                    or list(inputs[0].shape) != [1, 3, *NET_SIZE]:
-                raise ValueError(f"{path}: not a person matte model (expected image [1, 3, "
-                                 f"{NET_SIZE[0]}, {NET_SIZE[1]}] -> mask)")
+                    or len(shape) != 4 or shape[:2] != [1, 3] or not all(isinstance(v, int) for v in shape[2:]):
+                raise ValueError(f"{path}: not a person matte model (expected image [1, 3, h, w] -> mask)")
             _SESSIONS[key] = session
         return _SESSIONS[key]
 
 
-def _srgb_input(small_linear: np.ndarray) -> np.ndarray:
+def _srgb_input(small_linear: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     from relight.colour import srgb_encode
     from relight.runtime import resize_linear
 
-    x = resize_linear(small_linear, *NET_SIZE)  # squeezed to the square, as MediaPipe feeds it
+    x = resize_linear(small_linear, *size)  # squeezed to the network's shape, as MediaPipe feeds it
     return np.ascontiguousarray(srgb_encode(x).transpose(2, 0, 1)[None], dtype=np.float32)
 
 
@@ -226,18 +226,29 @@ def find_people(probability: np.ndarray) -> tuple[np.ndarray, list[int]]:
 # ------------------------------------------------------------------ edge refinement
 
 
+def _window_sum(x: np.ndarray, r: int, axis: int) -> np.ndarray:
+    """Sums over windows of 2r+1 along `axis`, clipped at the borders (running sums in float64:
+    one axis at a time keeps them small enough for the variance's differences)."""
+    n = x.shape[axis]
+    s = np.cumsum(x, axis=axis, dtype=np.float64)
+    zero = np.zeros_like(np.take(s, [0], axis=axis))
+    last = np.take(s, [n - 1], axis=axis)
+    ahead = np.concatenate([s] + [last] * r, axis=axis)                # s[min(i + r, n - 1)]
+    behind = np.concatenate([zero] * (r + 1) + [s], axis=axis)          # s[i - r - 1], 0 before the start
+    idx = [slice(None)] * x.ndim
+    idx[axis] = slice(r, r + n)
+    hi = ahead[tuple(idx)]
+    idx[axis] = slice(0, n)
+    lo = behind[tuple(idx)]
+    return (hi - lo).astype(np.float32)
+
+
 def _box_mean(x: np.ndarray, r: int) -> np.ndarray:
-    """Mean over (2r+1)^2 windows, clipped at the borders (summed-area table)."""
+    """Mean over (2r+1)^2 windows, clipped at the borders."""
     h, w = x.shape
-    s = np.zeros((h + 1, w + 1), np.float64)
-    np.cumsum(np.cumsum(x, axis=0, dtype=np.float64), axis=1, out=s[1:, 1:])
-    y0 = np.clip(np.arange(h) - r, 0, h)
-    y1 = np.clip(np.arange(h) + r + 1, 0, h)
-    x0 = np.clip(np.arange(w) - r, 0, w)
-    x1 = np.clip(np.arange(w) + r + 1, 0, w)
-    total = s[y1][:, x1] - s[y0][:, x1] - s[y1][:, x0] + s[y0][:, x0]
-    count = (y1 - y0)[:, None] * (x1 - x0)[None, :]
-    return (total / count).astype(np.float32)
+    count = (np.minimum(np.arange(h) + r, h - 1) - np.maximum(np.arange(h) - r, 0) + 1)[:, None] * \
+            (np.minimum(np.arange(w) + r, w - 1) - np.maximum(np.arange(w) - r, 0) + 1)[None, :]
+    return _window_sum(_window_sum(x, r, 0), r, 1) / count.astype(np.float32)
 
 
 def _guided(guide: np.ndarray, p: np.ndarray, r: int, eps: float) -> np.ndarray:
@@ -254,7 +265,7 @@ def _guided(guide: np.ndarray, p: np.ndarray, r: int, eps: float) -> np.ndarray:
 
 
 def person_matte(photo, person: int | None = None, *, model_path=None, threads: int | None = None,
-                 registry_path=REGISTRY_PATH) -> PersonMatte:
+                 registry_path=REGISTRY_PATH, refine: bool = True) -> PersonMatte:
     """The matte of one person in `photo` (linear float32 [H, W, 3]).
 
     person: 1 = the largest person (default), 2 = the next, ...; NoPersonError
@@ -268,7 +279,8 @@ def person_matte(photo, person: int | None = None, *, model_path=None, threads: 
     session = _session(model_path, threads, registry_path)
     H, W = photo.shape[:2]
     small = _area_shrink(photo, GUIDE_SIZE)
-    probability = session.run(["mask"], {"image": _srgb_input(small)})[0][0, 0]
+    net_size = tuple(session.get_inputs()[0].shape[2:])
+    probability = session.run(["mask"], {"image": _srgb_input(small, net_size)})[0][0, 0]
     if not np.all(np.isfinite(probability)):
         raise ValueError("the person matte network produced NaN/Inf: its weights are broken")
     labels, areas = find_people(probability)
@@ -281,9 +293,9 @@ def person_matte(photo, person: int | None = None, *, model_path=None, threads: 
                          f"{'person' if len(areas) == 1 else 'people'} (1 = the largest)")
     keep = _dilate(labels == index, KEEP_RADIUS)
     chosen = np.where(keep, probability, np.float32(0.0)).astype(np.float32)
-
-    alpha_small = _refine(small, chosen)
     from relight.runtime import bilinear_rows
+
+    alpha_small = _refine(small, chosen) if refine else bilinear_rows(chosen, *small.shape[:2])
 
     alpha = alpha_small if alpha_small.shape == (H, W) else bilinear_rows(alpha_small, H, W)
     alpha = np.asarray(alpha, np.float32)
@@ -299,18 +311,34 @@ def person_matte(photo, person: int | None = None, *, model_path=None, threads: 
 
 
 def _refine(small: np.ndarray, chosen: np.ndarray) -> np.ndarray:
-    """The network's soft mask brought to `small`'s size and snapped to its edges."""
+    """The network's soft mask brought to `small`'s size and snapped to its edges.
+
+    A fast guided filter (He and Sun 2015): the linear coefficients of alpha in
+    the guide are fitted on a grid about the network's size, where box filters
+    are cheap, then upsampled and applied to the guide at `small`'s size, so
+    the edge follows the photo's own edges there.
+    """
     from relight.runtime import bilinear_rows
 
     h, w = small.shape[:2]
-    p = bilinear_rows(chosen, h, w)
     # grey guide, roughly perceptual (sqrt of linear luminance: cheaper than the sRGB curve)
     lum = small @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     guide = np.sqrt(np.clip(lum, 0.0, 1.0)).astype(np.float32)
-    r = max(1, round(GUIDE_RADIUS * max(h, w) / max(NET_SIZE)))
-    out = _guided(guide, p, r, GUIDE_EPS)
+    coarse = _area_shrink(guide[..., None].repeat(3, axis=2), NET_SIDE)[..., 0] \
+        if max(h, w) >= 2 * NET_SIDE else guide
+    ch, cw = coarse.shape
+    p = bilinear_rows(chosen, ch, cw)
+    r = max(1, round(GUIDE_RADIUS * max(ch, cw) / NET_SIDE))
+    mean_i, mean_p = _box_mean(coarse, r), _box_mean(p, r)
+    a = (_box_mean(coarse * p, r) - mean_i * mean_p) / (_box_mean(coarse * coarse, r) - mean_i * mean_i
+                                                        + np.float32(GUIDE_EPS))
+    b = mean_p - a * mean_i
+    a, b = _box_mean(a, r), _box_mean(b, r)
+    if (ch, cw) != (h, w):
+        a, b = bilinear_rows(a, h, w), bilinear_rows(b, h, w)
+    out = a * guide + b
     np.clip(out, 0.0, 1.0, out=out)
-    # far from the person's fringe the network's zero stands (the filter can bleed into
-    # the background where it looks like the person)
-    out[p <= 0.0] = 0.0
+    # where the network's mask (kept part) is zero the background stands: the filter
+    # would otherwise bleed into background that looks like the person
+    out[bilinear_rows(chosen, h, w) <= 0.0] = 0.0
     return out

@@ -46,6 +46,7 @@ STRIP_ROWS = 128         # full-resolution rows resampled at a time by layers() 
 TILE_VALUES = 1 << 17    # float32 values per 3-channel tile in relight() (512 KiB): buffers stay in cache
 BAND_ROWS = 256          # full-resolution rows per thread task in relight()
 LIGHT_CACHE_SIZE = 32
+MATTE_SOURCES = ("person", "network")  # where decompose() takes the matte from when no mask is given
 
 
 # ------------------------------------------------------------------ resampling
@@ -447,6 +448,7 @@ class Decomposition:
     photo_working: np.ndarray = field(repr=False)   # the crop at working resolution
     mask: np.ndarray | None = field(default=None, repr=False)  # user mask (full resolution)
     sh_order: int = 4
+    person_matte: object = field(default=None, repr=False)  # relight.matte.PersonMatte when it gave the mask
 
     def __post_init__(self):
         h, w = self.working_size
@@ -732,16 +734,31 @@ class Relighter:
         y0, y1, x0, x1 = box
         return _expand((int(y0 * sy), int(math.ceil(y1 * sy)), int(x0 * sx), int(math.ceil(x1 * sx))), H, W)
 
-    def decompose(self, photo, mask=None, working_size: int | str | None = None) -> Decomposition:
+    def decompose(self, photo, mask=None, working_size: int | str | None = None, *,
+                  matte: str = "network", person: int | None = None) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
-        input is masked, and the mask is the matte; otherwise a first pass at
-        low resolution finds the person and the network's alpha is the matte.
+        input is masked, and the mask is the matte. Without one, `matte` says
+        where the matte comes from: "person" runs the person segmenter
+        (relight.matte.person_matte; `person` picks one of several, 1 = the
+        largest; NoPersonError when there is nobody) and uses its matte as the
+        mask; "network" (the default here, kept for comparison and for images
+        that are not photos) takes the box from a low-resolution pass of the
+        network's alpha head and that alpha as the matte. The chosen
+        PersonMatte is kept as `person_matte` on the result.
         """
+        if matte not in MATTE_SOURCES:
+            raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
         photo = _check_photo(photo)
         size = self.working_size if working_size is None else self._check_size(working_size)
         H, W = photo.shape[:2]
+        found = None
+        if mask is None and matte == "person":
+            from relight.matte import person_matte
+
+            found = person_matte(photo, person)
+            mask = found.alpha
         if mask is not None:
             mask = _check_mask(mask, (H, W))
             box = _expand(_bbox(mask, 0.0), H, W)
@@ -760,4 +777,4 @@ class Relighter:
             albedo=np.ascontiguousarray(out["albedo"]), transport=np.ascontiguousarray(out["transport"]),
             residual=np.ascontiguousarray(out["residual"]), light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
-            photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order)
+            photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found)
