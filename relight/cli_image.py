@@ -1,11 +1,14 @@
 """`relight image`: relight the person in a photo (or every photo in a folder).
 
     relight image PHOTO (--light HDR_OR_PRESET | --light-from PHOTO2) [--rotate DEG] [--exposure EV]
-                  [--mask MASK] [--no-normalize] [--model PATH] [--out OUT.png|OUT.exr]
+                  [--mask MASK | --matte person|network] [--person N] [--no-normalize] [--model PATH]
+                  [--out OUT.png|OUT.exr]
                   [--layers] [--quality draft|balanced|best] [--threads N] [--max-pixels N]
     relight image DIR --light ... --out OUTDIR
 
-A photo with an alpha channel uses it as the mask unless --mask is given.
+A photo with an alpha channel uses it as the mask unless --mask is given;
+otherwise the person segmenter (relight.matte) finds the person: the largest
+one, or --person N (1 = largest). No person found: one line, exit 2.
 Bad input is one line on stderr and a non-zero exit; nothing partial is
 written (each output is written atomically, after everything succeeded).
 In folder mode every photo is tried, failures are listed at the end and the
@@ -29,6 +32,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     from relight import quality
     from relight.cli import ROTATE_LIMIT, bounded_int, cores_available, finite_float
     from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
+    from relight.runtime import MATTE_SOURCES
 
     p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
                               description=__doc__.split("\n\n")[0])
@@ -44,6 +48,11 @@ def register(subparsers) -> argparse.ArgumentParser:
                    default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
+    p.add_argument("--matte", choices=MATTE_SOURCES, default="person",
+                   help="where the matte comes from without a mask: the person segmenter (default) or "
+                        "the relighting network's own alpha head (for comparison)")
+    p.add_argument("--person", type=bounded_int(1, 1000), default=None, metavar="N",
+                   help="which person when the photo shows several: 1 = the largest (default), 2 = the next, ...")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help="use the map's radiance as is (default: scale to mean luminance 0.8)")
     p.add_argument("--model", default=None, help="ONNX model (default: the quality preset's installed model)")
@@ -90,7 +99,7 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
         mask = alpha  # the file's own alpha marks the person
     else:
         mask = None
-    d = relighter.decompose(image, mask)
+    d = relighter.decompose(image, mask, matte=args.matte, person=args.person)
     relit = d.relight(args.light, args.rotate, args.exposure, normalize=args.normalize)
     stats = d.last_stats
     if stats is not None and stats.fraction > NEGATIVE_WARN_FRACTION:
@@ -144,7 +153,7 @@ def run_image(args) -> int:
 
         donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
         usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
-        args.light = relighter.decompose(donor, donor_alpha if usable else None).light
+        args.light = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte).light
     _check_light(args, relighter)
     if not folder:
         written = _process(relighter, source, out_path, args, args.mask)
