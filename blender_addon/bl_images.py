@@ -47,6 +47,8 @@ def photo_id(image, create: bool = False) -> str:
     if create and (not pid or any(other.get(PHOTO_ID) == pid and other != image for other in bpy.data.images)):
         pid = uuid.uuid4().hex
         image[PHOTO_ID] = pid
+    if create:
+        image.use_fake_user = True  # a relit photo stays in the .blend with its outputs
     return pid
 
 
@@ -201,6 +203,7 @@ def write_rgba(name: str, rgba: np.ndarray, width: int, height: int, *, colorspa
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
     if owner:
         image[OUTPUT_OF], image[OUTPUT_LAYER] = owner, layer
+        image.use_fake_user = True  # kept in the .blend even when no editor shows it
     if image.colorspace_settings.name != colorspace:
         image.colorspace_settings.name = colorspace
     image.pixels.foreach_set(rgba)

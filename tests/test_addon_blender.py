@@ -655,3 +655,210 @@ def test_panel_draws_every_light_kind(addon, settings, kind, shown):
         assert any(text.startswith("World: ") for kind_, text in log if kind_ == "label")
     else:
         assert shown in names
+
+
+# ------------------------------------------------------------------ wrong results are never a success
+
+def _png(path: Path, rgb: np.ndarray) -> str:
+    from PIL import Image
+
+    Image.fromarray(rgb, "RGB").save(path)
+    return bpy.data.images.load(str(path)).name
+
+
+@pytest.mark.parametrize("shape, value, message", [
+    ((4, 4), 128, "The photo is only 4 x 4 pixels, too small to show a person: use a photo at least 32"),
+    ((H, W), 0, "The photo is black: there is no person to see in it."),
+    ((H, W), 255, "The photo is white (blown out): there is no person to see in it."),
+])
+def test_a_photo_without_a_visible_person_is_refused(addon, settings, tmp_path, shape, value, message):
+    name = _png(tmp_path / "plain.png", np.full(shape + (3,), value, np.uint8))
+    try:
+        _error(message, image_name=name)
+        assert not any(i.name.startswith(f"{name}.") for i in bpy.data.images)  # no output was made
+    finally:
+        bpy.data.images.remove(bpy.data.images[name])
+
+
+def _count_bakes(monkeypatch) -> list:
+    """Counts Cycles bakes; each also delivers the depsgraph update the bake's
+    render causes in Blender (it must not start a second bake)."""
+    import types
+
+    bakes, real = [], bl_world._bake
+    updated = types.SimpleNamespace(id_type_updated=lambda kind: kind == "WORLD")
+
+    def counting(world, width):
+        bakes.append(world.name)
+        bl_ops.on_depsgraph_update(bpy.context.scene, updated)  # sent while the bake renders
+        return real(world, width)
+
+    monkeypatch.setattr(bl_world, "_bake", counting)
+    return bakes
+
+
+def test_a_world_texture_without_an_image_is_refused_not_baked_magenta(addon, settings, monkeypatch, tmp_path):
+    bakes = _count_bakes(monkeypatch)
+    world = _env_world(presets.preset_path("studio"))
+    scene = bpy.context.scene
+    old = scene.world
+    try:
+        scene.world = world
+        settings.light_kind = "WORLD"
+        env = next(n for n in world.node_tree.nodes if n.type == "TEX_ENVIRONMENT")
+        env.image = None  # Blender renders this magenta
+        _error("The World's texture node 'Environment Texture' has no image, which Blender shows as magenta",
+               image_name=addon["photo"])
+        # an image whose file is gone is magenta too
+        write_person_png(tmp_path / "sky.png")
+        env.image = bpy.data.images.load(str(tmp_path / "sky.png"))
+        (tmp_path / "sky.png").unlink()
+        _error("The World's image 'sky.png' cannot be read (is its file missing?)", image_name=addon["photo"])
+        assert bakes == []
+    finally:
+        scene.world = old
+        bpy.data.worlds.remove(world)
+        if "sky.png" in bpy.data.images:
+            bpy.data.images.remove(bpy.data.images["sky.png"])
+
+
+def test_one_bake_per_world_change_cached_by_its_node_state(addon, settings, monkeypatch):
+    import types
+
+    bakes = _count_bakes(monkeypatch)
+    state.WORLDS.clear()
+    world = bpy.data.worlds.new("relight_flat_world")  # the default World: a Background colour, baked
+    background = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    background.inputs["Color"].default_value = (0.8, 0.6, 0.4, 1.0)
+    scene = bpy.context.scene
+    old = scene.world
+    updated = types.SimpleNamespace(id_type_updated=lambda kind: kind == "WORLD")
+    try:
+        scene.world = world
+        name = addon["photo"]
+        assert relight(name) == {"FINISHED"}  # under a preset
+        settings.light_kind = "WORLD"          # a dial: relit live from the World, one bake
+        assert len(bakes) == 1
+        assert relight(name) == {"FINISHED"}   # the same World: its cached light
+        assert len(bakes) == 1
+        first = pixels(f"{name}.relit").copy()
+        settings.rotation = math.radians(40.0)   # dials move the light, not the World: no bake
+        settings.exposure = 0.5
+        assert len(bakes) == 1
+        assert np.abs(pixels(f"{name}.relit") - first).max() > 1e-3
+        background.inputs["Color"].default_value = (0.2, 0.4, 0.9, 1.0)  # an edit of the World: one bake
+        bl_ops.on_depsgraph_update(scene, updated)
+        assert len(bakes) == 2
+        bl_ops.on_depsgraph_update(scene, updated)  # more updates, same node state: none
+        world.name = "relight_flat_world_renamed"   # the name is not part of the light
+        settings.rotation = math.radians(10.0)
+        assert len(bakes) == 2
+        background.inputs["Color"].default_value = (0.8, 0.6, 0.4, 1.0)  # back to a state seen before
+        bl_ops.on_depsgraph_update(scene, updated)
+        assert len(bakes) == 2
+    finally:
+        scene.world = old
+        bpy.data.worlds.remove(world)
+
+
+def test_a_renamed_photo_keeps_its_outputs_and_dials(addon, settings):
+    name = addon["photo"]
+    photo = bpy.data.images[name]
+    assert relight(name) == {"FINISHED"}
+    relit = bpy.data.images[f"{name}.relit"]
+    pointer = relit.as_pointer()
+    try:
+        photo.name = "renamed.png"
+        impostor = bpy.data.images.new(name, 8, 8)  # a new image takes the old name: it is not the photo
+        settings.rotation = math.radians(60.0)
+        assert f"renamed.png.relit" in bpy.data.images and f"{name}.relit" not in bpy.data.images
+        assert bpy.data.images["renamed.png.relit"].as_pointer() == pointer  # the same datablock, renamed
+        expected = session("renamed.png").decomposition.relight("studio", rotation_deg=60.0)
+        np.testing.assert_allclose(pixels("renamed.png.relit")[..., :3], expected, atol=TIGHT)
+        # Relight pressed on the output relights its photo, not the image now called like the old photo
+        assert relight("renamed.png.relit") == {"FINISHED"}
+        assert settings.last_photo_id == photo[bl_images.PHOTO_ID]
+        assert not any(i.name.startswith(f"{name}.") for i in bpy.data.images)
+        bpy.data.images.remove(impostor)
+    finally:
+        photo.name = name
+    settings.rotation = 0.0
+    assert bpy.data.images[f"{name}.relit"].as_pointer() == pointer
+
+
+def test_a_duplicated_photo_gets_its_own_identity(addon, settings):
+    name = addon["photo"]
+    relight(name)
+    copy = bpy.data.images[name].copy()
+    try:
+        assert copy[bl_images.PHOTO_ID] == bpy.data.images[name][bl_images.PHOTO_ID]  # Blender copies it
+        assert relight(copy.name) == {"FINISHED"}
+        assert copy[bl_images.PHOTO_ID] != bpy.data.images[name][bl_images.PHOTO_ID]
+        assert f"{copy.name}.relit" in bpy.data.images and f"{name}.relit" in bpy.data.images
+    finally:
+        for image in [i for i in bpy.data.images if i.name.startswith(copy.name)]:
+            bpy.data.images.remove(image)
+
+
+def test_esc_stops_the_network_while_it_runs(addon, settings, monkeypatch):
+    import time
+    import types
+
+    from blender_addon import quality as addon_quality
+
+    # a working size that makes the tiny network run for seconds, so Esc lands inside it
+    slow = addon_quality.QualityPreset("DRAFT", "Draft", None, 1024, "slow")
+    monkeypatch.setattr(bl_ops.quality, "preset", lambda key: slow)
+    name = addon["photo"]
+    state.SESSIONS.clear()
+    op, context = _modal_operator(name)
+    op._start(context)
+    job = op._job
+    deadline = time.monotonic() + 60
+    while not job.progress.stage.startswith("Finding") and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # the first network pass is running now
+    assert job.poll() is bl_ops.jobs.JobState.RUNNING
+    assert op.modal(context, types.SimpleNamespace(type="ESC")) == {"CANCELLED"}
+    assert op.reports[-1] == ({"WARNING"}, "Relighting cancelled.")
+    job.wait(60)
+    # the worker itself stopped (onnxruntime was told to terminate), nothing was kept
+    assert job.finished and isinstance(job.error, bl_ops.engine.Cancelled)
+    assert state.SESSIONS == {} and "job" not in state.RUNNING
+
+
+def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(addon, settings, monkeypatch):
+    name = addon["photo"]
+    monkeypatch.setattr(bl_ops, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo is "large" against 24 px
+    relight(name)
+    run = session(name)
+    run.preview = bl_ops.engine.preview_decomposition(run.decomposition, 24)
+    assert run.preview is not None and run.preview.size == (24, 16)
+    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    try:
+        settings.rotation = math.radians(30.0)
+        assert bl_ops._deferred_refresh() is None   # what Blender's idle timer calls
+        # the preview: the same relight, screen-sized
+        assert tuple(bpy.data.images[f"{name}.relit"].size) == (16, 24)
+        small = run.preview.relight("studio", rotation_deg=30.0)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], small, atol=TIGHT)
+        assert bpy.app.timers.is_registered(bl_ops._full_when_resting)
+        bpy.app.timers.unregister(bl_ops._full_when_resting)
+        assert bl_ops._full_when_resting() is None  # the dial rests: the full size runs on a worker
+        job = state.RUNNING["dial"]
+        job.wait(60)
+        assert bl_ops._poll_full_size() is None
+        assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
+        full = run.decomposition.relight("studio", rotation_deg=30.0)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], full, atol=TIGHT)
+        # a full-size result that arrives after another dial move is dropped
+        bl_ops.start_full_size(run, bl_ops._dials(bpy.context, run)).wait(60)
+        settings.rotation = math.radians(50.0)
+        bl_ops._deferred_refresh()
+        assert bl_ops._poll_full_size() is None
+        assert tuple(bpy.data.images[f"{name}.relit"].size) == (16, 24)
+    finally:
+        for timer in bl_ops._TIMERS:
+            if bpy.app.timers.is_registered(timer):
+                bpy.app.timers.unregister(timer)
+        state.RUNNING.pop("dial", None)

@@ -1,0 +1,97 @@
+"""Relight Photo add-on: a relit photo survives saving and reopening the .blend.
+
+Reopening restores the decomposition from the file kept next to the .blend
+(no network run): the outputs are there and the dials relight at once."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+import bpy
+
+import blender_addon
+from blender_addon import bl_images, pipeline, state
+from test_addon_blender import make_tiny_model, pixels, write_person_png
+
+LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
+# the saved decomposition holds the network's maps in float16 (11-bit mantissa):
+# relative error <= 2^-11 per value, a few of them multiplied and summed
+HALF = 4e-3
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return make_tiny_model(tmp_path_factory)
+
+
+@pytest.fixture
+def addon(model, tmp_path):
+    write_person_png(tmp_path / "person.png")
+    blender_addon.register()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    yield tmp_path
+    bpy.ops.wm.read_homefile(use_empty=True)
+    blender_addon.unregister()
+
+
+def _setup(model, folder):
+    photo = bpy.data.images.load(str(folder / "person.png"))
+    s = bpy.context.scene.relight_photo
+    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "AUTO"
+    s.light_kind, s.preset = "PRESET", "studio"
+    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
+    return photo.name
+
+
+def _relight(name):
+    return bpy.ops.relight_photo.relight(image_name=name, synchronous=True)
+
+
+def test_save_and_reopen_restores_the_result_and_the_dials_work_at_once(addon, model):
+    name = _setup(model, addon)
+    bpy.context.scene.relight_photo.exposure = 0.5  # shading and residual follow the dials of Relight
+    assert _relight(name) == {"FINISHED"}
+    before = {layer: pixels(f"{name}.{layer}").copy() for layer in LAYERS}
+    pid = bpy.data.images[name][bl_images.PHOTO_ID]
+    blend = addon / "shot.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
+    saved = pipeline.saved_relight_path(str(blend), pid)
+    d = state.SESSIONS[pid].decomposition
+    float32_bytes = 4 * sum(a.size for a in (d.albedo, d.transport, d.residual, d.photo_working, d.alpha))
+    assert os.path.isfile(saved) and os.path.getsize(saved) < 0.55 * float32_bytes  # half floats
+
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    assert state.SESSIONS[pid].saved_to == saved  # restored, not relit
+    for layer in LAYERS:   # every output is back with the saved dials, not a blank image
+        np.testing.assert_allclose(pixels(f"{name}.{layer}"), before[layer], rtol=HALF, atol=HALF)
+    assert np.abs(before["relit"][..., :3] - pixels(name)[..., :3]).max() > 1e-2  # and it is relit
+
+    settings = bpy.context.scene.relight_photo
+    assert settings.exposure == 0.5
+    settings.rotation = math.radians(70.0)  # the dial works without Relight
+    turned = pixels(f"{name}.relit").copy()
+    assert np.abs(turned - before["relit"]).max() > 1e-2
+    # and gives what a fresh network run gives at the same dials
+    assert _relight(name) == {"FINISHED"}
+    fresh = pixels(f"{name}.relit")
+    np.testing.assert_allclose(turned, fresh, rtol=HALF, atol=HALF)
+
+
+def test_a_photo_changed_on_disk_is_not_restored_as_if_it_were_the_same(addon, model):
+    name = _setup(model, addon)
+    assert _relight(name) == {"FINISHED"}
+    blend = addon / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    from PIL import Image
+
+    changed = np.asarray(Image.open(addon / "person.png")).copy()
+    changed[:10] = 255
+    Image.fromarray(changed).save(addon / "person.png")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    status = bpy.context.window_manager.relight_photo_status
+    assert status.is_error and status.message == f"The photo '{name}' changed since it was relit: press Relight."
+    assert state.SESSIONS == {}
