@@ -173,7 +173,7 @@ def _open_pillow(path: Path):
 
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
             im = Image.open(path)
     except Image.DecompressionBombError:
         raise ValueError(f"{path}: image is too large (refused before decoding)") from None
@@ -197,7 +197,7 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
         if isinstance(rawmode, tuple):
             rawmode = rawmode[0]
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
             if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
                 # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
                 decoded = _read_png16(path, max_pixels)
@@ -428,7 +428,7 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
     try:
         _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
             im.load()
             im = ImageOps.exif_transpose(im)
             if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):

@@ -324,14 +324,19 @@ def project_equirect(img, order: int, *, precision: str = "float32") -> np.ndarr
     table = _interleaved_azimuth(height, width, order, channels, np.dtype(dtype).name)
     with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught just below
         per_row = (flat @ table).reshape(height, 3, -1)  # [H, 3, n_az]: sums over columns
-    if dtype is np.float32 and not np.all(np.isfinite(per_row)):
-        return project_equirect(a, order, precision="float64")  # row sums beyond float32 range
+    if not np.all(np.isfinite(per_row)):
+        if dtype is np.float32:
+            return project_equirect(a, order, precision="float64")  # row sums beyond float32 range
+        raise ValueError("equirect map values are too large: their sums overflow float64")
     _, groups = _projection_factors(height, width, order)
     # then the latitude quadrature per coefficient, in float64: [n, 3]
     per_row = per_row.astype(np.float64)
     coeffs = np.empty((num_coeffs(order), 3))
-    for a, (k, w) in enumerate(groups):
-        coeffs[k] = w.T @ per_row[:, :, a]
+    with np.errstate(over="ignore", invalid="ignore"):
+        for a, (k, w) in enumerate(groups):
+            coeffs[k] = w.T @ per_row[:, :, a]
+    if not np.all(np.isfinite(coeffs)):
+        raise ValueError("equirect map values are too large: their sums overflow float64")
     return coeffs
 
 

@@ -1,0 +1,92 @@
+"""Fuzzing the SH projection and light_from_map (Hypothesis; profile in fuzz_support).
+
+Property: any array (any real dtype, shape, values including NaN, Inf,
+negatives, subnormals and values near float32's maximum) gives finite
+coefficients [(order+1)^2, 3] that match the float64 projection, or a
+one-line ValueError; never NaN, another exception, or an overflow.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from fuzz_support import fuzz_settings, one_line_error, record
+from relight import envmap, sh
+
+F32_MAX = float(np.finfo(np.float32).max)
+
+_HUGE = [3e38, F32_MAX, 1e-45, 0.0]
+_values = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, 1.0, -1.0, 1e-45, 3e38, F32_MAX, -F32_MAX, 1e39]),
+    st.floats(0, 1e3),
+)
+
+
+@st.composite
+def maps(draw):
+    dtype = draw(st.sampled_from([np.float16, np.float32, np.float64, np.int32, np.uint8, np.int64]))
+    shape = (draw(st.integers(1, 10)), draw(st.integers(1, 20)), draw(st.sampled_from([1, 3, 4])))
+    shape = draw(st.sampled_from([shape, (shape[0], 2 * shape[0], shape[2]), shape[:2]]))
+    if np.issubdtype(dtype, np.integer):
+        info = np.iinfo(dtype)
+        return draw(hnp.arrays(dtype, shape, elements=st.integers(int(info.min), int(info.max))))
+    # half the maps finite (to reach the arithmetic), half with anything in them
+    elements = _values if draw(st.booleans()) else st.one_of(st.floats(-1.0, 1e3), st.sampled_from(_HUGE))
+    with np.errstate(over="ignore"):  # beyond float16/32: Inf, which the projection must refuse
+        return draw(hnp.arrays(np.float64, shape, elements=elements)).astype(dtype)
+
+
+def _run(prop, fn):
+    try:
+        result = fn()
+    except ValueError as exc:
+        one_line_error(exc)
+        record(prop, "ValueError")
+        return None
+    except BaseException as exc:
+        record(prop, type(exc).__name__)
+        raise
+    record(prop, "ok")
+    return result
+
+
+@given(maps(), st.integers(0, 8), st.sampled_from(["float32", "float64"]))
+@fuzz_settings()
+def test_fuzz_projection(img, order, precision):
+    coeffs = _run("sh.project_equirect", lambda: sh.project_equirect(img, order, precision=precision))
+    if coeffs is None:
+        return
+    assert coeffs.shape == ((order + 1) ** 2, 3) and coeffs.dtype == np.float64
+    assert np.all(np.isfinite(coeffs))
+    # against float64 throughout: a float32 sum of W terms errs by at most ~W * 2^-24 of the
+    # sum of |terms|, and rounding a texel to float32 by 2^-24 of it or half the smallest
+    # subnormal (7e-46); both weighted by at most 4 pi max|Y|, max|Y| <= sqrt((2N+1) / (4 pi))
+    exact = sh.project_equirect(img, order, precision="float64")
+    largest = float(np.max(np.maximum(np.asarray(img[..., :3], dtype=np.float64), 0)))
+    weight = 4 * np.pi * math.sqrt((2 * order + 1) / (4 * np.pi))
+    np.testing.assert_allclose(coeffs, exact, rtol=0, atol=weight * (1e-5 * largest + 7e-46) + 1e-300)
+
+
+@given(maps(), st.integers(0, 6), st.floats(-1e6, 1e6), st.booleans(),
+       st.floats(1e-6, 1e6))
+@fuzz_settings()
+def test_fuzz_light_from_map(img, order, rotation, normalize, target):
+    coeffs = _run("sh.light_from_map", lambda: envmap.light_from_map(img, order, rotation_deg=rotation,
+                                                                       normalize=normalize, target=target))
+    if coeffs is None:
+        return
+    assert coeffs.shape == ((order + 1) ** 2, 3) and np.all(np.isfinite(coeffs))
+    if normalize:  # scaled to the target mean luminance, whatever the map's level
+        np.testing.assert_allclose(sh.mean_luminance(coeffs), target, rtol=1e-9)
+    else:  # a rotation about Z keeps each band's energy
+        base = sh.project_equirect(envmap.validate_equirect(img).pixels, order)
+        for l in range(order + 1):
+            band = slice(l * l, (l + 1) * (l + 1))
+            np.testing.assert_allclose(np.linalg.norm(coeffs[band], axis=0), np.linalg.norm(base[band], axis=0),
+                                       rtol=1e-9, atol=1e-12 * np.abs(base).max())
