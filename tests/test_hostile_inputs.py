@@ -37,6 +37,7 @@ def model(tmp_path_factory):
 
 
 def _photo(path, h=40, w=30, seed=0):
+    """A noise photo: commands on it use --matte network (the person matte would find no one)."""
     Image.fromarray(np.random.default_rng(seed).integers(30, 220, (h, w, 3), dtype=np.uint8)).save(path)
     return path
 
@@ -79,7 +80,7 @@ def test_hdr_with_a_forged_size_is_one_line(tmp_path, model, declared, command):
     if command == "sh":
         res, elapsed = run_cli("sh", hdr)
     else:
-        res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", hdr, "--model", model,
+        res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", hdr, "--model", model, "--matte", "network",
                                "--quality", "draft", "--out", out)
     assert_refused(res, elapsed, command)
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == sorted(
@@ -135,7 +136,7 @@ def test_sh_of_maps_near_float32_max_is_finite_and_exact(tmp_path, capsys):
 def test_relight_image_agrees_with_relight_sh_on_those_maps(tmp_path, model, capsys):
     for path in _overflow_maps(tmp_path):
         out = tmp_path / f"{path.stem}.png"
-        code = main(["image", str(_photo(tmp_path / "p.png")), "--light", str(path), "--model", model,
+        code = main(["image", str(_photo(tmp_path / "p.png")), "--light", str(path), "--model", model, "--matte", "network",
                      "--quality", "draft", "--out", str(out)])
         assert code == 0, capsys.readouterr().err
         assert out.exists()
@@ -149,7 +150,7 @@ def test_tiny_jpeg_declaring_12000_squared_is_refused_fast(tmp_path, model):
     forged.write_bytes(jpeg_bytes(declared=(12000, 12000)))
     assert forged.stat().st_size < 7000
     out = tmp_path / "out.png"
-    res, elapsed = run_cli("image", forged, "--light", "studio", "--model", model, "--out", out)
+    res, elapsed = run_cli("image", forged, "--light", "studio", "--model", model, "--matte", "network", "--out", out)
     assert_refused(res, elapsed, "image", match="--max-pixels 144000000")
     assert elapsed < 20 and not out.exists()
 
@@ -186,7 +187,7 @@ def test_pixel_limit_and_max_pixels_option(tmp_path, model, capsys):
     assert photo.read_photo(path, max_pixels=1200)[0].shape == (40, 30, 3)
     with pytest.raises(ValueError, match="max_pixels"):
         photo.read_photo(path, max_pixels=photo.MAX_PIXELS + 1)
-    base = ["image", str(path), "--light", "studio", "--model", model, "--quality", "draft",
+    base = ["image", str(path), "--light", "studio", "--model", model, "--matte", "network", "--quality", "draft",
             "--out", str(tmp_path / "o.png")]
     assert main([*base, "--max-pixels", "1199"]) == 2
     err = capsys.readouterr().err
@@ -202,7 +203,7 @@ def test_full_disk_is_one_line_and_keeps_the_old_output(tmp_path, model, suffix)
     src = _photo(tmp_path / "p.png", h=300, w=200, seed=4)
     out = tmp_path / f"out{suffix}"
     out.write_bytes(b"previous result")
-    res, elapsed = run_cli("image", src, "--light", "studio", "--model", model, "--quality", "draft",
+    res, elapsed = run_cli("image", src, "--light", "studio", "--model", model, "--matte", "network", "--quality", "draft",
                            "--out", out, file_size_limit=64 * 1024)  # both outputs are > 64 KiB
     assert_refused(res, elapsed, "image", match="File too large" if suffix == ".exr" else "")
     assert out.read_bytes() == b"previous result"
@@ -218,10 +219,10 @@ def test_damaged_exr_gives_exactly_one_stderr_line(tmp_path, model, command):
     if command == "sh":
         res, elapsed = run_cli("sh", bad)
     elif command == "image-photo":
-        res, elapsed = run_cli("image", bad, "--light", "studio", "--model", model, "--quality", "draft",
+        res, elapsed = run_cli("image", bad, "--light", "studio", "--model", model, "--matte", "network", "--quality", "draft",
                                "--out", tmp_path / "o.png")
     else:
-        res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", bad, "--model", model,
+        res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", bad, "--model", model, "--matte", "network",
                                "--quality", "draft", "--out", tmp_path / "o.png")
     assert_refused(res, elapsed, command.split("-")[0], match="bad.exr")
     assert not (tmp_path / "o.png").exists()
@@ -240,7 +241,7 @@ def test_damaged_exr_gives_exactly_one_stderr_line(tmp_path, model, command):
     (["--max-pixels", "-5"], "argument --max-pixels"),
 ])
 def test_out_of_range_arguments_are_one_line(tmp_path, model, args, match):
-    res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", "studio", "--model", model,
+    res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", "studio", "--model", model, "--matte", "network",
                            "--out", tmp_path / "o.png", *args)
     assert_refused(res, elapsed, "image", match=match)
     assert elapsed < 20 and not (tmp_path / "o.png").exists()
@@ -254,7 +255,7 @@ def test_negative_numbers_are_values(tmp_path, model, capsys):
     np.testing.assert_allclose(minus, plus, atol=1e-8)  # -90 and 270 degrees are one rotation
     path = _photo(tmp_path / "p.png")
     out = tmp_path / "o.png"
-    assert main(["image", str(path), "--light", "studio", "--exposure", "-1e0", "--model", model,
+    assert main(["image", str(path), "--light", "studio", "--exposure", "-1e0", "--model", model, "--matte", "network",
                  "--quality", "draft", "--out", str(out)]) == 0, capsys.readouterr().err
     expect = Relighter(model, working_size="draft").decompose(photo.read_photo(path)[0]).relight("studio", 0, -1.0)
     got = np.asarray(Image.open(out)) / 255.0
