@@ -9,7 +9,11 @@ _REGISTERED = []
 
 
 def register():
-    from . import bl_ops, bl_props, bl_ui
+    import threading
+
+    from . import bl_ops, bl_props, bl_ui, engine
+
+    threading.Thread(target=engine.warm_up, name="relight-warm-up", daemon=True).start()
 
     for module in (bl_props, bl_ops, bl_ui):
         module.register()

@@ -18,7 +18,7 @@ from . import bl_images, bl_world, engine, jobs, pipeline, quality, state
 
 SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, scripts)
 POLL_SECONDS = 0.05               # how often the main thread looks at a running job
-PREVIEW_LONG_SIDE = 1280          # px: the screen-sized preview shown while a dial moves on a large photo
+PREVIEW_LONG_SIDE = 1024          # px: the screen-sized preview shown while a dial moves on a large photo
 REST_SECONDS = 0.3                # a dial untouched this long is at rest: the full-size relight starts
 LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual")  # relit first: it is what the user sees
 
@@ -171,8 +171,12 @@ def _world_light(world, order: int):
 
 def _dials(context, session: state.PhotoSession):
     """(light, rotation degrees, exposure EV, strength) of the current settings."""
+    return _dials_for(context, session.decomposition.sh_order, session.model_path)
+
+
+def _dials_for(context, order: int, model_path: str):
     settings = _settings(context)
-    light, extra_rotation = target_light(context, session.decomposition.sh_order, session.model_path)
+    light, extra_rotation = target_light(context, order, model_path)
     return light, math.degrees(settings.rotation) + extra_rotation, settings.exposure, settings.strength
 
 
@@ -398,21 +402,27 @@ def _restore_plan(context, image, path: str) -> dict:
         inputs["alpha"] = stored[..., 3] if stored.shape[2] == 4 else None
     for pid, model_path, quality_key, coeffs in meta.get("lights", []):
         state.LIGHT_SOURCES.setdefault((pid, model_path, quality_key), np.asarray(coeffs, np.float64))
-    return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path)
+    dials = _dials_for(context, int(meta["sh_order"]), meta["model_path"])
+    return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path,
+                dials=dials)
 
 
-def _restore_work(plan: dict) -> state.PhotoSession:
-    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition."""
+def _restore_work(plan: dict) -> tuple:
+    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition,
+    relight it: (session, buffers); a large photo gets its preview only (the rest follows)."""
     meta = plan["meta"]
     pixels = plan["reader"]()
     if pixels.digest != meta["digest"]:
         raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
     decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, _make_mask(plan["mask"], pixels))
-    return state.PhotoSession(
+    session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
         digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
         saved_to=plan["path"])
+    if plan["preview_first"] and session.preview is not None:
+        return session, {"relit": engine.relit_rgba(session.preview, *plan["dials"])}
+    return session, layer_buffers(session, plan["dials"])
 
 
 def restore_saved(context) -> int:
@@ -438,11 +448,15 @@ def restore_saved(context) -> int:
             _set_status(context, str(exc), is_error=True)
     if not plans:
         return 0
+    immediately = _updates_immediately()
+    for plan in plans:
+        plan["preview_first"] = not immediately
     job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
+    job.plans = plans
     state.RUNNING["restore"] = job
-    if _updates_immediately():
+    if immediately:
         job.wait()
-        _finish_restore(context, job, preview_first=False)
+        _finish_restore(context, job)
     else:
         bpy.app.timers.register(_poll_restore, first_interval=POLL_SECONDS)
     return len(plans)
@@ -454,11 +468,11 @@ def _poll_restore():
         return None
     if job.poll() is jobs.JobState.RUNNING:
         return POLL_SECONDS
-    _finish_restore(bpy.context, job, preview_first=True)
+    _finish_restore(bpy.context, job)
     return None
 
 
-def _finish_restore(context, job, preview_first: bool) -> None:
+def _finish_restore(context, job) -> None:
     state.RUNNING.pop("restore", None)
     if job.poll() is jobs.JobState.FAILED:
         _set_status(context, str(engine.user_error(job.error)), is_error=True)
@@ -466,21 +480,16 @@ def _finish_restore(context, job, preview_first: bool) -> None:
     if job.poll() is not jobs.JobState.DONE:
         return
     settings = _settings(context)
-    for session in job.result:
+    for (session, buffers), plan in zip(job.result, job.plans):
         state.SESSIONS[session.photo_id] = session
-        try:
-            dials = _dials(context, session)
-        except ValueError as exc:
-            _set_status(context, str(exc), is_error=True)
-            continue
-        if preview_first and session.preview is not None:
-            _write_output(session, "relit", engine.relit_rgba(session.preview, *dials), session.preview.size)
-            start_full_size(session, dials, with_layers=True)
-        else:
-            for layer, rgba in layer_buffers(session, dials).items():
-                _write_output(session, layer, rgba, session.photo.shape[:2])
+        if "albedo" in buffers:
+            for layer in LAYER_ORDER:
+                _write_output(session, layer, buffers[layer], session.photo.shape[:2])
+        else:  # the preview now, every layer at full size from a worker
+            _write_output(session, "relit", buffers["relit"], session.preview.size)
+            start_full_size(session, plan["dials"], with_layers=True)
     if settings.last_photo_id not in state.SESSIONS and job.result:
-        settings.last_photo_id = job.result[0].photo_id
+        settings.last_photo_id = job.result[0][0].photo_id
 
 
 @bpy.app.handlers.persistent
@@ -498,19 +507,25 @@ def on_load(*_args) -> None:
 def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> dict:
     """The worker thread's whole job: plain data in, a session and image buffers out (no bpy)."""
     progress.enter("Reading the photo", 0.02)
+    relighter = plan["relighter"] or engine.open_relighter(plan["model_path"])
+    light = plan["light"]
+    if isinstance(light, tuple):  # checked before the network runs
+        kind, value = light
+        light = pipeline.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
+            pipeline.hdr_file_light(value, relighter.sh_order)
     pixels = plan["read_photo"]()
     token.check()
     pipeline.check_photo_content(pixels.rgb)
     mask = _make_mask(plan["mask"], pixels)
     progress.enter("Finding the person and running the network", 0.10)
     network_start = time.monotonic()
-    decomposition = engine.decompose(plan["relighter"], pixels.rgb, mask, plan["long_side"], token)
-    light, light_decomposition = plan["light"], None
+    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
+    light_decomposition = None
     if plan["light_reader"] is not None:
         progress.enter("Estimating the light of the other photo", 0.45)
         other = plan["light_reader"]()
         pipeline.check_photo_content(other.rgb)
-        light_decomposition = engine.decompose(plan["relighter"], other.rgb, None, plan["long_side"], token)
+        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token)
         light = light_decomposition
     elif light is None:
         light = plan["light_cached"]
@@ -564,7 +579,10 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         read_photo = bl_images.photo_reader(image)  # checks the photo has pixels and a usable size
         mask = _mask_inputs(settings, image)
         model_path = str(pipeline.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
-        relighter = engine.open_relighter(model_path)
+        order = engine.known_sh_order(model_path)
+        # a shipped model opens on the worker; a custom one here, to learn its SH order
+        relighter = engine.open_relighter(model_path) if order is None else None
+        order = relighter.sh_order if relighter is not None else order
         long_side = quality.preset(settings.quality).working_long_side
         light = light_cached = light_reader = None
         light_key = _light_image_key(settings, model_path)
@@ -575,9 +593,15 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             light_cached = state.LIGHT_SOURCES.get(light_key)
             if light_cached is None:
                 light_reader = bl_images.photo_reader(settings.light_image)
+        elif settings.light_kind in ("PRESET", "HDR"):
+            # a name or a path: checked (and projected) by the worker, before the network runs
+            light = ("PRESET", settings.preset) if settings.light_kind == "PRESET" else \
+                ("HDR", bpy.path.abspath(settings.hdr_path) if settings.hdr_path else "")
+            if light[0] == "PRESET" and light[1] == "NONE":
+                raise ValueError("No light preset is installed.")
         else:
-            # the target light is checked before any time goes into the network
-            light, extra = target_light(context, relighter.sh_order, model_path)
+            # the World needs bpy: read here, before any time goes into the network
+            light, extra = target_light(context, order, model_path)
             rotation += extra
         return dict(photo_id=bl_images.photo_id(image, create=True), source=image.name, read_photo=read_photo,
                     mask=mask, model_path=model_path, relighter=relighter, long_side=long_side,

@@ -76,6 +76,34 @@ class CancelToken:
         return options
 
 
+def known_sh_order(model_path: str) -> int | None:
+    """The SH order of a model without opening it: an open session's, else the model
+    registry's metadata for a shipped file; None when only opening it would tell."""
+    p = Path(model_path)
+    for (path, _mtime, _size), relighter in _RELIGHTERS.items():
+        if path == str(p.resolve()):
+            return int(relighter.sh_order)
+    from relight import models
+
+    try:
+        registry = models.load_registry(models.REGISTRY_PATH)
+    except (OSError, ValueError):
+        return None
+    for entry in registry.get("models", {}).values():
+        if (models.REGISTRY_PATH.parent / entry["file"]).resolve() == p.resolve():
+            order = entry.get("metadata", {}).get("relight.sh_order")
+            return int(order) if order is not None else None
+    return None
+
+
+def warm_up() -> None:
+    """Import the heavy modules once (a daemon thread at register time), so the first
+    Relight does not pay for them on Blender's main thread."""
+    import onnxruntime  # noqa: F401
+    import relight.envmap  # noqa: F401
+    import relight.runtime  # noqa: F401
+
+
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
               cancel: CancelToken | None = None):
     """Run the network once (the slow step; called on the worker thread).
@@ -123,7 +151,7 @@ def preview_decomposition(decomposition, long_side: int):
     from relight.runtime import Decomposition, resize_linear
 
     H, W = decomposition.size
-    if max(H, W) <= 1.5 * long_side:
+    if max(H, W) <= 1.25 * long_side:
         return None
     s = long_side / max(H, W)
     h, w = max(1, round(H * s)), max(1, round(W * s))

@@ -1,0 +1,237 @@
+"""The add-on at photo scale, under headless bpy: how long Blender's main thread is blocked.
+
+    .venv/bin/python benchmarks/bench_addon.py [--size 4000x6000] [--quality BALANCED] [--dials 5]
+
+Makes a synthetic JPEG (a lit figure on a textured background; HxW, default
+6000 x 4000) in a temporary folder (never committed), loads it into bpy and
+drives the add-on as Blender's UI would: the modal Relight operator ticked by
+timer events, dial changes through the idle timer, the full-size relight when
+the dial rests, then save, reopen and a dial after reopening. Uses the shipped
+model of the quality preset.
+
+The main-thread probe: the benchmark's main loop wakes every PROBE_MS; each
+time it measures how late it woke. A late wake-up is a stretch the UI could
+not draw, whether the add-on's own main-thread call or a worker holding the
+GIL. Prints one Markdown table; the goals are issue 17's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import resource
+import sys
+import tempfile
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+PROBE_MS = 5.0
+
+
+def make_photo(path: Path, height: int, width: int) -> None:
+    """A figure (ellipse, 40% of the width) with a shading gradient on a textured background."""
+    from PIL import Image
+
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    inside = ((x - width / 2) / (width / 5)) ** 2 + ((y - height / 2) / (height / 2.4)) ** 2 <= 1
+    rgb = np.empty((height, width, 3), np.uint8)
+    rgb[..., 0] = 40 + (x % 50)
+    rgb[..., 1] = 60 + (y % 40)
+    rgb[..., 2] = 90
+    shade = 0.6 + 0.4 * (x / width)
+    for c, v in enumerate((220, 170, 140)):
+        rgb[..., c][inside] = (v * shade[inside]).astype(np.uint8)
+    Image.fromarray(rgb).save(path, quality=90)
+
+
+class Probe:
+    """Main-thread responsiveness: the longest interval between wake-ups beyond PROBE_MS."""
+
+    def __init__(self):
+        self.worst = 0.0
+        self.worst_what = ""
+        self.last = time.perf_counter()
+
+    def tick(self, what: str) -> None:
+        now = time.perf_counter()
+        stretch = now - self.last - PROBE_MS / 1e3
+        if stretch > self.worst:
+            self.worst, self.worst_what = stretch, what
+        self.last = now
+
+    def call(self, what: str, fn, *args):
+        """Run a main-thread step; the probe wakes right before and right after it."""
+        self.tick("idle")
+        out = fn(*args)
+        self.tick(what)
+        return out
+
+    def idle(self, seconds: float, what: str = "worker running") -> None:
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            time.sleep(PROBE_MS / 1e3)
+            self.tick(what)
+
+
+class _WindowManager:
+    def __init__(self, bpy):
+        self.relight_photo_status = bpy.context.window_manager.relight_photo_status
+
+    def progress_update(self, value):
+        pass
+
+    def progress_end(self):
+        pass
+
+    def event_timer_remove(self, _timer):
+        pass
+
+
+class _Workspace:
+    def status_text_set(self, text):
+        pass
+
+
+def modal_operator(bpy, bl_ops, image_name: str):
+    """The Relight operator as Blender's window manager drives it (headless bpy has no window)."""
+    cls = bl_ops.RELIGHT_PHOTO_OT_relight
+    op = types.SimpleNamespace(image_name=image_name, synchronous=False, _job=None, _timer=None, _plan=None,
+                               _pending=None, _result=None, _started=0.0, _dial_values=cls._dial_values,
+                               report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
+    for name in ("_make_plan", "_start", "_install", "_write_next", "_done", "_error", "_cleanup",
+                 "_show_progress", "modal"):
+        setattr(op, name, getattr(cls, name).__get__(op))
+    context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_WindowManager(bpy),
+                                    workspace=_Workspace(), space_data=None, window=None)
+    return op, context
+
+
+def run_timer(probe: Probe, fn, what: str) -> None:
+    """Call a bpy.app.timers function as Blender would, until it stops re-arming itself."""
+    import bpy
+
+    if bpy.app.timers.is_registered(fn):
+        bpy.app.timers.unregister(fn)
+    while True:
+        again = probe.call(what, fn)
+        if again is None:
+            return
+        probe.idle(again)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", default="4000x6000", help="photo HxW")
+    parser.add_argument("--quality", default="BALANCED")
+    parser.add_argument("--dials", type=int, default=5, help="dial changes to time")
+    args = parser.parse_args(argv)
+    height, width = (int(v) for v in args.size.lower().split("x"))
+
+    import bpy
+
+    import blender_addon
+    from blender_addon import bl_images, bl_ops, state
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))
+    photo_path = tmp / "photo.jpg"
+    make_photo(photo_path, height, width)
+    blender_addon.register()
+    bl_ops._updates_immediately = lambda: False  # behave as with a UI: timers, previews, workers
+    image = bpy.data.images.load(str(photo_path))
+    image.pixels[0]  # the Image Editor showing the photo has loaded its pixels before Relight is pressed
+    settings = bpy.context.scene.relight_photo
+    settings.quality, settings.light_kind, settings.preset = args.quality, "PRESET", "studio"
+    for timer in bl_ops._TIMERS:  # the property updates above armed the idle timer
+        if bpy.app.timers.is_registered(timer):
+            bpy.app.timers.unregister(timer)
+    rows = []
+    probe = Probe()
+
+    # ---- Relight, modal, ticked every POLL_SECONDS like Blender's event timer
+    op, context = modal_operator(bpy, bl_ops, image.name)
+    t0 = time.perf_counter()
+    probe.call("Relight pressed (plan)", op._start, context)
+    timer_event = types.SimpleNamespace(type="TIMER")
+    result = {"PASS_THROUGH"}
+    while result == {"PASS_THROUGH"}:
+        probe.idle(bl_ops.POLL_SECONDS)
+        result = probe.call("modal tick (poll or one image write)", op.modal, context, timer_event)
+    relight_wall = time.perf_counter() - t0
+    assert result == {"FINISHED"}, result
+    rows.append(("Relight: press to all five images written (wall)", relight_wall, None))
+    rows.append(("Relight: longest main-thread stretch", probe.worst, 0.100))
+    rows.append(("  ... during", probe.worst_what, None))
+    session = state.SESSIONS[image[bl_images.PHOTO_ID]]
+    print(f"photo {width} x {height}, crop {session.decomposition.box}, working "
+          f"{session.decomposition.working_size}, preview "
+          f"{session.preview.size if session.preview is not None else None}")
+
+    # ---- dials: preview at once, full size when the dial rests
+    previews, fulls = [], []
+    dial_probe = Probe()
+    for k in range(args.dials):
+        settings.rotation = math.radians(20.0 * (k + 1))  # the property update arms the idle timer
+        t = time.perf_counter()
+        run_timer(dial_probe, bl_ops._deferred_refresh, "dial: preview")
+        previews.append(time.perf_counter() - t)
+        dial_probe.idle(bl_ops.REST_SECONDS, "waiting for the dial to rest")
+        t = time.perf_counter()
+        run_timer(dial_probe, bl_ops._full_when_resting, "dial rests: full-size job started")
+        run_timer(dial_probe, bl_ops._poll_full_size, "full-size poll / write")
+        fulls.append(time.perf_counter() - t)
+    assert tuple(bpy.data.images[f"{image.name}.relit"].size) == (width, height)
+    rows.append(("Dial: preview shown (median)", float(np.median(previews)), 0.150))
+    rows.append(("Dial: full size shown after the dial rests (median)", float(np.median(fulls)), 3.0))
+    rows.append(("Dials: longest main-thread stretch", dial_probe.worst, 0.100))
+    rows.append(("  ... during", dial_probe.worst_what, None))
+
+    # ---- save and reopen
+    blend = tmp / "bench.blend"
+    t = time.perf_counter()
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    rows.append(("Save .blend (with the decomposition file)", time.perf_counter() - t, None))
+    reopen_probe = Probe()
+    t = time.perf_counter()
+    reopen_probe.call("open the .blend (Blender) + start restoring",
+                      lambda: bpy.ops.wm.open_mainfile(filepath=str(blend)))
+    opened = time.perf_counter() - t
+    run_timer(reopen_probe, bl_ops._poll_restore, "restore: poll / preview write")
+    visible = time.perf_counter() - t
+    run_timer(reopen_probe, bl_ops._poll_full_size, "restore: full-size layers write")
+    full_back = time.perf_counter() - t
+    settings = bpy.context.scene.relight_photo
+    settings.rotation = math.radians(5.0)
+    td = time.perf_counter()
+    run_timer(reopen_probe, bl_ops._deferred_refresh, "dial after reopen")
+    dial_after = time.perf_counter() - td
+    rows.append(("Reopen: Blender's open_mainfile", opened, None))
+    rows.append(("Reopen: result visible and dials live", visible, 1.0))
+    rows.append(("Reopen: all layers at full size", full_back, None))
+    rows.append(("Reopen: first dial change", dial_after, 0.150))
+    rows.append(("Reopen: longest main-thread stretch", reopen_probe.worst, 0.100))
+    rows.append(("  ... during", reopen_probe.worst_what, None))
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 ** 2
+    rows.append(("Peak memory (GB)", peak, None))
+
+    print(f"\nRelight Photo at {width} x {height}, {args.quality}, {os.cpu_count()} cores, "
+          f"probe every {PROBE_MS:.0f} ms\n")
+    print("| measure | s | goal | met |")
+    print("|---|---|---|---|")
+    for name, value, goal in rows:
+        if isinstance(value, str):
+            print(f"| {name} | {value} | | |")
+            continue
+        met = "" if goal is None else ("yes" if value <= goal else f"no (+{value - goal:.2f} s)")
+        print(f"| {name} | {value:.3f} | {'' if goal is None else f'<= {goal:g}'} | {met} |")
+    blender_addon.unregister()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
