@@ -74,11 +74,7 @@ def _check_photo(photo) -> np.ndarray:
     if min(a.shape[:2]) < MIN_SIDE:
         raise ValueError(f"photo is too small for a person matte ({a.shape[1]}x{a.shape[0]}; "
                          f"need at least {MIN_SIDE} px a side)")
-    a = a.astype(np.float32, copy=False)
-    for r0 in range(0, a.shape[0], 1024):  # strips: no full-size boolean temporary
-        if not np.all(np.isfinite(a[r0:r0 + 1024])):
-            raise ValueError("photo contains NaN or Inf")
-    return a
+    return a.astype(np.float32, copy=False)  # finiteness is checked on the shrunken photo
 
 
 # ------------------------------------------------------------------ the network
@@ -123,17 +119,22 @@ def _srgb_input(small_linear: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(srgb_encode(x).transpose(2, 0, 1)[None], dtype=np.float32)
 
 
-def _area_shrink(photo: np.ndarray, longest: int) -> np.ndarray:
-    """The photo averaged over k x k blocks, k the largest integer keeping the longer side
-    >= `longest` (k = 1: the photo itself). Rows are summed first, as whole contiguous
-    rows, so a 12 MP photo is read once; a remainder of < k rows/columns is dropped."""
-    H, W = photo.shape[:2]
+def _area_shrink(image: np.ndarray, longest: int) -> np.ndarray:
+    """[H, W, C] averaged over k x k blocks, k the largest integer keeping the longer side
+    >= `longest` (k = 1: the image itself). Every k-th row is added in turn (each a
+    vector add over whole rows), then every k-th column of that: a 12 MP photo is
+    read once. A remainder of < k rows/columns at the end is dropped."""
+    H, W = image.shape[:2]
     k = max(1, max(H, W) // longest)
     if k == 1:
-        return photo
+        return image
     h, w = H // k, W // k
-    rows = photo[:h * k].reshape(h, k, W, 3).sum(axis=1, dtype=np.float32)
-    out = rows[:, :w * k].reshape(h, w, k, 3).sum(axis=2)
+    rows = image[0:h * k:k].astype(np.float32)  # a copy: the sums go into it
+    for i in range(1, k):
+        rows += image[i:h * k:k]
+    out = rows[:, 0:w * k:k].copy()
+    for i in range(1, k):
+        out += rows[:, i:w * k:k]
     out *= np.float32(1.0 / (k * k))
     return out
 
@@ -251,16 +252,6 @@ def _box_mean(x: np.ndarray, r: int) -> np.ndarray:
     return _window_sum(_window_sum(x, r, 0), r, 1) / count.astype(np.float32)
 
 
-def _guided(guide: np.ndarray, p: np.ndarray, r: int, eps: float) -> np.ndarray:
-    """He et al.'s guided filter of p by a grey guide (both [h, w] float32)."""
-    mean_i, mean_p = _box_mean(guide, r), _box_mean(p, r)
-    cov = _box_mean(guide * p, r) - mean_i * mean_p
-    var = _box_mean(guide * guide, r) - mean_i * mean_i
-    a = cov / (var + np.float32(eps))
-    b = mean_p - a * mean_i
-    return _box_mean(a, r) * guide + _box_mean(b, r)
-
-
 # ------------------------------------------------------------------ the matte
 
 
@@ -279,35 +270,88 @@ def person_matte(photo, person: int | None = None, *, model_path=None, threads: 
     session = _session(model_path, threads, registry_path)
     H, W = photo.shape[:2]
     small = _area_shrink(photo, GUIDE_SIZE)
+    # a NaN or Inf survives the block average (a sum of huge values may overflow to Inf:
+    # refused too), so one check of the small image covers the photo at a fraction of the cost
+    if not np.all(np.isfinite(small)):
+        raise ValueError("photo contains NaN or Inf (or values too large to average)")
+    chosen, index, count = _choose(_probability(session, small), person)
+    from relight.runtime import bilinear_rows
+
+    alpha_small = _refine(small, chosen) if refine else bilinear_rows(chosen, *small.shape[:2])
+    # snapped at the small size: bilinear interpolation between equal values is exact, so the
+    # full-resolution matte is exactly 0 (photo untouched) and exactly 1 where its taps are
+    alpha_small[alpha_small < ALPHA_FLOOR] = 0.0
+    alpha_small[alpha_small > 1.0 - ALPHA_FLOOR] = 1.0
+    alpha = _upsample_support(alpha_small, H, W)
+    return PersonMatte(alpha=alpha, box=_box(alpha), index=index, count=count)
+
+
+_NOBODY = "no person found in the photo: give a mask (--mask) or a photo where a person is clearly visible"
+
+
+def _probability(session, small: np.ndarray) -> np.ndarray:
+    """The network's person probability [h, w] for the (shrunken) photo."""
     net_size = tuple(session.get_inputs()[0].shape[2:])
     probability = session.run(["mask"], {"image": _srgb_input(small, net_size)})[0][0, 0]
     if not np.all(np.isfinite(probability)):
         raise ValueError("the person matte network produced NaN/Inf: its weights are broken")
+    return probability
+
+
+def _choose(probability: np.ndarray, person: int | None):
+    """(probability of the chosen person only, its index, how many people)."""
     labels, areas = find_people(probability)
     if not areas:
-        raise NoPersonError("no person found in the photo: give a mask (--mask) or a photo "
-                            "where a person is clearly visible")
+        raise NoPersonError(_NOBODY)
     index = 1 if person is None else int(person)
     if index > len(areas):
         raise ValueError(f"person {index} asked for, but the photo shows {len(areas)} "
                          f"{'person' if len(areas) == 1 else 'people'} (1 = the largest)")
     keep = _dilate(labels == index, KEEP_RADIUS)
-    chosen = np.where(keep, probability, np.float32(0.0)).astype(np.float32)
-    from relight.runtime import bilinear_rows
+    return np.where(keep, probability, np.float32(0.0)).astype(np.float32), index, len(areas)
 
-    alpha_small = _refine(small, chosen) if refine else bilinear_rows(chosen, *small.shape[:2])
 
-    alpha = alpha_small if alpha_small.shape == (H, W) else bilinear_rows(alpha_small, H, W)
-    alpha = np.asarray(alpha, np.float32)
-    alpha[alpha < ALPHA_FLOOR] = 0.0
-    alpha[alpha > 1.0 - ALPHA_FLOOR] = 1.0
+def _box(alpha: np.ndarray) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of alpha > 0, end exclusive."""
     rows = np.flatnonzero(alpha.any(axis=1))
     if rows.size == 0:  # refinement erased a part the network saw: treat as nobody
-        raise NoPersonError("no person found in the photo: give a mask (--mask) or a photo "
-                            "where a person is clearly visible")
+        raise NoPersonError(_NOBODY)
     cols = np.flatnonzero(alpha[rows[0]:rows[-1] + 1].any(axis=0))
-    box = (int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1)
-    return PersonMatte(alpha=alpha, box=box, index=index, count=len(areas))
+    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+
+
+def _upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
+    """`small` [h, w] bilinearly resized to [H, W], computed only over the rows and
+    columns whose taps reach a non-zero value (zeros elsewhere, left to calloc)."""
+    from relight.runtime import _axis_taps, _Bilinear
+
+    h, w = small.shape
+    if (h, w) == (H, W):
+        return small
+    out = np.zeros((H, W), np.float32)
+    nz_rows = np.flatnonzero(small.any(axis=1))
+    if nz_rows.size == 0:
+        return out
+    nz_cols = np.flatnonzero(small[nz_rows[0]:nz_rows[-1] + 1].any(axis=0))
+
+    def span(n_out, n_in, lo, hi):
+        i0, i1, _ = _axis_taps(n_out, n_in)
+        touch = np.flatnonzero((i1 >= lo) & (i0 <= hi))
+        return int(touch[0]), int(touch[-1]) + 1
+
+    r0, r1 = span(H, h, nz_rows[0], nz_rows[-1])
+    c0, c1 = span(W, w, nz_cols[0], nz_cols[-1])
+    up = _Bilinear(H, W, h, w)
+    cols, diff = up.prepare(small[..., None])
+    cols, diff = np.ascontiguousarray(cols[:, c0:c1, 0]), np.ascontiguousarray(diff[:, c0:c1, 0])
+    i0, _, wr = up.rows
+    for a in range(r0, r1, 256):  # strips: the gathered rows stay in cache
+        b = min(a + 256, r1)
+        dst = out[a:b, c0:c1]
+        np.take(diff, i0[a:b], axis=0, out=dst, mode="clip")   # written in place: no temporaries
+        dst *= wr[a:b, None]
+        dst += np.take(cols, i0[a:b], axis=0, mode="clip")
+    return out
 
 
 def _refine(small: np.ndarray, chosen: np.ndarray) -> np.ndarray:
