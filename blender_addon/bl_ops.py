@@ -228,7 +228,8 @@ def refresh_relit(context, preview: bool = False) -> None:
         dials = _dials(context, session)
         if preview and session.preview is not None:
             rgba = engine.relit_rgba(session.preview, *dials)
-            _write_output(session, "relit", rgba, session.preview.size)
+            _write_output(session, "preview", rgba, session.preview.size)
+            show_in_editors(session, "preview")
             _set_status(context, "Preview: the full-size image follows when the dial rests.")
             _arm_full_size()
         else:
@@ -324,8 +325,43 @@ def finish_full_size(context, job) -> bool:
     for layer in LAYER_ORDER:
         if layer in job.result:
             _write_output(session, layer, job.result[layer], session.photo.shape[:2])
+    show_in_editors(session, "relit")
     _set_status(context, "")
     return True
+
+
+def show_in_editors(session: state.PhotoSession, layer: str, windows=None) -> int:
+    """Image Editors showing this photo's relit image or its preview switch to `layer`
+    ("preview" while a dial moves, "relit" at rest); returns how many switched.
+
+    Two datablocks, so the full-size image is never resized (Blender refills a
+    resized 24 MP buffer, ~0.5 s); the zoom is scaled by the size ratio, so
+    the picture keeps its size on screen.
+    """
+    target = bl_images.output_by_tag(session.photo_id, layer)
+    other = bl_images.output_by_tag(session.photo_id, "relit" if layer == "preview" else "preview")
+    if target is None or other is None:
+        return 0
+    switched = 0
+    if windows is None:
+        windows = getattr(bpy.context.window_manager, "windows", [])
+    for window in windows:
+        for area in window.screen.areas:
+            space = area.spaces.active
+            if area.type != "IMAGE_EDITOR" or space.image != other:
+                continue
+            zoom = space.zoom[0] * other.size[0] / max(1, target.size[0])
+            space.image = target
+            switched += 1
+            region = next((r for r in area.regions if r.type == "WINDOW"), None)
+            if region is None:
+                continue
+            try:  # display comfort only: a failure leaves Blender's own zoom
+                with bpy.context.temp_override(window=window, area=area, region=region):
+                    bpy.ops.image.view_zoom_ratio(ratio=zoom)
+            except (RuntimeError, TypeError):
+                pass
+    return switched
 
 
 # ------------------------------------------------------------------ World edits
@@ -486,7 +522,8 @@ def _finish_restore(context, job) -> None:
             for layer in LAYER_ORDER:
                 _write_output(session, layer, buffers[layer], session.photo.shape[:2])
         else:  # the preview now, every layer at full size from a worker
-            _write_output(session, "relit", buffers["relit"], session.preview.size)
+            _write_output(session, "preview", buffers["relit"], session.preview.size)
+            show_in_editors(session, "preview")
             start_full_size(session, plan["dials"], with_layers=True)
     if settings.last_photo_id not in state.SESSIONS and job.result:
         settings.last_photo_id = job.result[0][0].photo_id

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import quality
 
-LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
+LAYERS = ("relit", "albedo", "shading", "residual", "alpha", "preview")  # preview: screen-sized relit
 EMPTY_MASK_LEVEL = 1e-3  # a mask whose largest value is below this selects nothing
 MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
 BLACK_LEVEL = 3e-3       # linear luminance (sRGB code ~11/255): a photo whose brightest pixel is below is black

@@ -838,10 +838,11 @@ def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(a
     try:
         settings.rotation = math.radians(30.0)
         assert bl_ops._deferred_refresh() is None   # what Blender's idle timer calls
-        # the preview: the same relight, screen-sized
-        assert tuple(bpy.data.images[f"{name}.relit"].size) == (16, 24)
+        # the preview: the same relight, screen-sized, in its own image; the full-size one is not resized
+        assert tuple(bpy.data.images[f"{name}.preview"].size) == (16, 24)
+        assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
         small = run.preview.relight("studio", rotation_deg=30.0)
-        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], small, atol=TIGHT)
+        np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3], small, atol=TIGHT)
         assert bpy.app.timers.is_registered(bl_ops._full_when_resting)
         bpy.app.timers.unregister(bl_ops._full_when_resting)
         assert bl_ops._full_when_resting() is None  # the dial rests: the full size runs on a worker
@@ -854,11 +855,44 @@ def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(a
         # a full-size result that arrives after another dial move is dropped
         bl_ops.start_full_size(run, bl_ops._dials(bpy.context, run)).wait(60)
         settings.rotation = math.radians(50.0)
+        before = pixels(f"{name}.relit").copy()
         bl_ops._deferred_refresh()
         assert bl_ops._poll_full_size() is None
-        assert tuple(bpy.data.images[f"{name}.relit"].size) == (16, 24)
+        np.testing.assert_array_equal(pixels(f"{name}.relit"), before)  # the late result was not written
     finally:
         for timer in bl_ops._TIMERS:
             if bpy.app.timers.is_registered(timer):
                 bpy.app.timers.unregister(timer)
         state.RUNNING.pop("dial", None)
+
+
+def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, settings, monkeypatch):
+    import types
+
+    name = addon["photo"]
+    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    relight(name)
+    run = session(name)
+    run.preview = bl_ops.engine.preview_decomposition(run.decomposition, 24)
+    try:
+        settings.rotation = math.radians(15.0)
+        bl_ops._deferred_refresh()
+    finally:
+        for timer in bl_ops._TIMERS:
+            if bpy.app.timers.is_registered(timer):
+                bpy.app.timers.unregister(timer)
+    relit, preview = bpy.data.images[f"{name}.relit"], bpy.data.images[f"{name}.preview"]
+    # a window with two Image Editors (one on the result, one on the photo) and a 3D view
+    on_result = types.SimpleNamespace(type="IMAGE_EDITOR", regions=[],
+                                      spaces=types.SimpleNamespace(active=types.SimpleNamespace(
+                                          image=relit, zoom=(0.25, 0.25))))
+    on_photo = types.SimpleNamespace(type="IMAGE_EDITOR", regions=[],
+                                     spaces=types.SimpleNamespace(active=types.SimpleNamespace(
+                                         image=bpy.data.images[name], zoom=(1.0, 1.0))))
+    view3d = types.SimpleNamespace(type="VIEW_3D", regions=[], spaces=types.SimpleNamespace(active=None))
+    window = types.SimpleNamespace(screen=types.SimpleNamespace(areas=[on_result, on_photo, view3d]))
+    assert bl_ops.show_in_editors(run, "preview", [window]) == 1
+    assert on_result.spaces.active.image == preview and on_photo.spaces.active.image == bpy.data.images[name]
+    assert bl_ops.show_in_editors(run, "relit", [window]) == 1
+    assert on_result.spaces.active.image == relit
+    assert bl_ops.show_in_editors(run, "relit", [window]) == 0  # already there
