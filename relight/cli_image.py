@@ -24,6 +24,10 @@ from pathlib import Path
 import numpy as np
 
 EXIT_FAILED = 1
+# largest SH coefficient (after exposure) relit in float32: shading sums (order+1)^2 terms and the
+# detail ratio divides by 1e-3, so results stay far below float32's 3.4e38 (a 3e38 map with
+# --no-normalize would overflow: refused, like any light that bright)
+LIGHT_LIMIT = 1e18
 EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (runtime.py refuses beyond)
 
 
@@ -122,6 +126,10 @@ def _check_light(args, relighter) -> None:
     L = resolve_light(args.light, relighter.sh_order, args.rotate, args.normalize)
     if not np.all(np.isfinite(L)):
         raise ValueError("the light gives non-finite SH coefficients")
+    peak = float(np.abs(L).max(initial=0.0)) * 2.0 ** args.exposure
+    if peak > LIGHT_LIMIT:
+        raise ValueError(f"the light is too bright to relight in float32 (SH coefficients up to {peak:.3g} after "
+                         f"exposure, limit {LIGHT_LIMIT:g}): drop --no-normalize or lower --exposure")
 
 
 def run_image(args) -> int:

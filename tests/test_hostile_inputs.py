@@ -136,10 +136,15 @@ def test_sh_of_maps_near_float32_max_is_finite_and_exact(tmp_path, capsys):
 def test_relight_image_agrees_with_relight_sh_on_those_maps(tmp_path, model, capsys):
     for path in _overflow_maps(tmp_path):
         out = tmp_path / f"{path.stem}.png"
-        code = main(["image", str(_photo(tmp_path / "p.png")), "--light", str(path), "--model", model, "--matte", "network",
-                     "--quality", "draft", "--out", str(out)])
-        assert code == 0, capsys.readouterr().err
+        base = ["image", str(_photo(tmp_path / "p.png")), "--light", str(path), "--model", model,
+                "--matte", "network", "--quality", "draft", "--out", str(out)]
+        assert main(base) == 0, capsys.readouterr().err  # normalised (the default): an ordinary light
         assert out.exists()
+        out.unlink()
+        # as is, its radiance would overflow float32 in the relit image: one line, nothing written
+        assert main([*base, "--no-normalize"]) == 2
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1 and "too bright" in err and not out.exists()
 
 
 # ------------------------------------------------------------------ 3. a small JPEG that declares a huge size
@@ -240,10 +245,18 @@ def test_damaged_exr_gives_exactly_one_stderr_line(tmp_path, model, command):
     (["--exposure", "nan"], "argument --exposure"),
     (["--max-pixels", "-5"], "argument --max-pixels"),
 ])
-def test_out_of_range_arguments_are_one_line(tmp_path, model, args, match):
-    res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", "studio", "--model", model, "--matte", "network",
-                           "--out", tmp_path / "o.png", *args)
-    assert_refused(res, elapsed, "image", match=match)
+def test_out_of_range_arguments_are_one_line(tmp_path, model, args, match, capsys):
+    code = main(["image", str(_photo(tmp_path / "p.png")), "--light", "studio", "--model", model,
+                 "--out", str(tmp_path / "o.png"), *args])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "" and len(err.splitlines()) == 1 and match in err, err
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_huge_thread_count_is_refused_at_once(tmp_path, model):
+    res, elapsed = run_cli("image", _photo(tmp_path / "p.png"), "--light", "studio", "--model", model,
+                           "--out", tmp_path / "o.png", "--threads", "100000")
+    assert_refused(res, elapsed, "image", match="argument --threads")
     assert elapsed < 20 and not (tmp_path / "o.png").exists()
 
 
