@@ -31,7 +31,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-PROBE_MS = 5.0
+PROBE_MS = 20.0  # a UI frame rate; finer wake-ups would mostly measure GIL hand-overs
 
 
 def make_photo(path: Path, height: int, width: int) -> None:

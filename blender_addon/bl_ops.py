@@ -301,19 +301,23 @@ def _full_when_resting():
 
 
 def _poll_full_size():
+    """Timer: wait for the full-size job, then write its images one per call (each
+    foreach_set of a large image is a stretch of its own, so the UI draws between)."""
     job = state.RUNNING.get("dial")
     if job is None:
         return None
     job_state = job.poll()
     if job_state is jobs.JobState.RUNNING:
         return POLL_SECONDS
-    del state.RUNNING["dial"]
-    finish_full_size(bpy.context, job)
+    if finish_full_size(bpy.context, job, one_layer=True):
+        return 0.0  # more layers to write
+    _release(job, "dial")
     return None
 
 
-def finish_full_size(context, job) -> bool:
-    """Write a finished full-size job's images unless a dial moved since it started."""
+def finish_full_size(context, job, one_layer: bool = False) -> bool:
+    """Write a finished full-size job's images unless a dial moved since it started;
+    with `one_layer`, only the next one. True while layers are left to write."""
     session = job.session
     if job.poll() is jobs.JobState.FAILED:
         _set_status(context, str(engine.user_error(job.error)), is_error=True)
@@ -322,12 +326,15 @@ def finish_full_size(context, job) -> bool:
             or session.dial_generation != job.generation or bl_images.photo_by_id(session.photo_id) is None:
         return False
     session.source = bl_images.photo_by_id(session.photo_id).name
-    for layer in LAYER_ORDER:
-        if layer in job.result:
-            _write_output(session, layer, job.result[layer], session.photo.shape[:2])
-    show_in_editors(session, "relit")
+    buffers = job.result
+    for layer in [layer for layer in LAYER_ORDER if layer in buffers]:
+        _write_output(session, layer, buffers.pop(layer), session.photo.shape[:2])
+        if layer == "relit":
+            show_in_editors(session, "relit")
+        if one_layer and buffers:
+            return True
     _set_status(context, "")
-    return True
+    return False
 
 
 def show_in_editors(session: state.PhotoSession, layer: str, windows=None) -> int:

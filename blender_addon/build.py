@@ -3,9 +3,10 @@
     python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline]
 
 Bundles the add-on, this project's torch-free core `relight/` (as a wheel,
-with the HDR presets and the shipped ONNX models of relight/models/), and the
-onnxruntime, OpenEXR and Pillow wheels for linux-x64, windows-x64 and macos-arm64 at
-the versions installed here. Wheels are downloaded once with pip into a cache
+with the HDR presets and the ONNX models the quality presets use), and the
+onnxruntime, OpenEXR and Pillow wheels for linux-x64, windows-x64, macos-arm64 and
+macos-x64 at the versions installed here (onnxruntime 1.23.2 on macos-x64, its
+last Intel Mac wheel). `--docs docs/addon.md` writes the measured sizes there. Wheels are downloaded once with pip into a cache
 outside the repository; numpy is Blender's own. The zip is written
 atomically and its manifest validated.
 """
@@ -41,7 +42,14 @@ PLATFORM_TAGS = {
     "linux-x64": "manylinux_2_28_x86_64",
     "windows-x64": "win_amd64",
     "macos-arm64": "macosx_14_0_arm64",
+    "macos-x64": "macosx_13_0_x86_64",   # Blender 4.2 - 4.5 run on Intel Macs (5.0 does not)
 }
+# (distribution, Blender platform) -> version, where PyPI has no wheel of the installed
+# version: onnxruntime's last macOS x86-64 wheels are 1.23.2 (the shipped models give
+# bit-identical results with 1.23.2 and the installed version on Linux).
+VERSION_OVERRIDES = {("onnxruntime", "macos-x64"): "1.23.2"}
+DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --docs docs/addon.md`: begin -->"
+DOCS_END = "<!-- sizes: end -->"
 ADDON_EXCLUDE = {"build.py", "__main__.py"}
 CORE_DATA_SUFFIXES = {".py", ".exr", ".md", ".json", ".onnx", ".sha256"}
 ZIP_DATE = (2024, 1, 1, 0, 0, 0)  # fixed timestamps: same inputs, same zip
@@ -73,7 +81,8 @@ def _wheel_matches(name: str, prefix: str, version: str, platform_tag: str) -> b
     if platform_tag.startswith("manylinux"):
         return "x86_64" in platform and "linux" in platform
     if platform_tag.startswith("macosx"):
-        return platform.startswith("macosx") and platform.endswith(("arm64", "universal2"))
+        arch = "arm64" if platform_tag.endswith("arm64") else "x86_64"
+        return platform.startswith("macosx") and platform.endswith((arch, "universal2"))
     return platform == platform_tag
 
 
@@ -118,13 +127,54 @@ def _zip_write(zf: zipfile.ZipFile, arcname: str, data: bytes) -> None:
     zf.writestr(info, data)
 
 
+def shipped_models(registry: dict) -> list[str]:
+    """The registry names the add-on needs: those the quality presets run (Draft,
+    Balanced, Best) and the registry's default; no other model goes into the zip."""
+    from relight import quality as core_quality
+
+    names = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS}
+    names.add(registry.get("default"))
+    return sorted(n for n in names if n in registry.get("models", {}))
+
+
+def _models_dir(core_dir: Path) -> Path:
+    return core_dir / "models"
+
+
+def _shipped_registry(core_dir: Path) -> tuple[dict, set[str]]:
+    """(the registry cut down to the shipped models, the model file names that ship)."""
+    import json
+
+    registry_path = _models_dir(core_dir) / "models.json"
+    if not registry_path.is_file():
+        return {}, set()
+    registry = json.loads(registry_path.read_text(encoding="utf-8"))
+    keep = shipped_models(registry)
+    registry = dict(registry, models={n: registry["models"][n] for n in keep})
+    files = {registry["models"][n]["file"] for n in keep}
+    return registry, files | {f + ".sha256" for f in files}
+
+
 def core_files(core_dir: Path = CORE_DIR) -> list[Path]:
-    """The files of relight/ that ship: code, HDR presets, licences, shipped models."""
+    """The files of relight/ that ship: code, HDR presets, licences, the models the presets use."""
+    _, model_files = _shipped_registry(core_dir)
     files = []
     for p in sorted(core_dir.rglob("*")):
-        if p.is_file() and "__pycache__" not in p.parts and p.suffix in CORE_DATA_SUFFIXES:
-            files.append(p)
+        if not p.is_file() or "__pycache__" in p.parts or p.suffix not in CORE_DATA_SUFFIXES:
+            continue
+        if p.parent == _models_dir(core_dir) and p.suffix in {".onnx", ".sha256"} and p.name not in model_files:
+            continue
+        files.append(p)
     return files
+
+
+def _core_file_bytes(f: Path, core_dir: Path) -> bytes:
+    if f == _models_dir(core_dir) / "models.json":
+        import json
+
+        registry, _ = _shipped_registry(core_dir)
+        return (json.dumps(registry, indent=2, sort_keys=True) + "\n").encode()
+    return f.read_bytes()
 
 
 def build_core_wheel(out_dir: Path, version: str, core_dir: Path = CORE_DIR) -> Path:
@@ -135,7 +185,7 @@ def build_core_wheel(out_dir: Path, version: str, core_dir: Path = CORE_DIR) -> 
     with zipfile.ZipFile(path, "w") as zf:
         for f in core_files(core_dir):
             arcname = "relight/" + f.relative_to(core_dir).as_posix()
-            data = f.read_bytes()
+            data = _core_file_bytes(f, core_dir)
             _zip_write(zf, arcname, data)
             records.append((arcname, _record_hash(data), str(len(data))))
         meta = {
@@ -182,8 +232,9 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Pa
 
     platform_wheels = []
     for dist, prefix in BINARY_DEPS:
-        version = installed_version(dist)
+        installed = installed_version(dist)
         for blender_platform in manifest_rules.PLATFORMS:
+            version = VERSION_OVERRIDES.get((dist.lower(), blender_platform), installed)
             platform_wheels.append(fetch_wheel(cache, dist, prefix, version,
                                                PLATFORM_TAGS[blender_platform], offline))
     with tempfile.TemporaryDirectory(prefix="relight_addon_build_") as tmp:
@@ -223,12 +274,48 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Pa
     return zip_path
 
 
+def size_report(zip_path: Path) -> str:
+    """Markdown: the zip's size and what takes it, measured from the zip itself."""
+    with zipfile.ZipFile(zip_path) as zf:
+        infos = zf.infolist()
+        core = next((i for i in infos if i.filename.startswith(f"wheels/{CORE_DIST}-")), None)
+        models = []
+        if core is not None:
+            with zf.open(core) as f, zipfile.ZipFile(io.BytesIO(f.read())) as wheel:
+                models = [(i.filename.rsplit("/", 1)[-1], i.compress_size) for i in wheel.infolist()
+                          if i.filename.endswith(".onnx")]
+    mb = 1e6
+    lines = [f"Zip `{zip_path.name}`: **{zip_path.stat().st_size / mb:.1f} MB**, {len(infos)} files.", "",
+             "| part | MB in the zip |", "|---|---|"]
+    addon = sum(i.compress_size for i in infos if not i.filename.startswith("wheels/"))
+    lines.append(f"| add-on code and manifest | {addon / mb:.2f} |")
+    for i in sorted(infos, key=lambda i: i.filename):
+        if i.filename.startswith("wheels/"):
+            lines.append(f"| `{i.filename[len('wheels/'):]}` | {i.compress_size / mb:.1f} |")
+    if models:
+        shipped = ", ".join(f"`{n}` {size / mb:.1f} MB" for n, size in sorted(models))
+        lines += ["", f"Models in the core wheel (compressed): {shipped}."]
+    return "\n".join(lines)
+
+
+def update_docs(doc: Path, report: str) -> None:
+    """Replace the block between DOCS_BEGIN and DOCS_END in `doc` by `report`."""
+    text = doc.read_text(encoding="utf-8")
+    start, end = text.find(DOCS_BEGIN), text.find(DOCS_END)
+    if start < 0 or end < start:
+        raise BuildError(f"{doc} has no size block ({DOCS_BEGIN} ... {DOCS_END})")
+    text = text[:start + len(DOCS_BEGIN)] + "\n" + report + "\n" + text[end:]
+    doc.write_text(text, encoding="utf-8")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m blender_addon.build", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="dist", help="output folder (default: dist/)")
     parser.add_argument("--wheel-cache", default=None,
                         help=f"where downloaded wheels are kept (default: {default_cache()})")
     parser.add_argument("--offline", action="store_true", help="never download: use the cache only")
+    parser.add_argument("--docs", default=None,
+                        help="Markdown file whose size block is rewritten with the measured sizes")
     args = parser.parse_args(argv)
     try:
         path = build(Path(args.out), Path(args.wheel_cache) if args.wheel_cache else None, args.offline)
@@ -239,6 +326,14 @@ def main(argv=None) -> int:
         names = zf.namelist()
     print(f"{path}  {path.stat().st_size / 1e6:.1f} MB, {len(names)} files, "
           f"{sum(n.startswith('wheels/') for n in names)} wheels")
+    report = size_report(path)
+    print(report)
+    if args.docs:
+        try:
+            update_docs(Path(args.docs), report)
+        except BuildError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
     return 0
 
 

@@ -1,7 +1,7 @@
 """Checks of blender_manifest.toml against Blender's extension rules (plain Python).
 
 Mirrors what Blender's own `extension validate` requires of this add-on, plus
-this project's policy: only the 'files' permission, the three platforms we
+this project's policy: only the 'files' permission, the four platforms we
 ship wheels for, and every listed wheel present in the package.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path, PurePosixPath
 
 REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
             "blender_version_min", "license")
-PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
+PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64", "macos-x64")
 ALLOWED_PERMISSIONS = {"files"}
 _VERSION = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
 _ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")

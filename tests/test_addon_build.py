@@ -27,11 +27,16 @@ from blender_addon import build, manifest
 from test_addon_blender import make_tiny_model, write_person_png
 
 REPO = Path(__file__).resolve().parents[1]
-PLATFORM_FILE_TAGS = {  # what PyPI names the real files
-    "onnxruntime": ("manylinux_2_28_x86_64", "win_amd64", "macosx_14_0_arm64"),
-    "openexr": ("manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64"),
-    "pillow": ("manylinux_2_27_x86_64.manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64"),
+PLATFORM_FILE_TAGS = {  # what PyPI names the real files, in manifest.PLATFORMS order
+    "onnxruntime": ("manylinux_2_28_x86_64", "win_amd64", "macosx_14_0_arm64", "macosx_13_0_x86_64"),
+    "openexr": ("manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64", "macosx_10_15_x86_64"),
+    "pillow": ("manylinux_2_27_x86_64.manylinux_2_28_x86_64", "win_amd64", "macosx_11_0_arm64",
+               "macosx_10_10_x86_64"),
 }
+
+
+def _version(dist: str, platform: str) -> str:
+    return build.VERSION_OVERRIDES.get((dist.lower(), platform), importlib.metadata.version(dist))
 
 
 def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str) -> Path:
@@ -51,9 +56,8 @@ def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str) -> P
 def wheel_cache(tmp_path_factory):
     cache = tmp_path_factory.mktemp("wheel_cache")
     for dist, prefix in build.BINARY_DEPS:
-        version = importlib.metadata.version(dist)
-        for platform in PLATFORM_FILE_TAGS[prefix]:
-            _stand_in_wheel(cache, prefix, version, platform)
+        for blender_platform, platform in zip(manifest.PLATFORMS, PLATFORM_FILE_TAGS[prefix]):
+            _stand_in_wheel(cache, prefix, _version(dist, blender_platform), platform)
     return cache
 
 
@@ -80,11 +84,13 @@ def test_zip_layout_and_manifest(built_zip, tmp_path):
     assert manifest.problems(data, tmp_path) == []
     listed = {w.removeprefix("./") for w in data["wheels"]}
     assert listed == {n for n in names if n.startswith("wheels/")}
-    # every binary dependency for each of the three platforms, plus the core
-    assert len(listed) == 1 + 3 * len(build.BINARY_DEPS)
+    # every binary dependency for each of the four platforms, plus the core
+    assert len(listed) == 1 + 4 * len(build.BINARY_DEPS)
     for dist, prefix in build.BINARY_DEPS:
-        version = importlib.metadata.version(dist)
-        assert sum(Path(w).name.startswith(f"{prefix}-{version}-") for w in listed) == 3
+        for blender_platform, platform in zip(manifest.PLATFORMS, PLATFORM_FILE_TAGS[prefix]):
+            assert f"wheels/{prefix}-{_version(dist, blender_platform)}-cp311-cp311-{platform}.whl" in listed
+    # Intel Macs get onnxruntime 1.23.2: the newest with macOS x86-64 wheels on PyPI
+    assert any(w.endswith("onnxruntime-1.23.2-cp311-cp311-macosx_13_0_x86_64.whl") for w in listed)
 
 
 def test_blenders_own_validator_accepts_the_zip(built_zip):
@@ -110,7 +116,39 @@ def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
     for required in ("relight/runtime.py", "relight/sh.py", "relight/envmap.py", "relight/photo.py",
                      "relight/models/models.json", "relight/data/hdri/studio.exr"):
         assert required in names
+    # only the models Draft / Balanced / Best run ship, and the shipped registry lists exactly them
+    from relight import models as core_models
+    from relight import quality as core_quality
+
+    registry = core_models.load_registry(core_models.REGISTRY_PATH)
+    wanted = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS} | {registry["default"]}
+    shipped = json.loads(wheel_json(tmp_path / core))
+    assert set(shipped["models"]) == wanted and shipped["default"] == registry["default"]
+    onnx = {n.rsplit("/", 1)[-1] for n in names if n.endswith(".onnx")}
+    assert onnx == {registry["models"][m]["file"] for m in wanted}
+    assert all(f"relight/models/{f}.sha256" in names for f in onnx)
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
+
+
+def wheel_json(wheel_path: Path) -> str:
+    with zipfile.ZipFile(wheel_path) as wheel:
+        return wheel.read("relight/models/models.json").decode()
+
+
+def test_size_report_is_measured_from_the_zip_and_written_into_the_docs(built_zip, tmp_path):
+    report = build.size_report(built_zip)
+    assert f"**{built_zip.stat().st_size / 1e6:.1f} MB**" in report
+    with zipfile.ZipFile(built_zip) as zf:
+        wheels = [i for i in zf.infolist() if i.filename.startswith("wheels/")]
+    assert all(f"| `{i.filename[len('wheels/'):]}` | {i.compress_size / 1e6:.1f} |" in report for i in wheels)
+    doc = tmp_path / "addon.md"
+    doc.write_text(f"intro\n{build.DOCS_BEGIN}\nold figures\n{build.DOCS_END}\nrest\n")
+    build.update_docs(doc, report)
+    text = doc.read_text()
+    assert "old figures" not in text and report in text and text.startswith("intro") and text.endswith("rest\n")
+    (tmp_path / "plain.md").write_text("no block")
+    with pytest.raises(build.BuildError, match="has no size block"):
+        build.update_docs(tmp_path / "plain.md", report)
 
 
 def test_build_is_reproducible(built_zip, wheel_cache, tmp_path):
