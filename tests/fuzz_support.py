@@ -42,10 +42,17 @@ def fuzz_settings(scale: float = 1.0) -> settings:
 # ------------------------------------------------------------------ outcome counts
 
 OUTCOMES: dict[str, Counter] = defaultdict(Counter)
+CASES: Counter = Counter()
+
+
+def new_case(test: str) -> None:
+    """Count one generated case (one Hypothesis example) of `test`."""
+    CASES[test] += 1
 
 
 def record(prop: str, outcome: str) -> None:
-    """Count one case of property `prop` ("ok" or the exception type it ended in)."""
+    """Count one call under test, `prop` (a case may make several): "ok", "exit N", or the
+    exception type it ended in."""
     OUTCOMES[prop][outcome] += 1
 
 
@@ -61,13 +68,16 @@ def pytest_terminal_summary(terminalreporter):
         return
     total = Counter()
     terminalreporter.write_sep("=", f"fuzz counts (profile {PROFILE})")
+    for test in sorted(CASES):
+        terminalreporter.write_line(f"{test}: {CASES[test]} generated cases")
+    terminalreporter.write_line(f"generated cases: {sum(CASES.values())}")
     for prop in sorted(OUTCOMES):
         counts = OUTCOMES[prop]
         total.update(counts)
         detail = ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
-        terminalreporter.write_line(f"{prop}: {sum(counts.values())} cases ({detail})")
+        terminalreporter.write_line(f"{prop}: {sum(counts.values())} calls ({detail})")
     detail = ", ".join(f"{k} {v}" for k, v in sorted(total.items(), key=lambda kv: -kv[1]))
-    terminalreporter.write_line(f"TOTAL: {sum(total.values())} cases ({detail})")
+    terminalreporter.write_line(f"calls: {sum(total.values())} ({detail})")
 
 
 # ------------------------------------------------------------------ generated files

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from export.random_model import export_random_model
-from fuzz_support import exr_bytes, fuzz_settings, jpeg_bytes, radiance_hdr, record
+from fuzz_support import exr_bytes, fuzz_settings, jpeg_bytes, new_case, radiance_hdr, record
 from relight.cli import main
 from relight.exr import read_exr
 
@@ -145,6 +145,7 @@ def _check_run(prop: str, argv: list[str], capfd) -> tuple[int, str]:
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_sh_arguments(files, capfd, data):
+    new_case("test_fuzz_sh_arguments")
     argv = data.draw(sh_argv(files))
     code, out = _check_run("cli.sh", argv, capfd)
     if code == 0 and "-h" not in argv and "--help" not in argv:
@@ -159,6 +160,7 @@ def test_fuzz_sh_arguments(files, capfd, data):
 @given(st.data())
 @fuzz_settings(0.5)  # each case loads a model and runs the network: slower than the others
 def test_fuzz_image_arguments(files, capfd, data):
+    new_case("test_fuzz_image_arguments")
     out_dir = tempfile.mkdtemp(dir=files["dir"])
     (Path(out_dir) / "outdir").mkdir()
     argv = data.draw(image_argv(files, out_dir))

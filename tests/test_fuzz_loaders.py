@@ -18,7 +18,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
-from fuzz_support import exr_bytes, fuzz_settings, jpeg_bytes, one_line_error, png_bytes, radiance_hdr, record
+from fuzz_support import (exr_bytes, fuzz_settings, jpeg_bytes, new_case, one_line_error, png_bytes,
+                          radiance_hdr, record)
 from relight import envmap, exr, photo
 
 
@@ -131,6 +132,7 @@ def folder(tmp_path_factory):
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_photo_loader(seeds, folder, data):
+    new_case("test_fuzz_photo_loader")
     path = folder / "photo.bin"
     path.write_bytes(data.draw(mutated(seeds)))
     result = _outcome("photo", lambda: photo.read_photo(path))
@@ -141,6 +143,7 @@ def test_fuzz_photo_loader(seeds, folder, data):
 @given(st.data(), st.tuples(st.integers(1, 16), st.integers(1, 16)))
 @fuzz_settings()
 def test_fuzz_mask_loader(seeds, folder, data, shape):
+    new_case("test_fuzz_mask_loader")
     path = folder / "mask.bin"
     raw = data.draw(mutated(seeds))
     path.write_bytes(raw)
@@ -180,6 +183,7 @@ def exr_file(draw, folder) -> bytes:
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_exr_loaders(folder, data):
+    new_case("test_fuzz_exr_loaders")
     path = folder / "gen.exr"
     path.write_bytes(data.draw(exr_file(folder)))
     channels = _outcome("exr.read_exr", lambda: exr.read_exr(path))
@@ -214,6 +218,7 @@ def hdr_file(draw) -> bytes:
 @given(hdr_file())
 @fuzz_settings()
 def test_fuzz_hdr_loader(folder, data):
+    new_case("test_fuzz_hdr_loader")
     path = folder / "gen.hdr"
     path.write_bytes(data)
     img = _outcome("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))

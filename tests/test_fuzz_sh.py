@@ -15,7 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from fuzz_support import fuzz_settings, one_line_error, record
+from fuzz_support import fuzz_settings, new_case, one_line_error, record
 from relight import envmap, sh
 
 F32_MAX = float(np.finfo(np.float32).max)
@@ -59,6 +59,7 @@ def _run(prop, fn):
 @given(maps(), st.integers(0, 8), st.sampled_from(["float32", "float64"]))
 @fuzz_settings()
 def test_fuzz_projection(img, order, precision):
+    new_case("test_fuzz_projection")
     coeffs = _run("sh.project_equirect", lambda: sh.project_equirect(img, order, precision=precision))
     if coeffs is None:
         return
@@ -77,6 +78,7 @@ def test_fuzz_projection(img, order, precision):
        st.floats(1e-6, 1e6))
 @fuzz_settings()
 def test_fuzz_light_from_map(img, order, rotation, normalize, target):
+    new_case("test_fuzz_light_from_map")
     coeffs = _run("sh.light_from_map", lambda: envmap.light_from_map(img, order, rotation_deg=rotation,
                                                                        normalize=normalize, target=target))
     if coeffs is None:
