@@ -9,11 +9,7 @@ _REGISTERED = []
 
 
 def register():
-    import threading
-
-    from . import bl_ops, bl_props, bl_ui, engine
-
-    threading.Thread(target=engine.warm_up, name="relight-warm-up", daemon=True).start()
+    from . import bl_ops, bl_props, bl_ui
 
     for module in (bl_props, bl_ops, bl_ui):
         module.register()

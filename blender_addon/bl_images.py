@@ -120,16 +120,26 @@ def photo_reader(image):
     painted, float, other colour spaces) is copied out of Blender here, in one
     foreach_get, and converted by the worker.
     """
+    name = image.name
+    if not image.has_data:
+        # not loaded yet (a reopened file): an 8-bit file is decoded by the worker
+        # alone; Blender would decode it here, on the main thread, to tell its size
+        path = _plain_file(image, loaded=False)
+        if path is not None:
+            with_alpha = image.alpha_mode != "NONE"
+            return lambda: pipeline.read_8bit_file(path, None, with_alpha, name)
     if not has_pixels(image):
         raise ValueError(f"The image '{image.name}' has no pixels: is its file missing?")
     width, height = image.size
     pipeline.check_photo_size(width, height)
-    name, with_alpha = image.name, _wants_alpha(image)
     path = _plain_file(image)
     if path is not None:
+        with_alpha = has_alpha(image)
+
         def read_file():
             return pipeline.read_8bit_file(path, (height, width), with_alpha, name)
         return read_file
+    with_alpha = _wants_alpha(image)
     channels = image.channels
     flat = np.empty(width * height * channels, dtype=np.float32)
     image.pixels.foreach_get(flat)
@@ -141,11 +151,18 @@ def photo_reader(image):
     return convert
 
 
-def _plain_file(image) -> str | None:
+def has_alpha(image) -> bool:
+    # depth: bits per pixel; 32/64/128 are RGBA at 8/16/32 bits per channel
+    return image.alpha_mode != "NONE" and image.depth in (16, 32, 64, 128)
+
+
+def _plain_file(image, loaded: bool = True) -> str | None:
     """The image's file when Pillow can read exactly what Blender shows, else None."""
-    if image.source != "FILE" or image.packed_file is not None or image.is_dirty or image.library is not None:
+    if image.source != "FILE" or image.packed_file is not None or image.library is not None:
         return None
-    if not _is_srgb_bytes(image) or image.depth not in (24, 32):
+    if image.colorspace_settings.name not in _SRGB_NAMES:
+        return None
+    if loaded and (image.is_dirty or image.is_float or image.depth not in (24, 32)):
         return None
     path = bpy.path.abspath(image.filepath)
     if os.path.splitext(path)[1].lower() not in _PILLOW_EXTENSIONS or not os.path.isfile(path):

@@ -83,11 +83,6 @@ def session_of(image):
     return state.SESSIONS.get(pid) if pid else None
 
 
-def _has_alpha(image) -> bool:
-    # depth: bits per pixel; 32/64/128 are RGBA at 8/16/32 bits per channel
-    return image.alpha_mode != "NONE" and image.depth in (16, 32, 64, 128)
-
-
 def _mask_inputs(settings, image) -> dict:
     """What the worker needs to make the mask; errors a user can fix are raised here, at once."""
     width, height = image.size
@@ -102,7 +97,7 @@ def _mask_inputs(settings, image) -> dict:
             inputs["name"] = mask_image.name
         pipeline.choose_mask("IMAGE", (height, width), None, inputs["rgb"], inputs["alpha"], inputs["name"])
     elif settings.mask_mode == "IMAGE_ALPHA":
-        if not _has_alpha(image):
+        if not bl_images.has_alpha(image):
             raise ValueError("The photo has no alpha channel to use as the mask.")
         inputs["use_photo_alpha"] = True
     return inputs

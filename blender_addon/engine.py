@@ -96,14 +96,6 @@ def known_sh_order(model_path: str) -> int | None:
     return None
 
 
-def warm_up() -> None:
-    """Import the heavy modules once (a daemon thread at register time), so the first
-    Relight does not pay for them on Blender's main thread."""
-    import onnxruntime  # noqa: F401
-    import relight.envmap  # noqa: F401
-    import relight.runtime  # noqa: F401
-
-
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
               cancel: CancelToken | None = None):
     """Run the network once (the slow step; called on the worker thread).

@@ -84,23 +84,37 @@ def _digest(*arrays: np.ndarray) -> str:
 
 
 def _from_codes(codes: np.ndarray, alpha_codes: np.ndarray | None) -> PhotoPixels:
+    # the digest covers the colour codes only, so it does not depend on how the
+    # alpha was read (Blender gives every byte image four channels)
     rgb = srgb_lut()[codes]
     alpha = None if alpha_codes is None else alpha_codes.astype(np.float32) * np.float32(1.0 / 255.0)
-    parts = (codes,) if alpha_codes is None else (codes, alpha_codes)
-    return PhotoPixels(rgb, alpha, _digest(*parts))
+    return PhotoPixels(rgb, alpha, _digest(codes))
 
 
-def read_8bit_file(path: str, shape: tuple[int, int], with_alpha: bool, name: str) -> PhotoPixels:
-    """Decode an 8-bit sRGB photo file (worker thread); `shape` is (H, W) as Blender loaded it."""
+_8BIT_MODES = {"1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "CMYK", "YCbCr"}
+_ALPHA_MODES = {"LA", "PA", "RGBA"}
+
+
+def read_8bit_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, name: str) -> PhotoPixels:
+    """Decode an 8-bit sRGB photo file (worker thread).
+
+    `shape` is (H, W) as Blender loaded it, or None when Blender has not
+    loaded the image (then the file's own mode says whether it is 8-bit and
+    has alpha)."""
     from PIL import Image
 
     try:
         with Image.open(path) as im:
+            if shape is None:
+                if im.mode not in _8BIT_MODES:
+                    raise ValueError(f"'{name}' has more than 8 bits per channel: show it in the Image Editor, "
+                                     "then press Relight.")
+                with_alpha = with_alpha and (im.mode in _ALPHA_MODES or "transparency" in im.info)
             im = im.convert("RGBA" if with_alpha else "RGB")
             codes = np.asarray(im)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise ValueError(f"The photo file of '{name}' cannot be read ({_first_line(exc)}).") from None
-    if codes.shape[:2] != tuple(shape):
+    if shape is not None and codes.shape[:2] != tuple(shape):
         raise ValueError(f"The photo file of '{name}' changed on disk since Blender loaded it: "
                          "reload the image (Image > Reload) and relight.")
     if with_alpha:
@@ -127,7 +141,7 @@ def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: b
     if not np.all(np.isfinite(rgb)):
         raise ValueError(f"The image '{name}' contains NaN or infinite pixels.")
     alpha = None if alpha is None else np.ascontiguousarray(alpha)
-    return PhotoPixels(rgb, alpha, _digest(rgb) if alpha is None else _digest(rgb, alpha))
+    return PhotoPixels(rgb, alpha, _digest(rgb))
 
 
 def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
