@@ -61,6 +61,11 @@ def main(argv: list[str] | None = None) -> int:
                                         onnx_outputs, read_metadata, torch_outputs)
 
         net = load_model(args.weights)
+        if args.fp16 and getattr(net, "arch", None) == "geometry":
+            # its light fit runs in float64 (model.physics.fit_light), which
+            # onnxconverter-common's fp16 pass cannot keep apart; fp16 graphs were
+            # no faster on the CPU provider anyway (docs/TRADEOFFS.md)
+            raise ValueError("--fp16 is not available for the geometry-first model; export fp32 only")
         ckpt_meta = read_ckpt_metadata(args.weights)
         training = args.training_data or ckpt_meta.get("training_data") or DEFAULT_TRAINING_DATA
         path, digest = export_onnx(net, out, training_data=str(training))

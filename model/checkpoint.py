@@ -57,14 +57,28 @@ def read_metadata(path: str | os.PathLike) -> dict:
     return meta
 
 
-def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> RelightNet:
-    """Rebuild the network from a checkpoint written by save_model, in eval mode."""
-    meta = read_metadata(path)
-    config = meta["config"]
+def build_network(config: dict) -> torch.nn.Module:
+    """The network a checkpoint config describes: GeometryNet when config["arch"] is
+    "geometry", else RelightNet (checkpoints from before the geometry-first model
+    have no "arch")."""
+    from model.geometry import ARCH as GEOMETRY, GeometryNet
+
+    config = dict(config)
+    if config.pop("arch", None) == GEOMETRY:
+        return GeometryNet(**config)
     unknown = set(config) - set(CONFIG_KEYS)
     if unknown:
-        raise ValueError(f"{path}: unknown config keys {sorted(unknown)}")
-    model = RelightNet(**config)
+        raise ValueError(f"unknown config keys {sorted(unknown)}")
+    return RelightNet(**config)
+
+
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> torch.nn.Module:
+    """Rebuild the network from a checkpoint written by save_model, in eval mode."""
+    meta = read_metadata(path)
+    try:
+        model = build_network(meta["config"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
     from safetensors.torch import load_file
 
     state = load_file(str(path), device=str(device))

@@ -141,6 +141,7 @@ class CroppedScene:
     alpha: np.ndarray  # [1, S, S]
     albedo: np.ndarray  # [3, S, S]
     transport: np.ndarray  # [n, S, S]  (truncated to the model's order)
+    normal: np.ndarray  # [3, S, S] unit on the person (camera frame), 0 outside
     images: list[np.ndarray | None]  # per light: path-traced [3, S, S] or None
     lights: list[np.ndarray]  # per light: [n, 3] (camera frame)
     light_names: list[str]
@@ -156,27 +157,35 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
         raise ValueError(f"{json_path.name}: scene SH order {scene.sh_order} < model order {order}")
     n = sh_np.num_coeffs(order)
     box = crop_box(scene.alpha[..., 0], padding)  # padding in the scene's own pixels
-    stacked = [scene.alpha, scene.albedo, scene.transport[..., :n]]
+    stacked = [scene.alpha, scene.albedo, scene.transport[..., :n], scene.normal]
     if scene.images is not None:
         stacked += list(scene.images)
     planes = crop_resize(np.concatenate(stacked, axis=-1), box, size)
     k = 0
     parts = []
-    for width in [1, 3, n] + ([3] * len(scene.images) if scene.images is not None else []):
+    for width in [1, 3, n, 3] + ([3] * len(scene.images) if scene.images is not None else []):
         parts.append(planes[k:k + width])
         k += width
     n_lights = len(scene.lights)
-    images = parts[3:] if scene.images is not None else [None] * n_lights
+    images = parts[4:] if scene.images is not None else [None] * n_lights
+    normal = parts[3]
+    length = np.sqrt((normal * normal).sum(axis=0, keepdims=True))
+    # resampling shortens normals across edges: renormalise, keep 0 off the person
+    normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)
     return CroppedScene(
         index=scene.index,
         alpha=np.clip(parts[0], 0.0, 1.0),
         albedo=np.clip(parts[1], 0.0, 1.0),
         transport=parts[2],
+        normal=normal,
         images=list(images),
         lights=[np.asarray(l["sh"][:n], dtype=np.float32) for l in scene.lights],
         light_names=[light_name(l) for l in scene.lights],
         held_out=[is_held_out(l, held_out) for l in scene.lights],
     )
+
+
+MIRROR_X = np.array([-1.0, 1.0, 1.0], dtype=np.float32)  # a mirrored photo's normals: x flips
 
 
 def mirror_signs(order: int) -> np.ndarray:
@@ -268,6 +277,74 @@ class _SceneCache:
         return scene
 
 
+PACK_FORMAT = "relight-pack/1"
+
+
+def _pack_key(json_paths: list[Path], size: int, order: int, padding: int) -> dict:
+    """What a pack was made from: scene files (by their EXR's SHA-256) and crop settings."""
+    scenes = []
+    for p in json_paths:
+        meta = json.loads(Path(p).read_text(encoding="utf-8"))
+        scenes.append([Path(p).name, meta.get("exr_sha256")])
+    return {"format": PACK_FORMAT, "size": size, "order": order, "padding": padding, "scenes": scenes}
+
+
+def pack_scenes(json_paths: list[Path], out, size: int, order: int, padding: int = DEFAULT_PADDING,
+                held_out: frozenset[str] | None = None) -> Path:
+    """Crop every scene once and write them to one .npz (float16 maps), atomically.
+
+    Training then reads one file instead of decoding an EXR per scene: the
+    EXR decode and crop cost more than a CPU training step.
+    """
+    from relight.fileio import atomic_path
+
+    held_out = held_out_light_names() if held_out is None else held_out
+    arrays: dict[str, np.ndarray] = {}
+    records = []
+    for i, path in enumerate(json_paths):
+        c = load_cropped(Path(path), size, order, padding, held_out)
+        maps = [c.alpha, c.albedo, c.transport, c.normal] + [img for img in c.images if img is not None]
+        arrays[f"s{i}"] = np.concatenate(maps, axis=0).astype(np.float16)
+        arrays[f"l{i}"] = np.stack(c.lights).astype(np.float32)
+        records.append({"index": c.index, "names": c.light_names, "held_out": c.held_out,
+                        "traced": [img is not None for img in c.images]})
+    key = _pack_key(list(json_paths), size, order, padding)
+    arrays["meta"] = np.frombuffer(json.dumps({"key": key, "scenes": records}).encode(), dtype=np.uint8)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out, ".npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+    return out
+
+
+class PackedScenes:
+    """CroppedScene i of a pack (pack_scenes), all held in memory; same call as _SceneCache."""
+
+    def __init__(self, path, json_paths: list[Path], size: int, order: int, padding: int = DEFAULT_PADDING):
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(bytes(z["meta"]).decode())
+            if meta["key"] != _pack_key(list(json_paths), size, order, padding):
+                raise ValueError(f"{path}: the pack was made from other scenes or crop settings")
+            self.items = []
+            n = sh_np.num_coeffs(order)
+            for i, rec in enumerate(meta["scenes"]):
+                maps = z[f"s{i}"].astype(np.float32)
+                k = 1 + 3 + n + 3
+                images, j = [], k
+                for traced in rec["traced"]:
+                    images.append(maps[j:j + 3] if traced else None)
+                    j += 3 if traced else 0
+                self.items.append(CroppedScene(
+                    index=rec["index"], alpha=maps[0:1], albedo=maps[1:4], transport=maps[4:4 + n],
+                    normal=maps[4 + n:k], images=images, lights=list(z[f"l{i}"]),
+                    light_names=rec["names"], held_out=rec["held_out"]))
+        self.paths = list(json_paths)
+
+    def __call__(self, i: int) -> CroppedScene:
+        return self.items[i]
+
+
 def _to_tensors(sample: dict) -> dict:
     return {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) if isinstance(v, np.ndarray) else v
             for k, v in sample.items()}
@@ -285,7 +362,8 @@ class TrainingScenes(torch.utils.data.Dataset):
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
                  extra_lights: list[tuple[str, np.ndarray]] | None = None, extra_light_prob: float = 0.5,
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
-                 cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0):
+                 cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
+                 pack: Path | None = None):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -301,8 +379,11 @@ class TrainingScenes(torch.utils.data.Dataset):
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed, self.epoch = seed, 0
         # functools.partial, not a lambda: DataLoader workers may need to pickle the dataset
-        self.cache = _SceneCache(list(json_paths), functools.partial(
-            load_cropped, size=size, order=order, padding=padding, held_out=self.held_out), cache_size)
+        if pack is not None:  # every scene cropped once, in memory (pack_scenes)
+            self.cache = PackedScenes(pack, list(json_paths), size, order, padding)
+        else:
+            self.cache = _SceneCache(list(json_paths), functools.partial(
+                load_cropped, size=size, order=order, padding=padding, held_out=self.held_out), cache_size)
 
     def __len__(self) -> int:
         return len(self.cache.paths)
@@ -360,13 +441,14 @@ class TrainingScenes(torch.utils.data.Dataset):
         sample = {
             "input": _network_input(composite, alpha if masked else None),
             "image": image_a, "albedo": scene.albedo, "transport": scene.transport, "alpha": alpha,
-            "light": light_a, "target_light": light_b, "target_image": image_b,
+            "normal": scene.normal, "light": light_a, "target_light": light_b, "target_image": image_b,
             "light_name": name_a, "target_light_name": name_b,
         }
         if rng.uniform() < self.flip_prob:  # horizontal mirror, exact for T and L (mirror_signs)
-            for key in ("input", "image", "albedo", "transport", "alpha", "target_image"):
+            for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal"):
                 sample[key] = sample[key][..., ::-1]
             sample["transport"] = sample["transport"] * self.signs[:, None, None]
+            sample["normal"] = sample["normal"] * MIRROR_X[:, None, None]
             sample["light"] = sample["light"] * self.signs[:, None]
             sample["target_light"] = sample["target_light"] * self.signs[:, None]
         return _to_tensors(sample)
@@ -413,7 +495,7 @@ class EvaluationPairs(torch.utils.data.Dataset):
             "input": _network_input(scene.images[a], scene.alpha),
             "input_linear": scene.images[a],
             "image": scene.images[a], "albedo": scene.albedo, "transport": scene.transport,
-            "alpha": scene.alpha, "light": scene.lights[a], "target_light": scene.lights[b],
+            "normal": scene.normal, "alpha": scene.alpha, "light": scene.lights[a], "target_light": scene.lights[b],
             "target_image": scene.images[b],
         }
         out = _to_tensors(sample)

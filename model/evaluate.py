@@ -187,6 +187,117 @@ def oracle_prt(sample: dict) -> dict[str, dict[str, float]]:
     return out
 
 
+UNOCCLUDED_DC = 1.0 / (2.0 * np.sqrt(np.pi))  # T_00 of an unoccluded white Lambertian point
+QUOTIENT_FLOOR = 0.25  # model.geometry's `reliable` default
+
+
+def transport_normal(transport: np.ndarray) -> np.ndarray:
+    """Unit band-1 direction of T [n, H, W] -> [H, W, 3]: the (bent) normal of a lobe
+    (Y_{1,-1} ~ y, Y_{1,0} ~ z, Y_{1,1} ~ x); any model's T has one."""
+    d = np.stack([transport[3], transport[1], transport[2]], axis=-1).astype(np.float64)
+    return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+
+
+def transport_visibility(transport: np.ndarray) -> np.ndarray:
+    """T_00 relative to an unoccluded point, [H, W], clamped to [0, 1]."""
+    return np.clip(transport[0] / UNOCCLUDED_DC, 0.0, 1.0)
+
+
+def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
+    """Normal angle (degrees; from T's band 1, against the farm's normal pass),
+    visibility L1 (T_00 ratio against the baked T's), and the input light's error
+    (|L - L_true| / |L_true| over all coefficients) on the metric's pixels."""
+    w = metric_weight(sample)[0] > 0.5
+    if not w.any():
+        return {}
+    gt_n = _hwc(sample["normal"]).astype(np.float64)
+    cos = np.clip((transport_normal(pred["transport"]) * gt_n).sum(-1), -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos))[w]
+    vis = np.abs(transport_visibility(pred["transport"]) - transport_visibility(sample["transport"]))[w]
+    light, true = np.asarray(pred["light"], np.float64), np.asarray(sample["light"], np.float64)
+    return {"normal_mean_deg": float(angle.mean()), "normal_median_deg": float(np.median(angle)),
+            "visibility_l1": float(vis.mean()),
+            "light_rel_l2": float(np.linalg.norm(light - true) / max(np.linalg.norm(true), 1e-12))}
+
+
+BREAKDOWN_ROWS = (
+    "true albedo x our shading",
+    "our albedo x true shading",
+    "ours with the true input light (quotient)",
+    "physics: quotient, true normals, true input light",
+    "physics: true albedo x Lambert of true normals",
+    "physics: true albedo x lobe of true normal and visibility",
+)
+
+
+def error_breakdown(pred: dict, sample: dict, order: int) -> dict[str, dict[str, float]]:
+    """Relit-image metrics with parts of the prediction replaced by the truth, and the
+    physics ceilings (rows of docs/EVALUATION.md's breakdown table):
+
+    * true albedo x our shading; our albedo x true shading (T_gt . L_b);
+    * ours with the true input light: quotient photo * (T . L_b) / (T . L_a,true);
+    * quotient with true normals (unoccluded lobe) and the true input light;
+    * true albedo x unoccluded Lambert of the true normals (order `order`);
+    * true albedo x lobe of the true normal and visibility (the parametric ceiling).
+    """
+    from relight.prt import lambert_transport
+
+    mask = _hwc(metric_weight(sample))
+    gt = _hwc(sample["target_image"])
+    photo = _hwc(sample["input_linear"])
+    la, lb = sample["light"], sample["target_light"]
+    albedo_gt = _hwc(sample["albedo"])
+    normal_gt = _hwc(sample["normal"]).astype(np.float64)
+    on = np.linalg.norm(normal_gt, axis=-1) > 0.5
+    normal_gt = np.where(on[..., None], normal_gt, np.array([0.0, -1.0, 0.0]))
+    lambert = np.moveaxis(lambert_transport(normal_gt, order), -1, 0)
+    lobe = lambert * transport_visibility(sample["transport"])[None]
+
+    def quotient(transport):
+        # the input shading floored at a quarter of its mean over the person (as the
+        # geometry-first model's reliability rule): where a lobe sees no light but the
+        # photo does (interreflection), an unfloored ratio would explode
+        shade_a = shading_np(transport, la, False)
+        floor = QUOTIENT_FLOOR * max(float((shade_a * mask).sum() / max(mask.sum() * 3, 1e-8)), 1e-6)
+        return photo * shading_np(transport, lb, False) / np.maximum(shade_a, floor)
+
+    images = (
+        albedo_gt * shading_np(pred["transport"], lb, False),
+        _hwc(pred["albedo"]) * shading_np(sample["transport"], lb, False),
+        quotient(pred["transport"]),
+        quotient(lambert),
+        albedo_gt * shading_np(lambert, lb, False),
+        albedo_gt * shading_np(lobe, lb, False),
+    )
+    return {name: {"relighting/image": metrics.all_metrics(img, gt, mask)}
+            for name, img in zip(BREAKDOWN_ROWS, images)}
+
+
+def parametric_transport_error(sample: dict, order: int) -> float:
+    """|T_lobe(true n, true v) - T_baked| / |T_baked| on the metric's pixels."""
+    from relight.prt import lambert_transport
+
+    w = metric_weight(sample)[0] > 0.5
+    normal_gt = _hwc(sample["normal"]).astype(np.float64)
+    ok = w & (np.linalg.norm(normal_gt, axis=-1) > 0.5)
+    if not ok.any():
+        return float("nan")
+    lobe = lambert_transport(normal_gt[ok], order) * transport_visibility(sample["transport"])[ok][:, None]
+    baked = np.moveaxis(sample["transport"], 0, -1)[ok]
+    return float(np.linalg.norm(lobe - baked) / max(np.linalg.norm(baked), 1e-12))
+
+
+def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
+    lines = ["| method | normal mean (deg) | normal median (deg) | visibility L1 | input light rel. L2 |",
+             "|---|---|---|---|---|"]
+    for method, m in results.items():
+        lines.append(f"| {method} | {m['normal_mean_deg']:.1f} | {m['normal_median_deg']:.1f} | "
+                     f"{m['visibility_l1']:.3f} | {m['light_rel_l2']:.3f} |")
+    lines += ["", f"Parametric ceiling: the lobe of the true normal and visibility reproduces the baked T "
+                  f"to a relative L2 error of {ceiling:.3f}."]
+    return "\n".join(lines) + "\n"
+
+
 def _mean_table(rows: list[dict]) -> dict[str, dict[str, float]]:
     acc: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for row in rows:
@@ -315,6 +426,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
             pairs_by_order[b_order] = make_pairs(b_order)
     pairs = pairs_by_order[order]
     rows = defaultdict(list)
+    geometry, breakdown, transport_err = defaultdict(list), defaultdict(list), []
     sheet = []
     for i in range(len(pairs)):
         sample = with_metric_weight(_numpy_sample(pairs[i]), mask)
@@ -324,12 +436,19 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         rows["identity, exposure-matched"].append(baseline_identity(sample, exposure_matched=True))
         rows[ORACLE_ROW].append(oracle_prt(sample))
         rows[GAIN_ROW].append(gain_fitted(pred, sample, ours.tstar))
+        if "normal" in sample and not ours.tstar:
+            geometry["ours"].append(geometry_metrics(pred, sample))
+            for name, value in error_breakdown(pred, sample, order).items():
+                breakdown[name].append(value)
+            transport_err.append(parametric_transport_error(sample, order))
         for name, _, b in bases:
             b_order = b.order if b.order is not None else order
             bs = sample if b_order == order else with_metric_weight(
                 _numpy_sample(pairs_by_order[b_order][i]), mask)
             bpred = {k: v[0] for k, v in b(bs["input"][None]).items()}
             rows[name].append(evaluate_prediction(bpred, bs, b.tstar))
+            if "normal" in bs and not b.tstar:
+                geometry[name].append(geometry_metrics(bpred, bs))
         if len(sheet) < sheet_rows:
             # person maps shown over black (times the GT alpha); ours relit over the GT's background
             a = _hwc(sample["alpha"])
@@ -341,17 +460,30 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
             sheet.append([_hwc(sample["input_linear"]), a * relit + (1 - a) * gt, gt, error.repeat(3, -1),
                           a * _hwc(pred["albedo"]), a * shading, residual])
     results = {method: _mean_table(r) for method, r in rows.items()}
+    geo = {method: {k: float(np.mean([r[k] for r in rs if r])) for k in rs[0]}
+           for method, rs in geometry.items() if rs and rs[0]}
+    broken = {method: _mean_table(r) for method, r in breakdown.items()}
+    ceiling = float(np.nanmean(transport_err)) if transport_err else float("nan")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "evaluation.md", markdown_table(results, len(pairs), str(data), mask) +
+    text = markdown_table(results, len(pairs), str(data), mask)
+    if broken:
+        text += ("\n## Where the error is (relighting, image)\n\n"
+                 + markdown_table({"ours": {k: v for k, v in results["ours"].items()
+                                            if k == "relighting/image"}, **broken}, len(pairs), str(data), mask)
+                 .split("\n\n", 2)[2])
+    if geo:
+        text += "\n## Geometry and light\n\n" + geometry_table(geo, ceiling)
+    atomic_write_text(out / "evaluation.md", text +
                        "\nContact sheet columns: input, ours relit (over the GT background), GT, "
                        "|error| x4, albedo, shading, |residual| x10 (person maps times the GT alpha).\n")
     atomic_write_text(out / "evaluation.json", json.dumps(
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
-         "pairs": len(pairs),
+         "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
          "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs]}, indent=1) + "\n")
     _atomic_write_png(out / "contact_sheet.png", contact_sheet(sheet))
-    return {"methods": results, "pairs": len(pairs)}
+    return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
+            "parametric_transport_rel_l2": ceiling}
 
 
 def main(argv=None) -> int:

@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from model.checkpoint import load_model, save_model
-from model.data import (DEFAULT_PADDING, EvaluationPairs, TrainingScenes, find_scenes, held_out_light_names,
-                        preset_training_lights, split_by_body)
+from model.checkpoint import build_network, load_model, save_model
+from model.geometry import ARCH as GEOMETRY, GEOMETRY_PRESETS, geometry_losses
+from model.data import (DEFAULT_PADDING, EvaluationPairs, PackedScenes, TrainingScenes, find_scenes,
+                        held_out_light_names, pack_scenes, preset_training_lights, split_by_body)
 from model.losses import LossWeights, relight_losses
 from model.network import PRESETS, RelightNet
 from model import sh_torch
@@ -59,8 +60,17 @@ class EpochIndexed(torch.utils.data.Dataset):
 
 
 def build_model_config(args) -> dict:
-    """RelightNet kwargs: the named --preset layout, --width/--depth when given, the ablation flags."""
+    """Network config: the named --preset layout, --width/--depth when given, the ablation flags.
+
+    geo-* presets build the geometry-first GeometryNet (model.geometry), the
+    others RelightNet."""
     lambertian = args.lambertian
+    if args.preset in GEOMETRY_PRESETS:
+        layout = dict(GEOMETRY_PRESETS[args.preset])
+        for name in ("width", "depth"):
+            if getattr(args, name) is not None:
+                layout[name] = getattr(args, name)
+        return dict(arch=GEOMETRY, sh_order=args.order, **layout)
     layout = dict(PRESETS[args.preset])
     for name in ("width", "depth"):
         if getattr(args, name) is not None:
@@ -85,7 +95,22 @@ def lr_factor(step: int, total: int, warmup: int, schedule: str, floor: float = 
     return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
-def loss_weights_from_args(args) -> LossWeights:
+def loss_weights_from_args(args) -> LossWeights | dict:
+    """--loss-weight NAME=VALUE over the defaults: LossWeights for RelightNet, a dict
+    for the geometry-first model (model.geometry.geometry_losses' names)."""
+    geometry = args.preset in GEOMETRY_PRESETS
+    if geometry:
+        weights = {}
+        known = ("normal", "visibility", "albedo", "alpha", "light", "transport", "relight", "reconstruction")
+        for item in args.loss_weight or []:
+            name, sep, value = item.partition("=")
+            if not sep or name not in known:
+                raise ValueError(f"--loss-weight {item!r}: expected NAME=VALUE with NAME in {', '.join(known)}")
+            number = float(value)
+            if not math.isfinite(number) or number < 0:
+                raise ValueError(f"--loss-weight {name}: must be finite and >= 0")
+            weights[name] = number
+        return weights
     weights = LossWeights()
     for item in args.loss_weight or []:
         name, sep, value = item.partition("=")
@@ -114,8 +139,9 @@ def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_d
                      schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
             super().__init__()
             self.save_hyperparameters()  # plain dicts and floats: loadable with weights_only=True
-            self.model = RelightNet(**model_config)
-            self.weights = LossWeights.from_dict(weights)
+            self.model = build_network(model_config)
+            self.geometry = model_config.get("arch") == GEOMETRY
+            self.weights = dict(weights) if self.geometry else LossWeights.from_dict(weights)
 
         def forward(self, image):
             return self.model(image)
@@ -125,6 +151,8 @@ def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_d
             pred = {k: v.float() for k, v in pred.items()}
             # under AMP, autocast would run the rendering einsums in float16: keep losses in float32
             with torch.autocast(device_type=self.device.type, enabled=False):
+                if self.geometry:
+                    return pred, geometry_losses(pred, batch, self.weights)
                 return pred, relight_losses(pred, batch, self.weights, decomposition=self.model.decomposition,
                                             tstar=self.model.tstar)
 
@@ -182,8 +210,9 @@ def parse_args(argv=None):
     p.add_argument("--accumulate", type=int, default=1,
                    help="gradient accumulation: effective batch = batch x accumulate (paper: 16)")
     p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
-    p.add_argument("--preset", choices=tuple(PRESETS), default="default",
-                   help="network layout (model.network.PRESETS); --width/--depth override it")
+    p.add_argument("--preset", choices=tuple(PRESETS) + tuple(GEOMETRY_PRESETS), default="default",
+                   help="network layout: model.network.PRESETS (the paper's decomposition) or "
+                        "model.geometry.GEOMETRY_PRESETS (geometry-first); --width/--depth override it")
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--depth", type=int, default=None)
     p.add_argument("--order", type=int, default=4, help="SH order N (paper: 4; Kanamori-Endo: 2)")
@@ -204,6 +233,9 @@ def parse_args(argv=None):
     p.add_argument("--padding", type=int, default=DEFAULT_PADDING)
     p.add_argument("--cache-scenes", type=int, default=64,
                    help="cropped scenes kept in memory (reading an EXR costs more than a step)")
+    p.add_argument("--pack", default=None, metavar="FILE.npz",
+                   help="crop the training scenes once into this file (made when missing or stale) "
+                        "and train from memory")
     p.add_argument("--extra-light-prob", type=float, default=0.5)
     p.add_argument("--mask-prob", type=float, default=0.5)
     p.add_argument("--flip-prob", type=float, default=0.5, help="horizontal mirror (exact for T and L)")
@@ -229,7 +261,7 @@ def parse_args(argv=None):
             p.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.order < 0:
         p.error("--order must be >= 0")
-    depth = args.depth if args.depth is not None else PRESETS[args.preset]["depth"]
+    depth = args.depth if args.depth is not None else {**PRESETS, **GEOMETRY_PRESETS}[args.preset]["depth"]
     if args.size % (2 ** depth):
         p.error(f"--size {args.size} must be a multiple of 2**depth = {2 ** depth}")
     if args.warmup < 0:
@@ -270,7 +302,14 @@ def train(args) -> Path:
     train_paths, val_paths = split_by_body(scenes, args.val_fraction, seed=args.seed)
     held_out = held_out_light_names()
     extra = [] if args.no_presets else preset_training_lights(args.order)
-    train_set = TrainingScenes(train_paths, args.size, args.order, padding=args.padding, extra_lights=extra,
+    pack = None
+    if args.pack:
+        pack = Path(args.pack)
+        try:
+            PackedScenes(pack, train_paths, args.size, args.order, args.padding)
+        except (OSError, ValueError, KeyError):  # missing, stale or unreadable: make it again
+            pack_scenes(train_paths, pack, args.size, args.order, args.padding, held_out)
+    train_set = TrainingScenes(train_paths, args.size, args.order, padding=args.padding, extra_lights=extra, pack=pack,
                                extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob,
                                flip_prob=args.flip_prob, light_tint=args.light_tint,
                                lambertian=args.lambertian, seed=args.seed, held_out=held_out,
@@ -289,7 +328,8 @@ def train(args) -> Path:
 
     weights = loss_weights_from_args(args)
     model_config = build_model_config(args)
-    module = make_lightning_module(model_config, weights.to_dict(), args.lr, args.weight_decay,
+    module = make_lightning_module(model_config, weights if isinstance(weights, dict) else weights.to_dict(),
+                                   args.lr, args.weight_decay,
                                    args.lr_schedule, args.warmup, args.steps)
     if args.init:
         start = load_model(args.init)
@@ -322,7 +362,8 @@ def train(args) -> Path:
     trainer.fit(module, train_loader, val_loader, ckpt_path=resume_from, weights_only=True)
     trainer.save_checkpoint(ckpt_dir / "last.ckpt", weights_only=False)  # full state, for --resume
 
-    record = {"seed": args.seed, "steps": int(trainer.global_step), "loss_weights": weights.to_dict(),
+    record = {"seed": args.seed, "steps": int(trainer.global_step),
+              "loss_weights": weights if isinstance(weights, dict) else weights.to_dict(),
               "data": [str(d) for d in args.data], "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
     return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})

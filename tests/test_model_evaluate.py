@@ -120,7 +120,7 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     rows = {line.split("|")[1].strip() for line in md.splitlines() if "| relighting |" in line}
     ke_name = "baseline (ke/model.safetensors)"
     assert rows == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW, evaluate.GAIN_ROW,
-                    "small", ke_name}
+                    "small", ke_name, *evaluate.BREAKDOWN_ROWS}
     record = json.loads((tmp_path / "all" / "evaluation.json").read_text())
     assert record["baselines"] == {"small": str(small), ke_name: str(ke)}
     together = record["methods"]

@@ -1,0 +1,177 @@
+"""The geometry-first decomposition: learn normals, visibility, an albedo prior and a
+light prior; derive transport, the photo's light and the albedo by physics.
+
+    encoder -> geometry generator -> normal n (unit), visibility v, alpha
+            -> albedo generator   -> albedo prior rho_p
+            -> light head         -> light prior L_p (global pooling)
+    T   = v * A_l / pi * Y_lm(n)                        (model.physics.lobe_transport)
+    L_a = ridge least squares of photo ~ rho_p * (T . L), toward L_p  (model.physics.fit_light)
+          rescaled to the reference radiance (mean luminance 0.8, docs/conventions.md)
+    rho = photo / (T . L_a) where the shading is reliable, rho_p elsewhere
+    E   = 0
+
+The outputs are the five of every relighting model (albedo, transport,
+residual, light, alpha), so export, runtime, `relight image` and the add-on
+are unchanged; `rho * (T . L')` with the photo-consistent rho is quotient
+relighting, photo * (T . L') / (T . L_a). Extra outputs for the losses:
+normal, visibility, albedo_prior, light_prior, light_fit (before the level).
+
+Why the level is fixed by convention: a single photo cannot tell a bright
+light on a dark person from the reverse; the training lights are all at the
+reference radiance, so the photo's light is assumed to be there too, which
+keeps the photo's own exposure when it is relit by a normalised light. The
+light's colour and direction come from the fit, settled by the albedo prior.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from model import physics
+from model.network import MAX_WIDTH_FACTOR, Encoder, Generator, LightDecoder, ResidualBlock, num_coeffs
+
+ARCH = "geometry"
+REFERENCE_LUMINANCE = 0.8   # docs/conventions.md: a light's solid-angle mean luminance
+CLIPPED = 0.99              # encoded input above this in any channel: saturated, not fitted
+
+# Named sizes of the geometry-first layout (docs/model.md); costs in docs/benchmarks/model.md.
+GEOMETRY_PRESETS = {
+    "geo-small": {"width": 8, "depth": 4, "decoder_width": 6},
+    "geo-default": {"width": 12, "depth": 4, "decoder_width": 8},
+}
+
+
+class GeometryNet(nn.Module):
+    """Single-image decomposition with transport built from predicted geometry.
+
+    forward(image [B,3,H,W] in [-1,1]) -> dict (module docstring).
+    `ridge`: the light fit's pull toward the light head, relative to the data
+    (model.physics.fit_light); `reliable`: the shading fraction of its mean
+    below which the albedo prior replaces photo / shading.
+    """
+
+    arch = ARCH
+
+    def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
+                 full_res_convs: int = 1, ridge: float = 0.05, reliable: float = 0.25,
+                 fixed_level: bool = True):
+        super().__init__()
+        if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
+            raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
+                             f"{width}, {depth}, {decoder_width})")
+        if not (ridge > 0 and math.isfinite(ridge)):
+            raise ValueError(f"GeometryNet: ridge must be > 0, got {ridge}")
+        self.sh_order, self.width, self.depth = int(sh_order), int(width), int(depth)
+        self.decoder_width, self.full_res_convs = int(decoder_width), int(full_res_convs)
+        self.ridge, self.reliable, self.fixed_level = float(ridge), float(reliable), bool(fixed_level)
+        self.n = num_coeffs(self.sh_order)
+        self.size_multiple = 2 ** self.depth
+        # the runtime and evaluation read these like RelightNet's
+        self.tstar, self.decomposition, self.with_residual, self.with_matte = False, False, False, True
+        channels = [self.width * min(2 ** i, MAX_WIDTH_FACTOR) for i in range(self.depth + 1)]
+        dec = [self.decoder_width * min(2 ** i, MAX_WIDTH_FACTOR) for i in range(self.depth)]
+        c_bottle = channels[-1]
+        gen = dict(batch_norm=True, dec_channels=dec, full_res_convs=self.full_res_convs)
+        self.encoder = Encoder(channels, self.full_res_convs)
+        self.geometry_res = ResidualBlock(c_bottle, batch_norm=True)
+        self.geometry_gen = Generator(channels, 5, **gen)          # normal xyz, visibility, alpha
+        self.albedo_res = ResidualBlock(c_bottle, batch_norm=True)
+        self.albedo_gen = Generator(channels, 3, **gen)
+        self.light_head = LightDecoder(3 * c_bottle, c_bottle, self.n, decomposition=False)
+
+    def config(self) -> dict:
+        return {"arch": ARCH, "sh_order": self.sh_order, "width": self.width, "depth": self.depth,
+                "decoder_width": self.decoder_width, "full_res_convs": self.full_res_convs,
+                "ridge": self.ridge, "reliable": self.reliable, "fixed_level": self.fixed_level}
+
+    def check_input(self, image: torch.Tensor) -> None:
+        if image.ndim != 4 or image.shape[1] != 3:
+            raise ValueError(f"GeometryNet: image must be [B,3,H,W], got {tuple(image.shape)}")
+        h, w = image.shape[-2:]
+        if h % self.size_multiple or w % self.size_multiple:
+            raise ValueError(f"GeometryNet: H and W must be multiples of {self.size_multiple}, got {h}x{w}")
+
+    def forward(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
+        feats = self.encoder(image)
+        bottle = feats[-1]
+        g_res = self.geometry_res(bottle)
+        geo = self.geometry_gen(g_res, feats)
+        raw_normal = geo[:, :3]
+        normal = raw_normal / torch.sqrt((raw_normal * raw_normal).sum(dim=1, keepdim=True) + 1e-8)
+        visibility = torch.sigmoid(geo[:, 3:4])
+        alpha = torch.sigmoid(geo[:, 4:5])
+        a_res = self.albedo_res(bottle)
+        albedo_prior = torch.sigmoid(self.albedo_gen(a_res, feats))
+        light_prior = self.light_head(torch.cat([bottle, g_res, a_res], dim=1))[0]
+
+        transport = physics.lobe_transport(normal, visibility, self.sh_order)
+        photo = physics.linear_from_network_input(image)
+        # a step made of arithmetic: bool casts and zeros_like export as nodes that pin
+        # float32 inside an fp16 graph (onnxconverter-common leaves their types alone)
+        unclipped = ((2.0 * CLIPPED - 1.0 - image.max(dim=1, keepdim=True).values) * 1e6).clamp(0.0, 1.0)
+        weight = alpha.detach() * unclipped
+        light_fit = physics.fit_light(transport, albedo_prior, photo, weight, light_prior, self.ridge)
+        light = light_fit
+        if self.fixed_level:
+            lum = mean_luminance(light_fit)
+            # a fit with (almost) no light is an error, not a reason to amplify it 800x
+            light = light_fit * (REFERENCE_LUMINANCE / lum.clamp(min=0.02))[:, None, None]
+        shading = torch.einsum("bnhw,bnc->bchw", transport, light)
+        albedo = physics.photo_consistent_albedo(photo, shading, albedo_prior, weight, self.reliable)
+        return {
+            "albedo": albedo, "transport": transport, "residual": transport * 0.0,
+            "light": light, "alpha": alpha,
+            "normal": normal, "visibility": visibility, "albedo_prior": albedo_prior,
+            "light_prior": light_prior, "light_fit": light_fit,
+        }
+
+
+def mean_luminance(light: torch.Tensor) -> torch.Tensor:
+    """[B] solid-angle mean luminance of lights [B,n,3] (Rec.709 Y of the DC term)."""
+    from relight.colour import LUMINANCE_WEIGHTS
+
+    w = torch.tensor(LUMINANCE_WEIGHTS.tolist(), dtype=light.dtype, device=light.device)
+    return (light[:, 0, :] * w).sum(dim=-1) / (2.0 * math.sqrt(math.pi))
+
+
+def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dict[str, torch.Tensor]:
+    """Loss terms of the geometry-first model (weights: name -> factor; defaults below).
+
+    normal: 1 - cos on the person; visibility: L1 against the baked T's DC ratio;
+    albedo: L1 of the prior (linear, and of its square root, which weighs dark
+    albedo as the eye does); alpha: L1 everywhere; light: L1 of the light head
+    against the true input light; transport: L1 of the lobe T against the baked
+    T (what the lobe cannot represent stays); relight: L1 of albedo * (T . L_b)
+    against the target image under light b (through the fit: end to end);
+    reconstruction: the same under the fitted light against the input image.
+    """
+    w = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2, "transport": 1.0,
+         "relight": 1.0, "reconstruction": 0.5, **(weights or {})}
+    mask = batch["alpha"]
+    interior = (mask > 0.999).to(mask.dtype)
+
+    def masked_mean(values, m):
+        return (values * m).sum() / (m.sum() * values.shape[1] / m.shape[1]).clamp_min(1.0)
+
+    terms = {}
+    cos = (pred["normal"] * batch["normal"]).sum(dim=1, keepdim=True)
+    terms["normal"] = masked_mean(1.0 - cos, interior)
+    terms["visibility"] = masked_mean(torch.abs(pred["visibility"] - physics.visibility_from_transport(
+        batch["transport"])), interior)
+    gt_albedo = batch["albedo"]
+    prior = pred["albedo_prior"]
+    terms["albedo"] = masked_mean(torch.abs(prior - gt_albedo), interior) + masked_mean(
+        torch.abs(torch.sqrt(prior + 1e-4) - torch.sqrt(gt_albedo + 1e-4)), interior)
+    terms["alpha"] = torch.abs(pred["alpha"] - mask).mean()
+    terms["light"] = torch.abs(pred["light_prior"] - batch["light"]).mean()
+    terms["transport"] = masked_mean(torch.abs(pred["transport"] - batch["transport"]), interior)
+    relit = pred["albedo"] * torch.einsum("bnhw,bnc->bchw", pred["transport"], batch["target_light"])
+    terms["relight"] = masked_mean(torch.abs(relit - batch["target_image"]), interior)
+    recon = pred["albedo"] * torch.einsum("bnhw,bnc->bchw", pred["transport"], pred["light"])
+    terms["reconstruction"] = masked_mean(torch.abs(recon - batch["image"]), interior)
+    terms["total"] = sum(w[k] * v for k, v in terms.items())
+    return terms
