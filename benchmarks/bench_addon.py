@@ -164,7 +164,10 @@ def main(argv=None) -> int:
         result = probe.call("modal tick (poll or one image write)", op.modal, context, timer_event)
     relight_wall = time.perf_counter() - t0
     assert result == {"FINISHED"}, result
+    stages = op._job.progress.durations(op._job.finished_at)
     rows.append(("Relight: press to all five images written (wall)", relight_wall, None))
+    for stage, seconds in stages:
+        rows.append((f"  worker: {stage.lower()}", seconds, None))
     rows.append(("Relight: longest main-thread stretch", probe.worst, 0.100))
     rows.append(("  ... during", probe.worst_what, None))
     session = state.SESSIONS[image[bl_images.PHOTO_ID]]

@@ -33,9 +33,17 @@ class Progress:
         self.stage = "Starting"
         self.fraction = 0.0
         self.stage_started = time.monotonic()
+        self.history: list[tuple[str, float]] = []  # (stage, when it started): for timings
 
     def enter(self, stage: str, fraction: float) -> None:
-        self.stage, self.fraction, self.stage_started = stage, float(fraction), time.monotonic()
+        now = time.monotonic()
+        self.history.append((stage, now))
+        self.stage, self.fraction, self.stage_started = stage, float(fraction), now
+
+    def durations(self, end: float | None = None) -> list[tuple[str, float]]:
+        """(stage, seconds) of every stage entered, the last one up to `end` (default now)."""
+        marks = self.history + [("", time.monotonic() if end is None else end)]
+        return [(stage, later - t) for (stage, t), (_, later) in zip(marks, marks[1:])]
 
 
 class BackgroundJob:
@@ -52,6 +60,7 @@ class BackgroundJob:
         self._cancelled = threading.Event()
         self._finished = threading.Event()
         self._started_at = time.monotonic()
+        self.finished_at: float | None = None
         self._thread = threading.Thread(target=self._run, name=f"relight-{label}", daemon=True)
         self._thread.start()
 
@@ -61,6 +70,7 @@ class BackgroundJob:
         except BaseException as exc:  # reported to the main thread, never raised here
             self._error = exc
         finally:
+            self.finished_at = time.monotonic()
             self._finished.set()
 
     def cancel(self) -> None:

@@ -156,16 +156,15 @@ def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None) -> np.nda
     h, w, c = px.shape
     rgba = np.empty(h * w * 4, np.float32) if out is None else out
     view = rgba.reshape(h, w, 4)
-    flipped = px[::-1]
-    if c >= 3:
-        view[..., :3] = flipped[..., :3]
-    else:
-        for k in range(3):  # one strided copy per channel: broadcasting [.., 1] is much slower
-            view[..., k] = flipped[..., 0]
-    if c == 4:
-        view[..., 3] = flipped[..., 3]
-    else:
-        view[..., 3] = 1.0
+    # blocks of rows that stay in cache, one channel at a time: a single
+    # view[..., :3] = px[::-1] loops 3 values at a time over 24 MP, 10x slower
+    step = max(1, (1 << 16) // max(1, w))
+    for r0 in range(0, h, step):
+        r1 = min(h, r0 + step)
+        src = px[h - r1:h - r0][::-1]
+        for k in range(3):
+            view[r0:r1, :, k] = src[..., min(k, c - 1) if c < 3 else k]
+        view[r0:r1, :, 3] = src[..., 3] if c == 4 else 1.0
     return rgba
 
 
