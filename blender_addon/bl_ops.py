@@ -20,7 +20,7 @@ SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, 
 POLL_SECONDS = 0.05               # how often the main thread looks at a running job
 PREVIEW_LONG_SIDE = 1024          # px: the screen-sized preview shown while a dial moves on a large photo
 REST_SECONDS = 0.3                # a dial untouched this long is at rest: the full-size relight starts
-LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual")  # relit first: it is what the user sees
+LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual", "matte")  # relit first: what the user sees
 
 
 # ------------------------------------------------------------------ helpers
@@ -86,7 +86,8 @@ def session_of(image):
 def _mask_inputs(settings, image) -> dict:
     """What the worker needs to make the mask; errors a user can fix are raised here, at once."""
     width, height = image.size
-    inputs = dict(mode=settings.mask_mode, rgb=None, alpha=None, name="", use_photo_alpha=False)
+    inputs = dict(mode=settings.mask_mode, rgb=None, alpha=None, name="", use_photo_alpha=False,
+                  person=int(settings.person) if settings.person.isdigit() else 1)
     if settings.mask_mode == "IMAGE":
         mask_image = settings.mask_image
         if mask_image is not None:
@@ -103,14 +104,18 @@ def _mask_inputs(settings, image) -> dict:
     return inputs
 
 
-def _make_mask(inputs: dict, pixels: pipeline.PhotoPixels):
+def _make_mask(inputs: dict, pixels: pipeline.PhotoPixels) -> tuple:
+    """(mask or None, people found or 0) on the worker: AUTO runs the person matte."""
+    if inputs["mode"] == "AUTO":
+        return engine.person_matte(pixels.rgb, inputs["person"])
     alpha = pixels.alpha if inputs["use_photo_alpha"] else None
     return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
-                                inputs["name"])
+                                inputs["name"]), 0
 
 
 def _mask_key(inputs: dict) -> tuple:
-    return (inputs["mode"], inputs["name"])
+    """What the mask was made from: (mode, mask image name, or the person's number for AUTO)."""
+    return (inputs["mode"], str(inputs["person"]) if inputs["mode"] == "AUTO" else inputs["name"])
 
 
 def _light_image_key(settings, model_path: str) -> tuple | None:
@@ -204,6 +209,10 @@ def layer_buffers(session: state.PhotoSession, dials, token=None) -> dict:
         if token is not None:
             token.check()
         buffers[layer] = pipeline.to_blender_rgba(pixels)
+    if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
+        # the photo cut out by the person matte, so the user can check what was found
+        photo, matte = session.photo, session.decomposition.mask
+        buffers["matte"] = pipeline.to_blender_rgba(np.concatenate([photo, matte[..., None]], axis=2))
     return buffers
 
 
@@ -430,7 +439,8 @@ def _restore_plan(context, image, path: str) -> dict:
     arrays, meta = engine.load_decomposition_arrays(path)
     reader = bl_images.photo_reader(image)
     mode, mask_name = meta["mask_key"]
-    inputs = dict(mode=mode, rgb=None, alpha=None, name=mask_name, use_photo_alpha=mode == "IMAGE_ALPHA")
+    inputs = dict(mode=mode, rgb=None, alpha=None, name=mask_name, use_photo_alpha=mode == "IMAGE_ALPHA",
+                  person=int(mask_name) if mode == "AUTO" else 1)
     if mode == "IMAGE":
         mask_image = bpy.data.images.get(mask_name)
         if mask_image is None:
@@ -452,12 +462,13 @@ def _restore_work(plan: dict) -> tuple:
     pixels = plan["reader"]()
     if pixels.digest != meta["digest"]:
         raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
-    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, _make_mask(plan["mask"], pixels))
+    mask, people = _make_mask(plan["mask"], pixels)
+    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
     session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
         digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
-        saved_to=plan["path"])
+        saved_to=plan["path"], people=people)
     if plan["preview_first"] and session.preview is not None:
         return session, {"relit": engine.relit_rgba(session.preview, *plan["dials"])}
     return session, layer_buffers(session, plan["dials"])
@@ -555,8 +566,11 @@ def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken
     pixels = plan["read_photo"]()
     token.check()
     pipeline.check_photo_content(pixels.rgb)
-    mask = _make_mask(plan["mask"], pixels)
-    progress.enter("Finding the person and running the network", 0.10)
+    if plan["mask"]["mode"] == "AUTO":
+        progress.enter("Finding the people in the photo", 0.05)
+    mask, people = _make_mask(plan["mask"], pixels)
+    token.check()
+    progress.enter("Running the network", 0.10)
     network_start = time.monotonic()
     decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
     light_decomposition = None
@@ -572,7 +586,7 @@ def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken
     session = state.PhotoSession(
         photo_id=plan["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=plan["model_path"], quality=plan["quality"], mask_key=_mask_key(plan["mask"]),
-        digest=pixels.digest)
+        digest=pixels.digest, people=people)
     progress.enter("Relighting at full size", 0.60)
     dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
     token.check()
@@ -676,7 +690,10 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             raise ValueError(f"The photo '{session.source}' was deleted while it was being relit.")
         session.source = photo.name
         state.SESSIONS[session.photo_id] = session
-        _settings(context).last_photo_id = session.photo_id
+        settings = _settings(context)
+        settings.last_photo_id = session.photo_id
+        if session.people:
+            settings.people_found = session.people
         self._result = result
         self._pending = [layer for layer in LAYER_ORDER if layer in result["buffers"]]
 
@@ -684,6 +701,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         session = self._result["session"]
         layer = self._pending.pop(0)
         image = _write_output(session, layer, self._result["buffers"].pop(layer), session.photo.shape[:2])
+        if layer == "matte":
+            image.alpha_mode = "STRAIGHT"  # shown as a cut-out over Blender's checkerboard
         if layer == "relit":
             space = getattr(context, "space_data", None)
             if space is not None and getattr(space, "type", "") == "IMAGE_EDITOR":
@@ -758,7 +777,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         progress = self._job.progress
         elapsed = time.monotonic() - self._started
         fraction = progress.fraction
-        if progress.stage.startswith("Finding") and self._plan:
+        if progress.stage.startswith("Running the network") and self._plan:
             expected = engine.expected_seconds(self._plan["model_path"], self._plan["long_side"])
             if expected:  # inside the network stage, interpolate by the last run's time
                 share = min(1.0, (time.monotonic() - progress.stage_started) / expected)

@@ -1,7 +1,7 @@
 """Scene settings (saved with the .blend) and window-manager status (not saved)."""
 
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, PointerProperty,
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
 from . import pipeline, quality
@@ -23,6 +23,18 @@ def _preset_items(_self, _context):
     return _preset_items_cache
 
 
+_person_items_cache: list = []
+
+
+def _person_items(self, _context):
+    # as many entries as the last Relight found people (at least one)
+    count = max(1, int(getattr(self, "people_found", 1)))
+    if len(_person_items_cache) != count:
+        _person_items_cache[:] = [("1", "Largest person", "The largest person in the photo")] + [
+            (str(i), f"Person {i}", f"The {i}th largest person in the photo") for i in range(2, count + 1)]
+    return _person_items_cache
+
+
 def _light_changed(_self, context):
     # imported here: bl_ops imports this module
     from . import bl_ops
@@ -33,11 +45,17 @@ def _light_changed(_self, context):
 class RelightPhotoSettings(bpy.types.PropertyGroup):
     mask_mode: EnumProperty(
         name="Mask",
-        items=[("AUTO", "Automatic", "Use the matte the network predicts"),
+        items=[("AUTO", "Automatic", "Find the people in the photo and use the chosen person's matte"),
+               ("NETWORK", "Network Matte",
+                "Use the matte the relighting network predicts (for images that are not photos)"),
                ("IMAGE_ALPHA", "Image Alpha", "Use the photo's own alpha channel"),
                ("IMAGE", "Other Image", "Use another image of the same size (its alpha, else its grey level)")],
         default="AUTO")
     mask_image: PointerProperty(name="Mask Image", type=bpy.types.Image)
+    person: EnumProperty(name="Person", items=_person_items,
+                         description="Which person to relight (press Relight after choosing)")
+    people_found: IntProperty(name="People Found", default=0, min=0,
+                              description="How many people the last Relight found in the photo")
     light_kind: EnumProperty(
         name="Light",
         items=[("WORLD", "World", "The scene's World (environment texture or baked procedural sky)"),
@@ -87,3 +105,4 @@ def unregister() -> None:
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
     _preset_items_cache.clear()
+    _person_items_cache.clear()

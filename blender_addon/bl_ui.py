@@ -26,6 +26,12 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
 
         box = layout.box()
         box.prop(settings, "mask_mode")
+        if settings.mask_mode == "AUTO":
+            box.prop(settings, "person")
+            if settings.people_found:
+                found = settings.people_found
+                box.label(text=f"{found} {'person' if found == 1 else 'people'} found; "
+                               "'.matte' shows the cut-out", icon="USER")
         if settings.mask_mode == "IMAGE":
             box.template_ID(settings, "mask_image", open="image.open")
 

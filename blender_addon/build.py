@@ -129,11 +129,17 @@ def _zip_write(zf: zipfile.ZipFile, arcname: str, data: bytes) -> None:
 
 def shipped_models(registry: dict) -> list[str]:
     """The registry names the add-on needs: those the quality presets run (Draft,
-    Balanced, Best) and the registry's default; no other model goes into the zip."""
+    Balanced, Best), the registry's default and the person matte's networks (the
+    Automatic mask); no other model goes into the zip."""
     from relight import quality as core_quality
 
     names = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS}
     names.add(registry.get("default"))
+    try:
+        from relight.matte import MODELS as MATTE_MODELS
+    except ImportError:  # a core without the person matte
+        MATTE_MODELS = {}
+    names.update(name for name, _file in MATTE_MODELS.values())
     return sorted(n for n in names if n in registry.get("models", {}))
 
 

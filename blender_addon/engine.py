@@ -133,6 +133,32 @@ def _cancellable_run(relighter, cancel: CancelToken):
     return run
 
 
+NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image Alpha or Other Image, "
+             "or use a photo where a person is clearly visible.")
+
+
+def person_matte(photo: np.ndarray, person: int) -> tuple[np.ndarray, int]:
+    """(soft alpha [H, W], how many people the photo shows) for person `person`
+    (1 = the largest), from relight.matte; errors in the artist's words."""
+    import re
+
+    from relight.matte import NoPersonError
+    from relight.matte import person_matte as find
+
+    try:
+        found = find(photo, person)
+    except NoPersonError:
+        raise ValueError(NO_PERSON) from None
+    except ValueError as exc:
+        shown = re.search(r"the photo shows (\d+)", str(exc))
+        if shown is None:
+            raise
+        count = int(shown.group(1))
+        raise ValueError(f"Person {person} is chosen, but the photo shows only {count} "
+                         f"{'person' if count == 1 else 'people'}: choose another in the Person list.") from None
+    return found.alpha, found.count
+
+
 def preview_decomposition(decomposition, long_side: int):
     """The decomposition over a copy of the photo scaled to `long_side` (a screen), for
     relighting while a dial moves; None when the photo is not much larger than that.

@@ -17,7 +17,8 @@ import numpy as np
 
 from . import quality
 
-LAYERS = ("relit", "albedo", "shading", "residual", "alpha", "preview")  # preview: screen-sized relit
+LAYERS = ("relit", "albedo", "shading", "residual", "alpha", "preview", "matte")
+# preview: screen-sized relit; matte: the photo cut out by the person matte (to check it)
 EMPTY_MASK_LEVEL = 1e-3  # a mask whose largest value is below this selects nothing
 MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
 BLACK_LEVEL = 3e-3       # linear luminance (sRGB code ~11/255): a photo whose brightest pixel is below is black
@@ -201,20 +202,20 @@ def check_photo_content(photo: np.ndarray) -> None:
 
 # ------------------------------------------------------------------ masks
 
-MASK_MODES = ("AUTO", "IMAGE_ALPHA", "IMAGE")
+MASK_MODES = ("AUTO", "NETWORK", "IMAGE_ALPHA", "IMAGE")
 
 
 def choose_mask(mode: str, photo_shape: tuple[int, int], photo_alpha: np.ndarray | None,
                 mask_rgb: np.ndarray | None = None, mask_alpha: np.ndarray | None = None,
                 mask_name: str = "") -> np.ndarray | None:
-    """The mask [H, W] in [0, 1] given to the network, or None for the model's own matte.
+    """The mask [H, W] in [0, 1] given to the network, or None when it is made otherwise.
 
     IMAGE_ALPHA uses the photo's alpha; IMAGE uses another image of the same
     size: its alpha when it has a non-constant one, else its grey level (mean
     of R, G, B as stored, as relight.photo.read_mask reads mask files).
     """
-    if mode == "AUTO":
-        return None
+    if mode in ("AUTO", "NETWORK"):
+        return None  # AUTO: the person matte, made by the worker; NETWORK: the relighting network's own
     if mode == "IMAGE_ALPHA":
         if photo_alpha is None:
             raise ValueError("The photo has no alpha channel to use as the mask.")

@@ -31,6 +31,7 @@ class PhotoSession:
     preview: Any = None         # the decomposition over a screen-sized photo (large photos only)
     saved_to: str = ""          # the file this decomposition was last saved to
     dial_generation: int = 0    # bumped on every dial change: a late full-size result is dropped
+    people: int = 0             # people the person matte found (AUTO mask), else 0
     extras: dict = field(default_factory=dict)
 
 

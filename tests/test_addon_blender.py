@@ -96,7 +96,7 @@ def settings(addon):
     s = bpy.context.scene.relight_photo
     s.model_path = str(addon["model"])
     s.quality = "DRAFT"
-    s.mask_mode = "AUTO"
+    s.mask_mode = "NETWORK"  # the synthetic figure is no person to the person matte
     s.light_kind = "PRESET"
     s.preset = "studio"
     s.rotation = 0.0
@@ -815,7 +815,7 @@ def test_esc_stops_the_network_while_it_runs(addon, settings, monkeypatch):
     op._start(context)
     job = op._job
     deadline = time.monotonic() + 60
-    while not job.progress.stage.startswith("Finding") and time.monotonic() < deadline:
+    while not job.progress.stage.startswith("Running the network") and time.monotonic() < deadline:
         time.sleep(0.01)
     time.sleep(0.2)  # the first network pass is running now
     assert job.poll() is bl_ops.jobs.JobState.RUNNING
@@ -896,3 +896,53 @@ def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, 
     assert bl_ops.show_in_editors(run, "relit", [window]) == 1
     assert on_result.spaces.active.image == relit
     assert bl_ops.show_in_editors(run, "relit", [window]) == 0  # already there
+
+
+# ------------------------------------------------------------------ the person matte (Mask: Automatic)
+
+def test_automatic_mask_is_the_person_matte_shown_as_a_cut_out(addon, settings):
+    from relight.matte import person_matte
+    from relight.matte_eval import EVAL_DIR
+
+    photo = bpy.data.images.load(str(EVAL_DIR / "grace_hopper.jpg"))
+    settings.mask_mode = "AUTO"
+    settings.person = "1"
+    try:
+        assert relight(photo.name) == {"FINISHED"}
+        run = session(photo.name)
+        want = person_matte(run.photo, 1)
+        assert settings.people_found == want.count >= 1 and run.people == want.count
+        # the matte the relight used is the person matte, and '.matte' shows the photo cut out by it
+        np.testing.assert_array_equal(run.decomposition.mask, want.alpha)
+        cut_out = pixels(f"{photo.name}.matte")
+        np.testing.assert_allclose(cut_out[..., 3], want.alpha, atol=1e-7)
+        np.testing.assert_allclose(cut_out[..., :3], run.photo, atol=1e-7)
+        np.testing.assert_allclose(pixels(f"{photo.name}.alpha")[..., 0], want.alpha, atol=1e-7)
+        inside = want.alpha > 0.5
+        assert 0.05 < inside.mean() < 0.95  # a person, not the frame or nothing
+        # outside the matte the photo is untouched
+        relit = pixels(f"{photo.name}.relit")[..., :3]
+        np.testing.assert_array_equal(relit[want.alpha == 0], run.photo[want.alpha == 0])
+        # a person the photo does not have: one sentence naming how many there are
+        settings.people_found = want.count + 1
+        settings.person = str(want.count + 1)
+        _error(f"Person {want.count + 1} is chosen, but the photo shows only {want.count} ",
+               image_name=photo.name)
+    finally:
+        settings.person = "1"
+        settings.people_found = 0
+        settings.mask_mode = "NETWORK"
+        for image in [i for i in bpy.data.images if i.name.startswith("grace_hopper.jpg")]:
+            bpy.data.images.remove(image)
+
+
+def test_automatic_mask_with_nobody_in_the_photo_says_so(addon, settings, tmp_path):
+    y, x = np.mgrid[0:H, 0:W]
+    wall = np.dstack([40 + (x * 3) % 50, 60 + (y * 2) % 40, np.full((H, W), 90)]).astype(np.uint8)
+    name = _png(tmp_path / "wall.png", wall)  # the background of our figure photo, without the figure
+    settings.mask_mode = "AUTO"
+    try:
+        _error("No person was found in the photo: set Mask to Network Matte", image_name=name)
+    finally:
+        settings.mask_mode = "NETWORK"
+        bpy.data.images.remove(bpy.data.images[name])

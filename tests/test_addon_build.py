@@ -116,12 +116,15 @@ def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
     for required in ("relight/runtime.py", "relight/sh.py", "relight/envmap.py", "relight/photo.py",
                      "relight/models/models.json", "relight/data/hdri/studio.exr"):
         assert required in names
-    # only the models Draft / Balanced / Best run ship, and the shipped registry lists exactly them
+    # only the models Draft / Balanced / Best and the person matte run ship; the registry lists exactly them
     from relight import models as core_models
     from relight import quality as core_quality
 
     registry = core_models.load_registry(core_models.REGISTRY_PATH)
+    from relight.matte import MODELS as MATTE_MODELS
+
     wanted = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS} | {registry["default"]}
+    wanted |= {name for name, _file in MATTE_MODELS.values()}  # the Automatic mask's person matte
     shipped = json.loads(wheel_json(tmp_path / core))
     assert set(shipped["models"]) == wanted and shipped["default"] == registry["default"]
     onnx = {n.rsplit("/", 1)[-1] for n in names if n.endswith(".onnx")}

@@ -41,7 +41,7 @@ def addon(model, tmp_path):
 def _setup(model, folder):
     photo = bpy.data.images.load(str(folder / "person.png"))
     s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "AUTO"
+    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
     s.light_kind, s.preset = "PRESET", "studio"
     s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
     return photo.name
