@@ -160,9 +160,13 @@ def read_photo(path: str | os.PathLike, max_pixels: int | None = None) -> tuple[
     _exists(path)
     with open(path, "rb") as f:
         magic = f.read(4)
-    if magic == EXR_MAGIC:
-        return _read_exr_photo(path, max_pixels)
-    return _read_pillow_photo(path, max_pixels)
+    with warnings.catch_warnings():
+        # Pillow's warnings (corrupt EXIF, tags past the end, bomb sizes: our check spoke first)
+        # would be stray stderr lines; the photo decodes or fails with one ValueError
+        warnings.simplefilter("ignore")
+        if magic == EXR_MAGIC:
+            return _read_exr_photo(path, max_pixels)
+        return _read_pillow_photo(path, max_pixels)
 
 
 # ------------------------------------------------------------------ Pillow
@@ -173,7 +177,7 @@ def _open_pillow(path: Path):
 
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
+            warnings.simplefilter("ignore")
             im = Image.open(path)
     except Image.DecompressionBombError:
         raise ValueError(f"{path}: image is too large (refused before decoding)") from None
@@ -197,7 +201,7 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
         if isinstance(rawmode, tuple):
             rawmode = rawmode[0]
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
+            warnings.simplefilter("ignore")
             if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
                 # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
                 decoded = _read_png16(path, max_pixels)
@@ -408,11 +412,13 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
     _exists(path)
     with open(path, "rb") as f:
         is_exr = f.read(4) == EXR_MAGIC
-    if is_exr:
-        img, alpha = _read_exr_photo(path, max_pixels)
-        mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
-    else:
-        mask = _read_pillow_mask(path, max_pixels)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # as in read_photo: no stray stderr lines
+        if is_exr:
+            img, alpha = _read_exr_photo(path, max_pixels)
+            mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
+        else:
+            mask = _read_pillow_mask(path, max_pixels)
     if mask.shape != tuple(shape):
         raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]} but the photo is "
                          f"{shape[1]}x{shape[0]}")
@@ -428,7 +434,7 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
     try:
         _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # bomb warnings (our size check spoke), corrupt EXIF: not stderr lines
+            warnings.simplefilter("ignore")
             im.load()
             im = ImageOps.exif_transpose(im)
             if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):

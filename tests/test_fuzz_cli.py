@@ -145,8 +145,8 @@ def _check_run(prop: str, argv: list[str], capfd) -> tuple[int, str]:
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_sh_arguments(files, capfd, data):
-    new_case("test_fuzz_sh_arguments")
     argv = data.draw(sh_argv(files))
+    new_case("test_fuzz_sh_arguments")
     code, out = _check_run("cli.sh", argv, capfd)
     if code == 0 and "-h" not in argv and "--help" not in argv:
         if out.startswith("{"):  # --json
@@ -160,10 +160,10 @@ def test_fuzz_sh_arguments(files, capfd, data):
 @given(st.data())
 @fuzz_settings(0.5)  # each case loads a model and runs the network: slower than the others
 def test_fuzz_image_arguments(files, capfd, data):
-    new_case("test_fuzz_image_arguments")
     out_dir = tempfile.mkdtemp(dir=files["dir"])
     (Path(out_dir) / "outdir").mkdir()
     argv = data.draw(image_argv(files, out_dir))
+    new_case("test_fuzz_image_arguments")
     code, _ = _check_run("cli.image", argv, capfd)
     written = [p for p in Path(out_dir).rglob("*") if p.is_file()]
     if code == 2:

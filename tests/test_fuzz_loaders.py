@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -102,17 +103,22 @@ def _forge_size(data: bytes, height: int, width: int) -> bytes:
 
 
 def _outcome(prop: str, load):
-    """Run one case: the result, or None after a one-line ValueError; anything else fails."""
-    try:
-        result = load()
-    except ValueError as exc:
-        one_line_error(exc)
-        record(prop, "ValueError")
-        return None
-    except BaseException as exc:
-        record(prop, type(exc).__name__)
-        raise
-    record(prop, "ok")
+    """Run one case: the result, or None after a one-line ValueError; anything else fails,
+    and so does a Python warning (it would be stderr lines in the CLI)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result, outcome = load(), "ok"
+        except ValueError as exc:
+            one_line_error(exc)
+            result, outcome = None, "ValueError"
+        except BaseException as exc:
+            record(prop, type(exc).__name__)
+            raise
+    if caught:
+        record(prop, "warning")
+    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
+    record(prop, outcome)
     return result
 
 
@@ -132,9 +138,9 @@ def folder(tmp_path_factory):
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_photo_loader(seeds, folder, data):
-    new_case("test_fuzz_photo_loader")
     path = folder / "photo.bin"
     path.write_bytes(data.draw(mutated(seeds)))
+    new_case("test_fuzz_photo_loader")
     result = _outcome("photo", lambda: photo.read_photo(path))
     if result is not None:
         _check_image(*result)
@@ -143,16 +149,18 @@ def test_fuzz_photo_loader(seeds, folder, data):
 @given(st.data(), st.tuples(st.integers(1, 16), st.integers(1, 16)))
 @fuzz_settings()
 def test_fuzz_mask_loader(seeds, folder, data, shape):
-    new_case("test_fuzz_mask_loader")
     path = folder / "mask.bin"
     raw = data.draw(mutated(seeds))
     path.write_bytes(raw)
     if data.draw(st.booleans()):  # the shape of the file itself, when it has one: the mask is then read
-        try:
-            with Image.open(io.BytesIO(raw)) as im:
-                shape = im.size[::-1]
-        except Exception:
-            pass
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                with Image.open(io.BytesIO(raw)) as im:
+                    shape = im.size[::-1]
+            except Exception:
+                pass
+    new_case("test_fuzz_mask_loader")
     mask = _outcome("mask", lambda: photo.read_mask(path, shape))
     if mask is not None:
         assert mask.shape == tuple(shape) and mask.dtype == np.float32
@@ -183,9 +191,9 @@ def exr_file(draw, folder) -> bytes:
 @given(st.data())
 @fuzz_settings()
 def test_fuzz_exr_loaders(folder, data):
-    new_case("test_fuzz_exr_loaders")
     path = folder / "gen.exr"
     path.write_bytes(data.draw(exr_file(folder)))
+    new_case("test_fuzz_exr_loaders")
     channels = _outcome("exr.read_exr", lambda: exr.read_exr(path))
     if channels is not None:
         assert channels and all(a.ndim == 2 and a.dtype in (np.float32, np.uint32) for a in channels.values())
@@ -218,9 +226,9 @@ def hdr_file(draw) -> bytes:
 @given(hdr_file())
 @fuzz_settings()
 def test_fuzz_hdr_loader(folder, data):
-    new_case("test_fuzz_hdr_loader")
     path = folder / "gen.hdr"
     path.write_bytes(data)
+    new_case("test_fuzz_hdr_loader")
     img = _outcome("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
     if img is not None:
         assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32

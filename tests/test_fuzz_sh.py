@@ -9,6 +9,7 @@ one-line ValueError; never NaN, another exception, or an overflow.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 from hypothesis import given
@@ -43,16 +44,22 @@ def maps(draw):
 
 
 def _run(prop, fn):
-    try:
-        result = fn()
-    except ValueError as exc:
-        one_line_error(exc)
-        record(prop, "ValueError")
-        return None
-    except BaseException as exc:
-        record(prop, type(exc).__name__)
-        raise
-    record(prop, "ok")
+    """One case: the result, or None after a one-line ValueError; another exception or a
+    Python warning (stderr lines in the CLI) fails."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result, outcome = fn(), "ok"
+        except ValueError as exc:
+            one_line_error(exc)
+            result, outcome = None, "ValueError"
+        except BaseException as exc:
+            record(prop, type(exc).__name__)
+            raise
+    if caught:
+        record(prop, "warning")
+    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
+    record(prop, outcome)
     return result
 
 
