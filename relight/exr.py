@@ -9,6 +9,7 @@ raised for a file that is refused.
 from __future__ import annotations
 
 import ctypes
+import io
 import os
 import sys
 import tempfile
@@ -32,7 +33,14 @@ def _openexr():
 
 
 _CAPTURE_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one capture at a time
-_LIBC = ctypes.CDLL(None)
+
+
+def _flush_c_stdio() -> None:
+    """fflush(NULL): C and C++ (synced) stdio buffers out to their fds now."""
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, TypeError, AttributeError):  # no C runtime reachable this way (Windows)
+        pass
 
 
 @contextmanager
@@ -41,8 +49,9 @@ def library_output_captured():
     holds, afterwards, the non-empty lines a C library wrote there.
 
     C stdio buffers are flushed before the fds are restored, so nothing the
-    library wrote escapes later. Python's own sys.stdout/sys.stderr are flushed
-    first so their pending text is not captured by mistake.
+    library wrote escapes later; sys.stdout is swapped for a buffer too (the
+    binding prints through it). Python's own pending output is flushed first
+    so it is not captured by mistake.
     """
     lines: list[str] = []
     with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
@@ -62,19 +71,17 @@ def library_output_captured():
                 os.close(copy)
             yield lines
             return
+        python_stdout, sys.stdout = sys.stdout, io.StringIO()  # the binding's own prints go through it
         try:
             yield lines
         finally:
-            try:
-                sys.stdout.flush()  # pybind11 prints through sys.stdout
-            except (AttributeError, ValueError, OSError):
-                pass
-            _LIBC.fflush(None)
+            printed, sys.stdout = sys.stdout.getvalue(), python_stdout
+            _flush_c_stdio()
             for fd, copy in saved:
                 os.dup2(copy, fd)
                 os.close(copy)
             sink.seek(0)
-            text = sink.read(1 << 16).decode("utf-8", errors="replace")
+            text = sink.read(1 << 16).decode("utf-8", errors="replace") + "\n" + printed
             lines.extend(line.strip() for line in text.splitlines() if line.strip())
 
 
