@@ -36,20 +36,32 @@ def _median(fn, repeats: int) -> tuple[float, float]:
 def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
     """Median wall time of each step of person_matte (the same private steps, in order)."""
     from relight import matte
+    from relight.colour import srgb_encode
 
-    session = matte._session(None, threads)
     H, W = photo.shape[:2]
     out = {}
     small = matte._area_shrink(photo, matte.GUIDE_SIZE)
-    out["shrink (k x k block mean)"] = _median(lambda: matte._area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
-    prob = matte._probability(session, small)
-    out["network (incl. resize, sRGB)"] = _median(lambda: matte._probability(session, small), repeats)[0]
-    chosen, _, _ = matte._choose(prob, None)
-    out["people (components)"] = _median(lambda: matte._choose(prob, None), repeats)[0]
-    refined = matte._refine(small, chosen)
-    out["edge refinement"] = _median(lambda: matte._refine(small, chosen), repeats)[0]
-    out["full-resolution upsample"] = _median(lambda: matte._upsample_support(refined, H, W), repeats)[0]
-    alpha = matte._upsample_support(refined, H, W)
+    out["shrink to 512-1023 px"] = _median(lambda: matte._area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
+    small_srgb = srgb_encode(small).astype(np.float32)
+    grid = matte._area_shrink(small_srgb, matte.NET_SIDE)
+    out["sRGB + grid"] = _median(lambda: matte._area_shrink(srgb_encode(small).astype(np.float32),
+                                                            matte.NET_SIDE), repeats)[0]
+    selfie = matte._session("selfie", threads)
+    out["selfie network"] = _median(lambda: matte._selfie(selfie, grid), repeats)[0]
+    detector = matte._session("detector", threads)
+    keypoints = matte._detect(detector, small_srgb)
+    out["pose detector + NMS"] = _median(lambda: matte._detect(detector, small_srgb), repeats)[0]
+    pose = matte._session("pose", threads)
+    k = max(1, max(small.shape[:2]) // matte.NET_SIDE)
+    out["pose segmentation (1 person)"] = _median(
+        lambda: matte._pose_mask(pose, small_srgb, keypoints[0], grid.shape[:2], k), repeats)[0]
+    people = matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH)
+    out["people (all networks + combination)"] = _median(
+        lambda: matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH), repeats)[0]
+    edge = matte._edge(small, grid, people[0], True)
+    out["guided edge"] = _median(lambda: matte._edge(small, grid, people[0], True), repeats)[0]
+    out["full-resolution upsample"] = _median(lambda: matte._upsample_support(edge, H, W), repeats)[0]
+    alpha = matte._upsample_support(edge, H, W)
     out["box"] = _median(lambda: matte._box(alpha), repeats)[0]
     return out
 

@@ -1,17 +1,17 @@
 """Person mattes against reference mattes on real photos: `python -m relight.matte_eval`.
 
-    python -m relight.matte_eval [--photos DIR] [--matte person|raw|network] [--model ONNX]
+    python -m relight.matte_eval [--photos DIR] [--matte person|raw|selfie|pose|network]
                                  [--threads N] [--repeat N] [--json OUT.json]
 
 For every photo of DIR (default: the bundled set relight/data/matte_eval,
 references in DIR/reference/NAME.png, white = person) prints the IoU of
 alpha > 0.5 with the reference, the boundary F-score and the time the matte
 took (median of --repeat runs after one warm-up). `--matte person` is
-relight.matte.person_matte as shipped, `raw` the same network without the
-edge refinement (its mask upsampled bilinearly), `network` the relighting
+relight.matte.person_matte as shipped (the selfie and pose segmentations
+combined, guided edge), `raw` the same without the guided edge, `selfie` and
+`pose` one network each (with the guided edge), `network` the relighting
 network's alpha head (Relighter.decompose(matte="network"), the matte
-`relight image --mask network` uses). `--model` swaps the segmenter for
-another ONNX file of the same interface (it needs a .sha256 beside it).
+`relight image --matte network` uses).
 
 Boundary F-score: the boundary of a mask is its pixels with a 4-neighbour
 outside it; precision is the share of predicted boundary pixels within
@@ -34,7 +34,7 @@ EVAL_DIR = Path(__file__).resolve().parent / "data" / "matte_eval"
 REFERENCE_SUBDIR = "reference"
 BOUNDARY_TOLERANCE = 0.008   # of the image diagonal
 THRESHOLD = 0.5
-MATTES = ("person", "raw", "network")
+MATTES = ("person", "raw", "selfie", "pose", "network")
 
 
 def iou(alpha: np.ndarray, reference: np.ndarray) -> float:
@@ -106,7 +106,7 @@ def read_reference(path: Path, shape) -> np.ndarray:
     return ref
 
 
-def _matte_function(kind: str, model: str | None, threads: int | None):
+def _matte_function(kind: str, threads: int | None):
     if kind == "network":
         from relight import quality
         from relight.runtime import Relighter
@@ -115,17 +115,18 @@ def _matte_function(kind: str, model: str | None, threads: int | None):
         return lambda photo: relighter.decompose(photo, matte="network").full_alpha()
     from relight.matte import person_matte
 
-    return lambda photo: person_matte(photo, model_path=model, threads=threads, refine=kind == "person").alpha
+    method = {"person": "ensemble", "raw": "ensemble"}.get(kind, kind)
+    return lambda photo: person_matte(photo, threads=threads, method=method, refine=kind != "raw").alpha
 
 
-def evaluate(kind: str = "person", folder: Path = EVAL_DIR, model: str | None = None,
-             threads: int | None = None, repeat: int = 3) -> list[dict]:
+def evaluate(kind: str = "person", folder: Path = EVAL_DIR, threads: int | None = None,
+             repeat: int = 3) -> list[dict]:
     """One row per photo: name, size, iou, boundary_f, ms (median of `repeat` after a warm-up)."""
     from relight.photo import read_photo
 
     if kind not in MATTES:
         raise ValueError(f"--matte must be one of {MATTES}, got {kind!r}")
-    run = _matte_function(kind, model, threads)
+    run = _matte_function(kind, threads)
     rows = []
     for name, photo_path, ref_path in eval_photos(folder):
         photo, _ = read_photo(photo_path)
@@ -159,18 +160,17 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m relight.matte_eval", description=__doc__.split("\n\n")[0])
     p.add_argument("--photos", type=Path, default=EVAL_DIR, help="folder of photos with reference/NAME.png")
     p.add_argument("--matte", choices=MATTES, default="person")
-    p.add_argument("--model", default=None, help="another segmenter ONNX (same interface as the shipped one)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.add_argument("--repeat", type=int, default=3, help="timed runs per photo after a warm-up (0: none)")
     p.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     args = p.parse_args(argv)
     try:
-        rows = evaluate(args.matte, args.photos, args.model, args.threads, max(0, args.repeat))
+        rows = evaluate(args.matte, args.photos, args.threads, max(0, args.repeat))
         print(format_table(rows, args.matte))
         if args.json is not None:
             from relight.fileio import atomic_write_json
 
-            atomic_write_json(args.json, {"matte": args.matte, "model": args.model, "rows": rows}, indent=2)
+            atomic_write_json(args.json, {"matte": args.matte, "rows": rows}, indent=2)
     except (ValueError, OSError) as exc:
         print(f"relight.matte_eval: error: {exc}", file=sys.stderr)
         return 2

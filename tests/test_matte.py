@@ -20,24 +20,55 @@ def _photo(name: str) -> np.ndarray:
     return image
 
 
-def test_shipped_model_is_registered_and_hash_checked(tmp_path):
-    path = matte.matte_model_path()
-    assert path.name == "person_matte.onnx" and path.is_file()
-    # a byte changed: refused before onnxruntime sees it, with the registry's hash or the sidecar's
-    bad = tmp_path / path.name
-    data = bytearray(path.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    bad.write_bytes(bytes(data))
-    shutil.copy(path.with_name(path.name + ".sha256"), tmp_path)
-    with pytest.raises(ValueError, match="SHA-256 mismatch"):
-        matte.person_matte(_photo("biden"), model_path=bad, registry_path=tmp_path / "models.json")
-    (tmp_path / (path.name + ".sha256")).unlink()
-    with pytest.raises(ValueError, match="no SHA-256 to check it against"):
-        matte.person_matte(_photo("biden"), model_path=bad, registry_path=tmp_path / "models.json")
-    # the registry of the package names the same hash as the sidecar
+def _registry_copy(folder: Path) -> Path:
+    """The shipped matte networks and a registry of only them, copied into `folder`."""
+    import json
+
+    from relight.models import load_registry
+
+    registry = load_registry(REGISTRY_PATH)
+    names = [name for name, _ in matte.MODELS.values()]
+    copy = {"format": registry["format"], "default": None, "models": {n: registry["models"][n] for n in names}}
+    for path in matte.model_paths().values():
+        shutil.copy(path, folder)
+        shutil.copy(path.with_name(path.name + ".sha256"), folder)
+    (folder / "models.json").write_text(json.dumps(copy))
+    return folder / "models.json"
+
+
+@pytest.mark.parametrize("kind", sorted(matte.MODELS))
+def test_shipped_networks_are_registered_and_hash_checked(tmp_path, kind):
     from relight.models import load_registry, read_sidecar
 
-    assert load_registry(REGISTRY_PATH)["models"][matte.MATTE_MODEL_NAME]["sha256"] == read_sidecar(path)
+    paths = matte.model_paths()
+    entries = load_registry(REGISTRY_PATH)["models"]
+    for k, (name, file) in matte.MODELS.items():  # the registry's hash is the sidecar's
+        assert paths[k].name == file and entries[name]["sha256"] == read_sidecar(paths[k])
+    registry = _registry_copy(tmp_path)
+    photo = _photo("biden")
+    # one byte of one network changed: refused before onnxruntime sees it
+    bad = tmp_path / paths[kind].name
+    good = bad.read_bytes()
+    data = bytearray(good)
+    data[len(data) // 2] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="SHA-256 mismatch"):
+        matte.person_matte(photo, registry_path=registry)
+    bad.write_bytes(good)
+    assert matte.person_matte(photo, registry_path=registry).count == 1  # the intact copy loads
+    bad.write_bytes(bytes(data))
+    # no recorded hash at all (sidecar gone, entry gone): refused too
+    import json
+
+    reg = json.loads(registry.read_text())
+    del reg["models"][matte.MODELS[kind][0]]
+    (tmp_path / "other").mkdir()
+    for p in tmp_path.glob("*.onnx*"):
+        shutil.copy(p, tmp_path / "other")
+    (tmp_path / "other" / (bad.name + ".sha256")).unlink()
+    (tmp_path / "other" / "models.json").write_text(json.dumps(reg))
+    with pytest.raises(ValueError, match="no SHA-256 to check it against"):
+        matte.person_matte(photo, registry_path=tmp_path / "other" / "models.json")
 
 
 def test_matte_of_a_photo_is_soft_bounded_and_boxed():
@@ -62,10 +93,12 @@ def test_several_people_largest_first_and_selectable():
     first, again, second = (matte.person_matte(both, p) for p in (None, 1, 2))
     assert first.count == second.count == 2 and (first.index, second.index) == (1, 2)
     np.testing.assert_array_equal(first.alpha, again.alpha)
-    # Biden fills more of his half than Obama of his: he is person 1, alone in his matte
-    assert first.alpha[:, :split].mean() > 0.5 and first.alpha[:, split + 20:].max() == 0.0
-    assert second.alpha[:, split + 20:].mean() > 0.3 and second.alpha[:, :split - 20].max() == 0.0
-    assert first.box[2] <= split + 20 and second.box[0] >= split - 20
+    # Biden fills more of his half than Obama of his: he is person 1; each matte holds one man
+    # (measured: person 1 reaches 52 px past the seam with at most 0.14, the pose mask's soft tail)
+    assert first.alpha[:, :split].mean() > 0.5 and first.alpha[:, split + 20:].max() < 0.5
+    assert first.alpha[:, split + 20:].mean() < 0.01
+    assert second.alpha[:, split + 20:].mean() > 0.3 and second.alpha[:, :split - 20].max() < 0.5
+    assert first.box[2] <= split + 80 and second.box[0] >= split - 20
     with pytest.raises(ValueError, match="person 3 asked for, but the photo shows 2 people"):
         matte.person_matte(both, 3)
     for bad in (0, -1, 1.5, True, "2"):
@@ -100,13 +133,14 @@ def test_bad_input_is_one_clear_error(image, message):
     assert "\n" not in str(info.value)
 
 
-# measured 2026-11-22 (python -m relight.matte_eval): IoU astronaut 0.790, biden 0.991, camera 0.953,
-# grace_hopper 0.990, obama 0.983, obama_standing 0.988, mean 0.949. Margin 0.03 for runtime and
+# measured 2026-11-22 (python -m relight.matte_eval): IoU astronaut 0.950, biden 0.961, camera 0.929,
+# grace_hopper 0.987, obama 0.985, obama_standing 0.989, mean 0.967. Margin 0.03 for runtime and
 # library drift (onnxruntime, Pillow resampling); a matte that lost a limb or took in the background
-# falls far below (the network alpha head: mean 0.5 on the same photos, docs/MATTE.md).
+# falls far below (the network alpha head: mean 0.49 on the same photos; the selfie network alone
+# 0.76 on the astronaut, whose helmet it takes in: docs/MATTE.md).
 IOU_MARGIN = 0.03
-MEASURED_IOU = {"astronaut": 0.790, "biden": 0.991, "camera": 0.953, "grace_hopper": 0.990,
-                "obama": 0.983, "obama_standing": 0.988}
+MEASURED_IOU = {"astronaut": 0.950, "biden": 0.961, "camera": 0.929, "grace_hopper": 0.987,
+                "obama": 0.985, "obama_standing": 0.989}
 
 
 def test_matte_matches_the_references_of_the_bundled_photos():
