@@ -237,3 +237,23 @@ def test_cli_greyscale_16bit_and_alpha_files(tmp_path):
     relit, _ = read_photo(tmp_path / "alpha_out.png")
     original, _ = read_photo(alpha)
     np.testing.assert_array_equal(relit[:, 200:], original[:, 200:])
+
+
+def test_decompose_takes_the_person_matte_as_its_mask():
+    from relight import quality
+    from relight.runtime import Relighter
+
+    photo = _photo("obama_standing")
+    relighter = Relighter(quality.model_path("draft"), threads=1, working_size="draft")
+    d = relighter.decompose(photo, matte="person", person=1)
+    expected = matte.person_matte(photo)
+    np.testing.assert_array_equal(d.mask, expected.alpha)  # exactly the matte, as a given mask would be
+    assert (d.person_matte.index, d.person_matte.count) == (1, 1)
+    x0, y0, x1, y1 = expected.box
+    by, by1, bx, bx1 = d.box  # the crop holds the person (plus the runtime's margin)
+    assert by <= y0 and bx <= x0 and by1 >= y1 and bx1 >= x1
+    assert relighter.decompose(photo).person_matte is None  # the API's default stays the network's alpha
+    with pytest.raises(ValueError, match="matte must be one of"):
+        relighter.decompose(photo, matte="auto")
+    with pytest.raises(matte.NoPersonError):
+        relighter.decompose(np.full((200, 300, 3), 0.3, np.float32), matte="person")

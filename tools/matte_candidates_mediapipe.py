@@ -1,6 +1,6 @@
 """The MediaPipe candidates of docs/MATTE.md, run by MediaPipe itself on the bundled evaluation photos.
 
-Not run by CI: needs the scratch environment of tools/convert_selfie_matte.py
+Not run by CI: needs the scratch environment of tools/convert_mediapipe_matte.py
 with mediapipe 0.10.21 (numpy<2, protobuf<5):
 
     /tmp/mattevenv/bin/python tools/matte_candidates_mediapipe.py
