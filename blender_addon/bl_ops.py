@@ -295,6 +295,8 @@ def _full_when_resting():
     running = state.RUNNING.get("dial")
     if running is not None and not running.finished:
         return POLL_SECONDS  # one full-size relight at a time: start when that one ends
+    if session.provisional:
+        return POLL_SECONDS  # reopening: the full photo is still being read
     try:
         dials = _dials(context, session)
     except ValueError as exc:
@@ -421,13 +423,14 @@ def on_save_post(*_args) -> None:
         if bl_images.photo_by_id(session.photo_id) is None:
             continue
         path = pipeline.saved_relight_path(blend, session.photo_id)
-        if session.saved_to == path and os.path.isfile(path):
-            continue
+        if session.provisional or (session.saved_to == path and os.path.isfile(path)):
+            continue  # a provisional session's file is the one it came from
         meta = dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
                     quality=session.quality, mask_key=list(session.mask_key), source=session.source,
                     lights=_lights_to_save())
         try:
-            engine.save_decomposition(path, session.decomposition, meta)
+            engine.save_decomposition(path, session.decomposition, meta,
+                                      None if session.provisional else session.preview)
         except OSError as exc:
             _set_status(bpy.context, f"The relight of '{session.source}' could not be saved next to the "
                         f".blend ({exc.strerror or exc}): it will need Relight after reopening.", is_error=True)
@@ -500,6 +503,8 @@ def restore_saved(context) -> int:
     immediately = _updates_immediately()
     for plan in plans:
         plan["preview_first"] = not immediately
+        if not immediately:
+            _show_saved_preview(context, plan)
     job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
     job.plans = plans
     state.RUNNING["restore"] = job
@@ -509,6 +514,26 @@ def restore_saved(context) -> int:
     else:
         bpy.app.timers.register(_poll_restore, first_interval=POLL_SECONDS)
     return len(plans)
+
+
+def _show_saved_preview(context, plan: dict) -> None:
+    """Right after opening: the saved screen-sized photo relit into '<photo>.preview'
+    and a provisional session on it, so the result shows and the dials work while
+    the worker re-reads the full photo."""
+    meta = plan["meta"]
+    preview = engine.saved_preview(plan["arrays"], meta)
+    if preview is None:
+        return
+    session = state.PhotoSession(
+        photo_id=meta["photo_id"], source=plan["source"], photo=preview.photo, decomposition=preview,
+        model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
+        digest=meta["digest"], preview=preview, saved_to=plan["path"], provisional=True)
+    state.SESSIONS[session.photo_id] = session
+    _write_output(session, "preview", engine.relit_rgba(preview, *plan["dials"]), preview.size)
+    show_in_editors(session, "preview")
+    settings = _settings(context)
+    if settings.last_photo_id not in state.SESSIONS:
+        settings.last_photo_id = session.photo_id
 
 
 def _poll_restore():
@@ -530,14 +555,29 @@ def _finish_restore(context, job) -> None:
         return
     settings = _settings(context)
     for (session, buffers), plan in zip(job.result, job.plans):
+        provisional = state.SESSIONS.get(session.photo_id)
         state.SESSIONS[session.photo_id] = session
         if "albedo" in buffers:
             for layer in LAYER_ORDER:
-                _write_output(session, layer, buffers[layer], session.photo.shape[:2])
-        else:  # the preview now, every layer at full size from a worker
+                if layer in buffers:
+                    _write_output(session, layer, buffers[layer], session.photo.shape[:2])
+            continue
+        dials = plan["dials"]
+        if provisional is not None and provisional.provisional:
+            # the dials may have moved on the provisional preview: carry on from there
+            # (the full-size layers below use the dials as they are now: no rest timer needed)
+            session.dial_generation = provisional.dial_generation
+            if bpy.app.timers.is_registered(_full_when_resting):
+                bpy.app.timers.unregister(_full_when_resting)
+            try:
+                dials = _dials(context, session)
+            except ValueError as exc:
+                _set_status(context, str(exc), is_error=True)
+                continue
+        else:  # no saved preview: show the one just made, then every layer at full size
             _write_output(session, "preview", buffers["relit"], session.preview.size)
             show_in_editors(session, "preview")
-            start_full_size(session, plan["dials"], with_layers=True)
+        start_full_size(session, dials, with_layers=True)
     if settings.last_photo_id not in state.SESSIONS and job.result:
         settings.last_photo_id = job.result[0][0].photo_id
 
@@ -842,6 +882,8 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             session = current_session(context)
         if session is None:
             raise ValueError("Relight the photo first: there are no layers to save yet.")
+        if session.provisional:
+            raise ValueError("The photo is still being read after opening the file: save the layers in a moment.")
         return session
 
     def invoke(self, context, event):

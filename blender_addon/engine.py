@@ -202,15 +202,23 @@ SAVE_FORMAT = "relight-photo-decomposition/1"
 _HALF = ("albedo", "transport", "residual", "photo_working")  # fp16: ample for 8-bit photos and light
 
 
-def save_decomposition(path: str | os.PathLike, decomposition, meta: dict) -> Path:
-    """Write the decomposition (network outputs at working resolution, no photo) as a
-    compressed .npz, atomically; `meta` (plain values) is stored with it."""
+def save_decomposition(path: str | os.PathLike, decomposition, meta: dict, preview=None) -> Path:
+    """Write the decomposition (network outputs at working resolution, no photo; the
+    preview's screen-sized photo when given) as a compressed .npz, atomically; `meta`
+    (plain values) is stored with it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {name: getattr(decomposition, name).astype(np.float16 if name in _HALF else np.float32)
               for name in (*_HALF, "alpha", "light")}
     info = dict(meta, format=SAVE_FORMAT, box=list(decomposition.box),
                 working_size=list(decomposition.working_size), sh_order=int(decomposition.sh_order))
+    if preview is not None:
+        # the screen-sized photo (and mask) too: reopening shows a relit preview
+        # and the dials work before the full photo has been read again
+        arrays["preview_photo"] = preview.photo.astype(np.float16)
+        if preview.mask is not None:
+            arrays["preview_mask"] = preview.mask.astype(np.float16)
+        info["preview_box"] = list(preview.box)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez_compressed(tmp, meta=np.array(json.dumps(info)), **arrays)
     os.replace(tmp, path)
@@ -230,14 +238,23 @@ def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:
     return arrays, meta
 
 
-def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None):
+def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None,
+                          box: tuple | None = None):
     """A relight.runtime.Decomposition from saved arrays over the (re-read) photo."""
     from relight.runtime import Decomposition
 
     return Decomposition(albedo=arrays["albedo"], transport=arrays["transport"], residual=arrays["residual"],
-                         light=arrays["light"], alpha=arrays["alpha"], box=tuple(meta["box"]),
+                         light=arrays["light"], alpha=arrays["alpha"], box=tuple(box or meta["box"]),
                          working_size=tuple(meta["working_size"]), photo=photo,
                          photo_working=arrays["photo_working"], mask=mask, sh_order=int(meta["sh_order"]))
+
+
+def saved_preview(arrays: dict, meta: dict):
+    """The preview decomposition kept by save_decomposition, or None."""
+    if "preview_photo" not in arrays:
+        return None
+    return rebuild_decomposition(arrays, meta, np.ascontiguousarray(arrays["preview_photo"]),
+                                 arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
 
 
 def expected_seconds(model_path: str, working_size: int) -> float | None:

@@ -32,6 +32,7 @@ class PhotoSession:
     saved_to: str = ""          # the file this decomposition was last saved to
     dial_generation: int = 0    # bumped on every dial change: a late full-size result is dropped
     people: int = 0             # people the person matte found (AUTO mask), else 0
+    provisional: bool = False   # reopening: only the saved preview so far (photo and decomposition at preview size)
     extras: dict = field(default_factory=dict)
 
 

@@ -14,7 +14,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, pipeline, state
+from blender_addon import bl_images, bl_ops, pipeline, state
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
@@ -95,3 +95,44 @@ def test_a_photo_changed_on_disk_is_not_restored_as_if_it_were_the_same(addon, m
     status = bpy.context.window_manager.relight_photo_status
     assert status.is_error and status.message == f"The photo '{name}' changed since it was relit: press Relight."
     assert state.SESSIONS == {}
+
+
+def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_the_photo_is_read(
+        addon, model, monkeypatch):
+    name = _setup(model, addon)
+    monkeypatch.setattr(bl_ops, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo counts as large
+    assert _relight(name) == {"FINISHED"}
+    pid = bpy.data.images[name][bl_images.PHOTO_ID]
+    before = state.SESSIONS[pid].preview.relight("studio")
+    blend = addon / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)  # as with a UI: timers, workers
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        # no timer has run yet: the preview is back from the saved file, on a provisional session
+        session = state.SESSIONS[pid]
+        assert session.provisional and session.photo.shape[:2] == (24, 16)
+        np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3], before, rtol=HALF, atol=HALF)
+        with pytest.raises(RuntimeError, match="still being read"):
+            bpy.ops.relight_photo.save_layers(filepath=str(addon / "x.exr"), image_name=name)
+        settings = bpy.context.scene.relight_photo
+        settings.rotation = math.radians(50.0)
+        assert bl_ops._deferred_refresh() is None  # the dial already works, on the preview
+        np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3],
+                                   session.preview.relight("studio", rotation_deg=50.0), atol=1e-5)
+        assert bl_ops._full_when_resting() is not None  # the full size waits for the photo
+        # the worker has read the photo: the full-size layers follow the dial as it is now
+        state.RUNNING["restore"].wait(60)
+        assert bl_ops._poll_restore() is None
+        restored = state.SESSIONS[pid]
+        assert not restored.provisional and restored.photo.shape[:2] == (72, 48)
+        state.RUNNING["dial"].wait(60)
+        while bl_ops._poll_full_size() is not None:
+            pass
+        full = restored.decomposition.relight("studio", rotation_deg=50.0)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], full, atol=1e-5)
+        assert all(tuple(bpy.data.images[f"{name}.{layer}"].size) == (48, 72) for layer in LAYERS)
+    finally:
+        for timer in bl_ops._TIMERS:
+            if bpy.app.timers.is_registered(timer):
+                bpy.app.timers.unregister(timer)

@@ -38,16 +38,20 @@ def _inside(zip_path: str, model: str, user_dir: str) -> int:
         module = importlib.import_module(name)
         where = "bundled wheel" if str(site) in str(module.__file__) else "NOT bundled"
         print(f"{name:12s} {where}: {module.__file__}")
-    import numpy as np
-    from PIL import Image
+    import shutil
 
-    photo = Path(user_dir) / "photo.png"
-    Image.fromarray((np.random.default_rng(0).uniform(0, 1, (120, 80, 3)) * 255).astype(np.uint8)).save(photo)
+    # a real photo (public domain, from the checkout; the zip ships no photos), so the
+    # Automatic mask runs the person matte's networks from the bundled wheel too
+    photo = Path(user_dir) / "photo.jpg"
+    shutil.copy(Path(__file__).resolve().parents[2] / "relight" / "data" / "matte_eval" / "grace_hopper.jpg",
+                photo)
     image = bpy.data.images.load(str(photo))
     settings = bpy.context.scene.relight_photo
     settings.model_path = model
     settings.preset = "sunset"
+    settings.mask_mode = "AUTO"
     print("relight:", sorted(bpy.ops.relight_photo.relight(image_name=image.name, synchronous=True)))
+    print("people found:", settings.people_found)
     out = Path(user_dir) / "layers.exr"
     print("save layers:", sorted(bpy.ops.relight_photo.save_layers(filepath=str(out), image_name=image.name)))
     from relight.exr import read_exr
