@@ -29,8 +29,11 @@ from relight.colour import srgb_encode
 from relight.fileio import atomic_path, atomic_write_text
 from relight.runtime import QUALITY_SIZES, Relighter, resize_linear
 
-# training presets (not relight.presets.HELD_OUT): what a user would pick, not an evaluation light
-SHEET_PRESETS = ("sunset", "studio", "forest")
+# a directional light turned about the person (relight.sh.directional_light): a viewer
+# should see it move across the body; then a training preset (not relight.presets.HELD_OUT),
+# what a user would pick, at two rotations
+SHEET_DIRECTIONS = (0.0, 90.0, 180.0, 270.0)
+SHEET_PRESETS = ("sunset",)
 SHEET_ROTATIONS = (0.0, 180.0)
 EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples"
 TILE = 192          # px: each contact-sheet image is fitted into a TILE x TILE box
@@ -47,6 +50,7 @@ class PhotoResult:
     matte: str                         # "predicted" or "file alpha"
     coverage: float                    # mean matte over the crop the network saw
     light_luminance: float             # mean luminance of the predicted light
+    light_motion: float                # metrics.spatial_change of the person, directional light 0 vs 180 deg
     reconstruction: dict[str, float] | None  # l1, l2, psnr; None when the matte is empty
     tiles: list[np.ndarray]            # linear [H, W, 3] images for the contact sheet
 
@@ -63,7 +67,8 @@ def find_photos(folder) -> list[Path]:
 
 
 def column_labels() -> list[str]:
-    return ["input", "albedo"] + [f"{p} {r:g} deg" for p in SHEET_PRESETS for r in SHEET_ROTATIONS]
+    return (["input", "albedo"] + [f"light from {a:g} deg" for a in SHEET_DIRECTIONS]
+            + [f"{p} {r:g} deg" for p in SHEET_PRESETS for r in SHEET_ROTATIONS])
 
 
 def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
@@ -79,6 +84,12 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         recon = None
     albedo = dec.layers(light=dec)["albedo"]
     tiles = [image, albedo]
+    working = {}
+    for azimuth in SHEET_DIRECTIONS:
+        light = sh.directional_light(azimuth, dec.sh_order)
+        tiles.append(dec.relight(light))
+        working[azimuth] = dec.relight_working(light)
+    motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
     for name in SHEET_PRESETS:
         for rotation in SHEET_ROTATIONS:
             tiles.append(dec.relight(name, rotation_deg=rotation))
@@ -86,6 +97,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         name=path.name, size=image.shape[:2], working_size=dec.working_size,
         matte="predicted" if file_mask is None else "file alpha",
         coverage=float(dec.alpha.mean()), light_luminance=float(sh.mean_luminance(dec.light)),
+        light_motion=motion,
         reconstruction=recon, tiles=tiles)
 
 
@@ -137,22 +149,28 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
             "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
             "this measures self-consistency, not relighting accuracy.")
     lines = [f"# Real photos (`{model}`)", "", note, "",
-             "| photo | size | matte | matte coverage | light mean luminance | L1 | L2 | PSNR |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| photo | size | matte | matte coverage | light mean luminance | light motion | L1 | L2 | PSNR |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         m = r.reconstruction
         cells = ["-", "-", "- (empty matte)"] if m is None else \
             [f"{100 * m['l1']:.2f}", f"{100 * m['l2']:.3f}", f"{m['psnr']:.2f}"]
         lines.append(f"| {r.name} | {r.size[1]}x{r.size[0]} | {r.matte} | {100 * r.coverage:.0f}% | "
-                     f"{r.light_luminance:.3f} | " + " | ".join(cells) + " |")
+                     f"{r.light_luminance:.3f} | {r.light_motion:.3f} | " + " | ".join(cells) + " |")
     measured = [r.reconstruction for r in results if r.reconstruction is not None]
     if len(measured) > 1:
         means = {k: float(np.mean([m[k] for m in measured])) for k in ("l1", "l2", "psnr")}
-        lines.append(f"| mean of {len(measured)} | | | | | {100 * means['l1']:.2f} | "
+        motion = float(np.mean([r.light_motion for r in results]))
+        lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {100 * means['l1']:.2f} | "
                      f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
-    lines += ["", "Contact sheet columns: " + ", ".join(column_labels()) +
-              " (presets are bundled training maps, scaled to mean luminance 0.8; "
-              "rotations turn the light about the vertical axis)."]
+    lines += ["", "Light motion: model.metrics.spatial_change of the relit person (working resolution, "
+              "weighted by the matte) between a directional light at 0 and at 180 degrees "
+              "(relight.sh.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
+              "same number for ground-truth renders of held-out scenes.", "",
+              "Contact sheet columns: " + ", ".join(column_labels()) +
+              " (the directional light is white, 30 degrees up, with 20% ambient; presets are bundled "
+              "training maps; all lights scaled to mean luminance 0.8; rotations turn the light about the "
+              "vertical axis)."]
     return "\n".join(lines) + "\n"
 
 
@@ -175,6 +193,7 @@ def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced",
               "presets": list(SHEET_PRESETS), "rotations_deg": list(SHEET_ROTATIONS),
               "photos": [{"name": r.name, "size": list(r.size), "working_size": list(r.working_size),
                           "matte": r.matte, "coverage": r.coverage, "light_mean_luminance": r.light_luminance,
+                          "light_motion": r.light_motion,
                           "reconstruction": r.reconstruction} for r in results]}
     atomic_write_text(out / "photos.json", json.dumps(record, indent=1) + "\n")
     return results

@@ -6,7 +6,7 @@ light prior; derive transport, the photo's light and the albedo by physics.
             -> light head         -> light prior L_p (global pooling)
     T   = v * A_l / pi * Y_lm(n)                        (model.physics.lobe_transport)
     L_a = ridge least squares of photo ~ rho_p * (T . L), toward L_p  (model.physics.fit_light)
-          rescaled to the reference radiance (mean luminance 0.8, docs/conventions.md)
+          (with fixed_level: rescaled to mean luminance 0.8, docs/conventions.md)
     rho = photo / (T . L_a) where the shading is reliable, rho_p elsewhere
     E   = 0
 
@@ -16,11 +16,12 @@ are unchanged; `rho * (T . L')` with the photo-consistent rho is quotient
 relighting, photo * (T . L') / (T . L_a). Extra outputs for the losses:
 normal, visibility, albedo_prior, light_prior, light_fit (before the level).
 
-Why the level is fixed by convention: a single photo cannot tell a bright
-light on a dark person from the reverse; the training lights are all at the
-reference radiance, so the photo's light is assumed to be there too, which
-keeps the photo's own exposure when it is relit by a normalised light. The
-light's colour and direction come from the fit, settled by the albedo prior.
+The light's level, colour and direction all come from the fit, so the albedo
+prior settles the photo's exposure and white balance (a single photo cannot
+tell a bright light on a dark person from the reverse). `fixed_level` instead
+rescales the fitted light to the training lights' reference radiance; measured
+worse (docs/EVALUATION.md): the DC term is the part of the light that the
+visible half of a body pins down least.
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ class GeometryNet(nn.Module):
     arch = ARCH
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
-                 full_res_convs: int = 1, ridge: float = 0.05, reliable: float = 0.25,
-                 fixed_level: bool = True):
+                 full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
+                 fixed_level: bool = False):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "

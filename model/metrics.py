@@ -39,6 +39,18 @@ def fit_channel_gains(pred, target, mask=None) -> np.ndarray:
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
 
 
+def spatial_change(first, second, mask=None) -> float:
+    """How much the image changes between two lights beyond a global colour/exposure:
+    sqrt(sum w |second - k * first|^2 / sum w |second|^2), k the per-channel gains
+    (fit_channel_gains). 0 when the second is the first recoloured; a light that moves
+    across the body (shading that changes place) gives a large value."""
+    p, t, m, _ = _prepare(first, second, mask)
+    k = fit_channel_gains(first, second, mask)
+    err = (m[..., None] * (t - k * p) ** 2).sum()
+    ref = (m[..., None] * t * t).sum()
+    return float(np.sqrt(err / ref)) if ref > 0 else 0.0
+
+
 PSNR_PEAK = 1.0
 MSE_FLOOR = 1e-10  # PSNR cap: 10 log10(1 / 1e-10) = 100 dB
 

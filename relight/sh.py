@@ -562,3 +562,28 @@ def required_order(coeffs, fraction: float = 0.99) -> int:
     captured = np.cumsum(energy) / total
     # Tolerance: cumsum rounding may leave the full sum a few ulps below 1.
     return int(np.argmax(captured >= fraction - 1e-12))
+
+
+def directional_light(azimuth_deg: float, order: int, elevation_deg: float = 30.0,
+                      ambient: float = 0.2, target: float = 0.8) -> np.ndarray:
+    """A white directional light plus a constant ambient term, as SH [n, 3] at mean luminance `target`.
+
+    Azimuth 0 lights the person from the camera's side (the light sits toward -Y
+    from the person, docs/conventions.md); positive azimuth turns it about world Z
+    like z_rotation. `ambient` is the constant part's share of the irradiance a
+    surface facing the light gets, so the far side is not pure black. A direct
+    light's SH is its delta, Y_lm(d), truncated at `order`; the ambient term
+    lives in Y_00 only.
+    """
+    if not (math.isfinite(azimuth_deg) and math.isfinite(elevation_deg) and 0.0 <= ambient < 1.0):
+        raise ValueError("directional_light: azimuth and elevation must be finite, ambient in [0, 1)")
+    e = math.radians(elevation_deg)
+    direction = z_rotation(azimuth_deg) @ np.array([0.0, -math.cos(e), math.sin(e)])
+    delta = sh_basis(direction, order)  # SH of a delta of integral 1 at `direction`
+    # a delta of integral 1 gives a facing surface irradiance 1; a constant radiance c
+    # gives irradiance pi * c: choose c so the ambient share of a facing surface is `ambient`
+    c = ambient / (1.0 - ambient) / math.pi
+    coeffs = np.zeros((num_coeffs(order), 3))
+    coeffs += delta[:, None]
+    coeffs[0] += 2.0 * math.sqrt(math.pi) * c
+    return normalize_reference(coeffs, target)[0]

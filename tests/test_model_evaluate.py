@@ -187,7 +187,7 @@ def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(ra
     from PIL import Image
 
     sheet = Image.open(out / "contact_sheet.png")
-    cols = 2 + len(ep.SHEET_PRESETS) * len(ep.SHEET_ROTATIONS)
+    cols = 2 + len(ep.SHEET_DIRECTIONS) + len(ep.SHEET_PRESETS) * len(ep.SHEET_ROTATIONS)
     assert sheet.size == (cols * (24 + ep.GUTTER), ep.LABEL_HEIGHT + 2 * (24 + ep.GUTTER))
 
     # the number is what the table says: max(0, albedo * (T . L) + E . L) with the predicted L (the

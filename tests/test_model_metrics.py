@@ -57,3 +57,14 @@ def test_huge_values_stay_finite():
 def test_bad_input_raises_value_error(pred, target, mask, match):
     with pytest.raises(ValueError, match=match):
         metrics.l1(pred, target, mask)
+
+
+def test_spatial_change_ignores_colour_and_exposure_but_sees_moving_light():
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0.1, 1.0, (16, 16, 3))
+    # the same image recoloured and re-exposed: no spatial change, to rounding
+    assert metrics.spatial_change(a, a * np.array([0.5, 2.0, 1.3])) < 1e-12
+    # light that moves from the left half to the right half: a large change
+    left = np.zeros((16, 16, 3)); left[:, :8] = 1.0
+    right = np.zeros((16, 16, 3)); right[:, 8:] = 1.0
+    assert metrics.spatial_change(left, right) == pytest.approx(1.0)
