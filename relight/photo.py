@@ -188,6 +188,25 @@ def _open_pillow(path: Path):
     return im
 
 
+def _check_png_chunks(path: Path) -> None:
+    """Every chunk's declared length must fit in the file: Pillow reads the rest of a
+    damaged IDAT with one read(length), which allocates `length` bytes (up to 4 GiB)
+    before finding the file shorter. Walks the 8-byte chunk headers only."""
+    import struct
+
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        pos = f.seek(len(_PNG_SIGNATURE))
+        while pos + 8 <= size:
+            length, kind = struct.unpack(">I4s", f.read(8))
+            if pos + 12 + length > size:
+                raise ValueError(f"{path}: truncated or corrupt PNG (chunk {kind!r} declares {length:,} bytes, "
+                                 f"past the end of the {size:,}-byte file)")
+            if kind == b"IEND":
+                return
+            pos = f.seek(pos + 12 + length)
+
+
 def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     from PIL import Image, ImageOps
 
@@ -195,6 +214,8 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
     try:
         width, height = im.size
         _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
+        if im.format == "PNG":
+            _check_png_chunks(path)
         if getattr(im, "n_frames", 1) > 1:
             im.seek(0)  # animated/multi-page files: the first frame is the photo
         rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
@@ -433,6 +454,8 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
     im = _open_pillow(path)
     try:
         _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
+        if im.format == "PNG":
+            _check_png_chunks(path)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             im.load()

@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from export.random_model import export_random_model
-from fuzz_support import exr_bytes, jpeg_bytes, radiance_hdr, uniform_rle_hdr
+from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform_rle_hdr
 from relight import envmap, photo, sh
 from relight.cli import main
 from relight.colour import srgb_encode
@@ -174,6 +174,27 @@ def test_declared_size_is_weighed_against_the_file(tmp_path):
     real = tmp_path / "real.jpg"
     real.write_bytes(jpeg_bytes(2000, 2000, smooth=True))
     assert photo.read_photo(real)[0].shape == (2000, 2000, 3)
+
+
+def test_png_chunk_longer_than_the_file_is_refused_before_reading_it(tmp_path):
+    """Found by `make fuzz`: an IDAT length byte changed to 0xd1 made Pillow read(3.5 GB)."""
+    import struct
+    import tracemalloc
+
+    data = bytearray(png_bytes(9, 13))
+    idat = data.find(b"IDAT") - 4
+    struct.pack_into(">I", data, idat, 0xD1000000 + struct.unpack_from(">I", data, idat)[0])
+    (tmp_path / "p.png").write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match="past the end of the"):
+            photo.read_photo(tmp_path / "p.png")
+        with pytest.raises(ValueError, match="past the end of the"):
+            photo.read_mask(tmp_path / "p.png", (9, 13))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 * 2**20, peak
 
 
 def test_declared_size_is_weighed_against_free_memory(tmp_path, monkeypatch):
