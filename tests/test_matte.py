@@ -257,3 +257,26 @@ def test_decompose_takes_the_person_matte_as_its_mask():
         relighter.decompose(photo, matte="auto")
     with pytest.raises(matte.NoPersonError):
         relighter.decompose(np.full((200, 300, 3), 0.3, np.float32), matte="person")
+
+
+def test_24_megapixel_photo_with_the_person_matte_stays_under_2_gb(tmp_path):
+    """The whole `relight image` run with the person matte on 24 MP (a bundled photo enlarged):
+    the full-resolution matte adds one float32 plane; the limit is the runtime's (2 GB)."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    from export.random_model import export_random_model
+    from tests.test_runtime_memory import CHILD, LIMIT_BYTES
+
+    model, _, _ = export_random_model(tmp_path / "m.onnx", seed=2, sh_order=4, width=4, depth=2)
+    with Image.open(EVAL_DIR / "obama_standing.jpg") as im:
+        im.convert("RGB").resize((3690, 6000), Image.Resampling.BILINEAR).save(tmp_path / "big.jpg", quality=85)
+    out = tmp_path / "big_relit.png"
+    res = subprocess.run([sys.executable, "-c", CHILD, "image", str(tmp_path / "big.jpg"), "--light", "studio",
+                          "--model", str(model), "--out", str(out), "--threads", "2"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    peak = int(res.stdout.split("PEAK_RSS_BYTES")[1].split()[0])
+    assert peak < LIMIT_BYTES, f"peak RSS {peak / 2**20:.0f} MiB"
