@@ -188,10 +188,14 @@ def compute_relit(context, session: state.PhotoSession, dials=None):
 
 
 def _write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size: tuple[int, int]):
+    """Hand a prepared buffer to Blender; the buffer goes back to the pool (nobody reads it after)."""
     colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
     height, width = size
-    return bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
-                                colorspace=colorspace, owner=session.photo_id, layer=layer)
+    try:
+        return bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
+                                    colorspace=colorspace, owner=session.photo_id, layer=layer)
+    finally:
+        pipeline.BUFFERS.give(rgba)
 
 
 def render_relit(context, session: state.PhotoSession, dials=None):

@@ -50,6 +50,9 @@ def remember_world(key: str, value: tuple) -> None:
 
 
 def clear() -> None:
+    from . import pipeline
+
+    pipeline.BUFFERS.clear()
     SESSIONS.clear()
     LIGHT_SOURCES.clear()
     WORLDS.clear()

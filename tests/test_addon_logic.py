@@ -183,6 +183,23 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     np.testing.assert_array_equal(grey[::-1, :, 2], rgb[..., 0])
 
 
+def test_buffer_pool_reuses_large_buffers_and_keeps_a_bounded_number():
+    pool = pipeline.BufferPool(keep=2)
+    n = pipeline.BufferPool.MIN_VALUES
+    a = pool.take(n)
+    pool.give(a)
+    pool.give(a)                      # given twice: kept once
+    assert len(pool) == 1 and pool.take(n) is a and len(pool) == 0
+    pool.give(np.empty(16, np.float32))          # small: not pooled
+    pool.give(np.empty(2 * n, np.float32)[:n])   # a view of someone else's memory: not pooled
+    assert len(pool) == 0
+    bufs = [np.empty(n, np.float32) for _ in range(3)]
+    for b in bufs:
+        pool.give(b)
+    assert len(pool) == 2 and pool.take(n) in (bufs[1], bufs[2])  # the oldest went
+    assert pool.take(n + 4).size == n + 4    # no buffer of that length: a new one
+
+
 def test_an_8bit_file_read_by_the_worker_equals_blenders_codes(tmp_path):
     from PIL import Image
 
