@@ -215,8 +215,7 @@ def layer_buffers(session: state.PhotoSession, dials, token=None) -> dict:
         buffers[layer] = pipeline.to_blender_rgba(pixels)
     if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
         # the photo cut out by the person matte, so the user can check what was found
-        photo, matte = session.photo, session.decomposition.mask
-        buffers["matte"] = pipeline.to_blender_rgba(np.concatenate([photo, matte[..., None]], axis=2))
+        buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)
     return buffers
 
 

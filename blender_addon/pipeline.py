@@ -191,8 +191,10 @@ class BufferPool:
 BUFFERS = BufferPool()
 
 
-def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """[H, W] or [H, W, 1|3|4] top row first -> flat float32 RGBA, bottom row first (Blender's layout).
+def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None,
+                    alpha: np.ndarray | None = None) -> np.ndarray:
+    """[H, W] or [H, W, 1|3|4] top row first -> flat float32 RGBA, bottom row first (Blender's layout);
+    `alpha` [H, W], when given, is the alpha channel.
 
     `out` (H * W * 4 float32) is filled when given, else a buffer from BUFFERS:
     the worker prepares it and the main thread only hands it to foreach_set.
@@ -211,7 +213,10 @@ def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None) -> np.nda
         src = px[h - r1:h - r0][::-1]
         for k in range(3):
             view[r0:r1, :, k] = src[..., min(k, c - 1) if c < 3 else k]
-        view[r0:r1, :, 3] = src[..., 3] if c == 4 else 1.0
+        if alpha is not None:  # [H, W], top row first
+            view[r0:r1, :, 3] = alpha[h - r1:h - r0][::-1]
+        else:
+            view[r0:r1, :, 3] = src[..., 3] if c == 4 else 1.0
     return rgba
 
 

@@ -181,6 +181,10 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     np.testing.assert_array_equal(out[..., 3], 1.0)
     grey = pipeline.to_blender_rgba(rgb[..., 0]).reshape(5, 7, 4)
     np.testing.assert_array_equal(grey[::-1, :, 2], rgb[..., 0])
+    cut = pipeline.to_blender_rgba(rgb, alpha=rgb[..., 1]).reshape(5, 7, 4)
+    np.testing.assert_array_equal(cut[::-1], np.dstack([rgb, rgb[..., 1]]))
+    tall = rng.uniform(0, 1, (300, 400, 4)).astype(np.float32)  # more rows than one block (163)
+    np.testing.assert_array_equal(pipeline.to_blender_rgba(tall).reshape(300, 400, 4)[::-1], tall)
 
 
 def test_buffer_pool_reuses_large_buffers_and_keeps_a_bounded_number():
