@@ -100,6 +100,10 @@ def test_hdr_size_bound_is_exact(tmp_path):
     (tmp_path / "short.hdr").write_bytes(data[:-1])
     with pytest.raises(ValueError, match="at least 40 bytes, the file holds 39"):
         envmap.read_radiance_hdr(tmp_path / "short.hdr")
+    # enough bytes but a zero-length literal run: the scanline decoder still refuses it
+    (tmp_path / "zero.hdr").write_bytes(b"#?RADIANCE\n\n-Y 1 +X 8\n" + bytes([2, 2, 0, 8, 0]) + bytes(7))
+    with pytest.raises(ValueError, match="^[^:]*zero.hdr: Radiance pixel data is truncated or corrupt$"):
+        envmap.read_radiance_hdr(tmp_path / "zero.hdr")
 
 
 def test_hdr_map_over_the_size_limit_is_refused_before_allocating(tmp_path):
