@@ -209,10 +209,11 @@ def layer_buffers(session: state.PhotoSession, dials, token=None) -> dict:
     """Every output layer as a buffer in Blender's layout (worker-safe)."""
     light, rotation, exposure, strength = dials
     buffers = {"relit": engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)}
-    for layer, pixels in engine.layers(session.decomposition, light, rotation, exposure).items():
+    maps = engine.layers(session.decomposition, light, rotation, exposure)
+    for layer in list(maps):
         if token is not None:
             token.check()
-        buffers[layer] = pipeline.to_blender_rgba(pixels)
+        buffers[layer] = pipeline.to_blender_rgba(maps.pop(layer))  # each map freed once packed
     if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
         # the photo cut out by the person matte, so the user can check what was found
         buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)

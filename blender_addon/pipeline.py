@@ -157,7 +157,7 @@ class BufferPool:
 
     MIN_VALUES = 1 << 20
 
-    def __init__(self, keep: int = 6):  # the six full-size outputs of one Relight
+    def __init__(self, keep: int = 2):  # enough for dial changes; more would hold 384 MB each at 24 MP
         import threading
 
         self.keep = keep
