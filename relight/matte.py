@@ -17,8 +17,8 @@ same hash-checked path as the relighting models (relight.runtime.open_session):
 
 The people are the detections; each one's matte is the mean of the two
 segmentations (the selfie mask limited to the pixels that are that person's
-rather than another's), which keeps what both see: the selfie model keeps
-held objects, the pose model sometimes loses an arm. Without a detection
+rather than another's), which keeps what both see: the selfie model takes
+in what a person holds, the pose model loses edges and thin parts. Without a detection
 the people are the connected parts of the selfie mask. Everything runs on a
 grid of about 256 px; a guided filter then snaps the matte to the photo's
 edges at up to 1023 px and it is brought to full resolution bilinearly.
@@ -499,6 +499,8 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         near = _dilate(pose > PERSON_THRESHOLD, KEEP_RADIUS * max(1, round(max(h, w) / NET_SIDE)))
         own = np.where(near & mine, selfie, np.float32(0.0))
         inside = pose > PERSON_THRESHOLD
+        if np.count_nonzero(inside) < floor:  # another detection holds all of it: one person twice
+            continue
         if own[inside].mean() < SELFIE_AGREEMENT:  # the selfie model missed this person
             people.append(pose.astype(np.float32))
         else:
