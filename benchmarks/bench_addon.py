@@ -173,6 +173,9 @@ def main(argv=None) -> int:
         if bpy.app.timers.is_registered(timer):
             bpy.app.timers.unregister(timer)
     rows = []
+    baseline = Probe()  # the machine's own noise: the probe with no add-on work at all
+    baseline.idle(5.0, "nothing (baseline)")
+    rows.append(("Baseline: longest probe stretch with no add-on work (5 s)", baseline.worst, None))
     probe = Probe()
 
     # ---- Relight, modal, ticked every POLL_SECONDS like Blender's event timer
