@@ -210,6 +210,14 @@ def test_declared_size_is_weighed_against_free_memory(tmp_path, monkeypatch):
         photo.read_photo(path)
     monkeypatch.setattr(photo, "memory_available", lambda: free + 1)
     assert photo.read_photo(path)[0].shape == (300, 200, 3)
+    # maps too: a 64 x 32 map needs MAP_BYTES_PER_PIXEL per texel
+    hdr = tmp_path / "m.hdr"
+    hdr.write_bytes(radiance_hdr(32, 64))
+    monkeypatch.setattr(photo, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL - 1)
+    with pytest.raises(ValueError, match="needs about"):
+        envmap.load_equirect(hdr)
+    monkeypatch.setattr(photo, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL)
+    assert envmap.load_equirect(hdr).shape == (32, 64)
 
 
 def test_pixel_limit_and_max_pixels_option(tmp_path, model, capsys):
