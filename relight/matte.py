@@ -15,9 +15,9 @@ same hash-checked path as the relighting models (relight.runtime.open_session):
 * pose landmarks (its segmentation output only): a person's mask in a
   rotated square around the body that the detection gives, 256 x 256.
 
-The people are the detections; each one's matte is the mean of the two
-segmentations (the selfie mask limited to the pixels that are that person's
-rather than another's), which keeps what both see: the selfie model takes
+The people are the detections; each one's matte is the geometric mean of the
+two segmentations (the selfie mask limited to the pixels that are that
+person's rather than another's), which keeps what both see: the selfie model takes
 in what a person holds, the pose model loses edges and thin parts. Without a detection
 the people are the connected parts of the selfie mask. Everything runs on a
 grid of about 256 px; a guided filter then snaps the matte to the photo's
@@ -493,7 +493,8 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
     for i, pose in enumerate(poses):
         others = np.max([m for j, m in enumerate(poses) if j != i], axis=0) if len(poses) > 1 else 0.0
         # the selfie mask has no people in it: its pixels near this person's mask, where
-        # this person's mask beats the others', are this person's
+        # this person's mask beats the others', are this person's. Geometric mean: a soft
+        # "both": a pixel only one network claims stays faint (less ghosting than the mean)
         mine = pose >= others  # where another person's mask is stronger, that person is
         pose = np.where(mine, pose, np.float32(0.0))
         near = _dilate(pose > PERSON_THRESHOLD, KEEP_RADIUS * max(1, round(max(h, w) / NET_SIDE)))
@@ -504,7 +505,7 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         if own[inside].mean() < SELFIE_AGREEMENT:  # the selfie model missed this person
             people.append(pose.astype(np.float32))
         else:
-            people.append(((own + pose) * np.float32(0.5)).astype(np.float32))
+            people.append(np.sqrt(own * pose).astype(np.float32))
     return people
 
 

@@ -5,8 +5,12 @@
 
 For every photo of DIR (default: the bundled set relight/data/matte_eval,
 references in DIR/reference/NAME.png, white = person) prints the IoU of
-alpha > 0.5 with the reference, the boundary F-score and the time the matte
-took (median of --repeat runs after one warm-up). `--matte person` is
+alpha > 0.5 with the reference, the boundary F-score, the spill (the matte's
+soft mass outside the reference, per reference pixel: ghosts that the 0.5
+threshold hides) and the time the matte took (median of --repeat runs after one warm-up):
+wall time and the process's CPU time (all threads; steadier than wall time on a
+loaded machine, and on an idle one with as many cores as threads the wall time
+is at most this). `--matte person` is
 relight.matte.person_matte as shipped (the selfie and pose segmentations
 combined, guided edge), `raw` the same without the guided edge, `selfie` and
 `pose` one network each (with the guided edge), `network` the relighting
@@ -42,6 +46,11 @@ def iou(alpha: np.ndarray, reference: np.ndarray) -> float:
     pred = alpha > THRESHOLD
     union = np.count_nonzero(pred | reference)
     return float(np.count_nonzero(pred & reference) / union) if union else 1.0
+
+
+def spill(alpha: np.ndarray, reference: np.ndarray) -> float:
+    """Sum of alpha outside the reference over the reference's area (0: nothing outside)."""
+    return float(alpha[~reference].sum(dtype=np.float64) / max(1, np.count_nonzero(reference)))
 
 
 def _boundary(mask: np.ndarray) -> np.ndarray:
@@ -132,27 +141,33 @@ def evaluate(kind: str = "person", folder: Path = EVAL_DIR, threads: int | None 
         photo, _ = read_photo(photo_path)
         reference = read_reference(ref_path, photo.shape[:2])
         alpha = run(photo)  # warm-up (and the result)
-        times = []
+        times, cpu = [], []
         for _ in range(repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             run(photo)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
         rows.append({"name": name, "size": list(photo.shape[:2]), "iou": iou(alpha, reference),
-                     "boundary_f": boundary_f(alpha, reference),
-                     "ms": 1e3 * float(np.median(times)) if times else None})
+                     "boundary_f": boundary_f(alpha, reference), "spill": spill(alpha, reference),
+                     "ms": 1e3 * float(np.median(times)) if times else None,
+                     "cpu_ms": 1e3 * float(np.median(cpu)) if cpu else None})
     return rows
 
 
 def format_table(rows: list[dict], kind: str) -> str:
-    lines = [f"matte: {kind}", "| photo | size | IoU | boundary F | ms |", "|---|---|---|---|---|"]
+    lines = [f"matte: {kind}", "| photo | size | IoU | boundary F | spill | ms | CPU ms |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
-        ms = "-" if r["ms"] is None else f"{r['ms']:.0f}"
-        lines.append(f"| {r['name']} | {r['size'][1]}x{r['size'][0]} | {r['iou']:.3f} | {r['boundary_f']:.3f} | {ms} |")
+        ms = "- | -" if r["ms"] is None else f"{r['ms']:.0f} | {r['cpu_ms']:.0f}"
+        lines.append(f"| {r['name']} | {r['size'][1]}x{r['size'][0]} | {r['iou']:.3f} | {r['boundary_f']:.3f} | "
+                     f"{r['spill']:.3f} | {ms} |")
     ious = [r["iou"] for r in rows]
     bfs = [r["boundary_f"] for r in rows]
     times = [r["ms"] for r in rows if r["ms"] is not None]
+    cpus = [r["cpu_ms"] for r in rows if r["cpu_ms"] is not None]
     lines.append(f"| mean ({len(rows)} photos) | | {np.mean(ious):.3f} (min {min(ious):.3f}) | {np.mean(bfs):.3f} | "
-                 + (f"{np.mean(times):.0f} |" if times else "- |"))
+                 f"{np.mean([r['spill'] for r in rows]):.3f} | "
+                 + (f"{np.mean(times):.0f} | {np.mean(cpus):.0f} |" if times else "- | - |"))
     return "\n".join(lines)
 
 

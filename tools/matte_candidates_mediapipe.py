@@ -22,7 +22,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from relight.matte_eval import boundary_f, eval_photos, iou, read_reference  # noqa: E402
+from relight.matte_eval import boundary_f, eval_photos, iou, read_reference, spill  # noqa: E402
 
 
 def main() -> int:
@@ -36,8 +36,8 @@ def main() -> int:
     }
     for label, model in candidates.items():
         print(f"matte: {label}")
-        print("| photo | IoU | boundary F | ms |\n|---|---|---|---|")
-        ious, bfs, mss = [], [], []
+        print("| photo | IoU | boundary F | spill | ms |\n|---|---|---|---|---|")
+        ious, bfs, spills, mss = [], [], [], []
         for name, photo_path, ref_path in eval_photos():
             rgb = np.ascontiguousarray(np.asarray(Image.open(photo_path).convert("RGB")))
             ref = read_reference(ref_path, rgb.shape[:2])
@@ -51,9 +51,11 @@ def main() -> int:
             alpha = np.zeros(rgb.shape[:2], np.float32) if mask is None else mask.astype(np.float32)
             ious.append(iou(alpha, ref))
             bfs.append(boundary_f(alpha, ref))
+            spills.append(spill(alpha, ref))
             mss.append(1e3 * float(np.median(times)))
-            print(f"| {name} | {ious[-1]:.3f} | {bfs[-1]:.3f} | {mss[-1]:.0f} |")
-        print(f"| mean | {np.mean(ious):.3f} (min {min(ious):.3f}) | {np.mean(bfs):.3f} | {np.mean(mss):.0f} |\n")
+            print(f"| {name} | {ious[-1]:.3f} | {bfs[-1]:.3f} | {spills[-1]:.3f} | {mss[-1]:.0f} |")
+        print(f"| mean | {np.mean(ious):.3f} (min {min(ious):.3f}) | {np.mean(bfs):.3f} | {np.mean(spills):.3f} | "
+              f"{np.mean(mss):.0f} |\n")
     return 0
 
 
