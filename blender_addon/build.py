@@ -1,6 +1,7 @@
 """Build the extension zip that Blender's "Install from Disk" takes.
 
-    python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline]
+    python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline] [--split-platforms]
+                                  [--docs docs/addon.md]
 
 Bundles the add-on, this project's torch-free core `relight/` (as a wheel,
 with the HDR presets and the ONNX models the quality presets use), and the
@@ -48,7 +49,7 @@ PLATFORM_TAGS = {
 # version: onnxruntime's last macOS x86-64 wheels are 1.23.2 (the shipped models give
 # bit-identical results with 1.23.2 and the installed version on Linux).
 VERSION_OVERRIDES = {("onnxruntime", "macos-x64"): "1.23.2"}
-DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --docs docs/addon.md`: begin -->"
+DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --split-platforms --docs docs/addon.md`: begin -->"
 DOCS_END = "<!-- sizes: end -->"
 ADDON_EXCLUDE = {"build.py", "__main__.py"}
 CORE_DATA_SUFFIXES = {".py", ".exr", ".md", ".json", ".onnx", ".sha256"}
@@ -226,8 +227,28 @@ def _rewrite_wheels(manifest_text: str, wheels: list[str]) -> str:
     return manifest_text.rstrip("\n") + "\n\n" + replacement
 
 
-def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Path:
-    """Build and validate the extension zip; returns its path."""
+def _rewrite_platforms(manifest_text: str, platforms: tuple[str, ...]) -> str:
+    listed = ", ".join(f'"{p}"' for p in platforms)
+    text, count = re.subn(r"^platforms\s*=\s*\[.*?\]\s*$", f"platforms = [{listed}]", manifest_text,
+                          count=1, flags=re.M)
+    if count != 1:
+        raise BuildError("blender_manifest.toml has no one-line 'platforms = [...]' to rewrite")
+    return text
+
+
+def build_split(out_dir: Path, cache: Path | None = None, offline: bool = False) -> list[Path]:
+    """One zip per platform (`<id>-<version>-<platform>.zip`, Blender's naming for
+    split extensions): each holds only its own platform's wheels."""
+    return [build(out_dir, cache, offline, (platform,)) for platform in manifest_rules.PLATFORMS]
+
+
+def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
+          platforms: tuple[str, ...] | None = None) -> Path:
+    """Build and validate the extension zip for `platforms` (default: all); returns its path."""
+    platforms = tuple(manifest_rules.PLATFORMS if platforms is None else platforms)
+    unknown = set(platforms) - set(manifest_rules.PLATFORMS)
+    if unknown or not platforms:
+        raise BuildError(f"unknown platforms {sorted(unknown)}; expected some of {list(manifest_rules.PLATFORMS)}")
     cache = Path(cache) if cache else default_cache()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -239,7 +260,7 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Pa
     platform_wheels = []
     for dist, prefix in BINARY_DEPS:
         installed = installed_version(dist)
-        for blender_platform in manifest_rules.PLATFORMS:
+        for blender_platform in platforms:
             version = VERSION_OVERRIDES.get((dist.lower(), blender_platform), installed)
             platform_wheels.append(fetch_wheel(cache, dist, prefix, version,
                                                PLATFORM_TAGS[blender_platform], offline))
@@ -252,13 +273,17 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Pa
         for w in platform_wheels:
             (stage / "wheels" / w.name).write_bytes(w.read_bytes())
         manifest_text = _rewrite_wheels(manifest_text, listed)
+        if platforms != tuple(manifest_rules.PLATFORMS):
+            manifest_text = _rewrite_platforms(manifest_text, platforms)
         (stage / "blender_manifest.toml").write_text(manifest_text, encoding="utf-8")
         final_manifest = manifest_rules.load(stage / "blender_manifest.toml")
         try:
-            manifest_rules.check(final_manifest, stage)
+            manifest_rules.check(final_manifest, stage, platforms)
         except ValueError as exc:
             raise BuildError(str(exc)) from None
-        zip_path = out_dir / f"{manifest['id']}-{manifest['version']}.zip"
+        suffix = "" if platforms == tuple(manifest_rules.PLATFORMS) else \
+            "-" + "-".join(p.replace("-", "_") for p in platforms)
+        zip_path = out_dir / f"{manifest['id']}-{manifest['version']}{suffix}.zip"
         fd, tmp_zip = tempfile.mkstemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=out_dir)
         os.close(fd)
         try:
@@ -280,24 +305,31 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False) -> Pa
     return zip_path
 
 
-def size_report(zip_path: Path) -> str:
-    """Markdown: the zip's size and what takes it, measured from the zip itself."""
-    with zipfile.ZipFile(zip_path) as zf:
-        infos = zf.infolist()
-        core = next((i for i in infos if i.filename.startswith(f"wheels/{CORE_DIST}-")), None)
-        models = []
-        if core is not None:
-            with zf.open(core) as f, zipfile.ZipFile(io.BytesIO(f.read())) as wheel:
-                models = [(i.filename.rsplit("/", 1)[-1], i.compress_size) for i in wheel.infolist()
-                          if i.filename.endswith(".onnx")]
+def size_report(zip_paths) -> str:
+    """Markdown: each zip's size and what takes it, measured from the zips themselves."""
+    zip_paths = [Path(zip_paths)] if isinstance(zip_paths, (str, Path)) else [Path(p) for p in zip_paths]
     mb = 1e6
-    lines = [f"Zip `{zip_path.name}`: **{zip_path.stat().st_size / mb:.1f} MB**, {len(infos)} files.", "",
-             "| part | MB in the zip |", "|---|---|"]
-    addon = sum(i.compress_size for i in infos if not i.filename.startswith("wheels/"))
-    lines.append(f"| add-on code and manifest | {addon / mb:.2f} |")
-    for i in sorted(infos, key=lambda i: i.filename):
-        if i.filename.startswith("wheels/"):
-            lines.append(f"| `{i.filename[len('wheels/'):]}` | {i.compress_size / mb:.1f} |")
+    parts: dict[str, int] = {}
+    models = []
+    lines = []
+    for zip_path in zip_paths:
+        with zipfile.ZipFile(zip_path) as zf:
+            infos = zf.infolist()
+            core = next((i for i in infos if i.filename.startswith(f"wheels/{CORE_DIST}-")), None)
+            if core is not None and not models:
+                with zf.open(core) as f, zipfile.ZipFile(io.BytesIO(f.read())) as wheel:
+                    models = [(i.filename.rsplit("/", 1)[-1], i.compress_size) for i in wheel.infolist()
+                              if i.filename.endswith(".onnx")]
+        lines.append(f"- Zip `{zip_path.name}`: **{zip_path.stat().st_size / mb:.1f} MB**, {len(infos)} files.")
+        parts["add-on code and manifest"] = sum(i.compress_size for i in infos
+                                                if not i.filename.startswith("wheels/"))
+        for i in infos:
+            if i.filename.startswith("wheels/"):
+                parts[f"`{i.filename[len('wheels/'):]}`"] = i.compress_size
+    lines += ["", "| part | MB in the zip |", "|---|---|"]
+    lines.append(f"| add-on code and manifest | {parts.pop('add-on code and manifest') / mb:.2f} |")
+    for name in sorted(parts):
+        lines.append(f"| {name} | {parts[name] / mb:.1f} |")
     if models:
         shipped = ", ".join(f"`{n}` {size / mb:.1f} MB" for n, size in sorted(models))
         lines += ["", f"Models in the core wheel (compressed): {shipped}."]
@@ -322,17 +354,23 @@ def main(argv=None) -> int:
     parser.add_argument("--offline", action="store_true", help="never download: use the cache only")
     parser.add_argument("--docs", default=None,
                         help="Markdown file whose size block is rewritten with the measured sizes")
+    parser.add_argument("--split-platforms", action="store_true",
+                        help="also one zip per platform, each with only its own wheels")
     args = parser.parse_args(argv)
+    cache = Path(args.wheel_cache) if args.wheel_cache else None
     try:
-        path = build(Path(args.out), Path(args.wheel_cache) if args.wheel_cache else None, args.offline)
+        paths = [build(Path(args.out), cache, args.offline)]
+        if args.split_platforms:
+            paths += build_split(Path(args.out), cache, args.offline)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    with zipfile.ZipFile(path) as zf:
-        names = zf.namelist()
-    print(f"{path}  {path.stat().st_size / 1e6:.1f} MB, {len(names)} files, "
-          f"{sum(n.startswith('wheels/') for n in names)} wheels")
-    report = size_report(path)
+    for path in paths:
+        with zipfile.ZipFile(path) as zf:
+            names = zf.namelist()
+        print(f"{path}  {path.stat().st_size / 1e6:.1f} MB, {len(names)} files, "
+              f"{sum(n.startswith('wheels/') for n in names)} wheels")
+    report = size_report(paths)
     print(report)
     if args.docs:
         try:

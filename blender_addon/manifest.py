@@ -29,8 +29,10 @@ def load(path: str | Path) -> dict:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
 
 
-def problems(manifest: dict, package_root: str | Path | None = None) -> list[str]:
-    """Every rule the manifest breaks (empty when valid). With `package_root`, wheels must exist there."""
+def problems(manifest: dict, package_root: str | Path | None = None,
+             expect_platforms: tuple[str, ...] = PLATFORMS) -> list[str]:
+    """Every rule the manifest breaks (empty when valid). With `package_root`, wheels must exist
+    there; `expect_platforms` is what it must list (one of them for a single-platform zip)."""
     errors = []
     for key in REQUIRED:
         if key not in manifest:
@@ -70,8 +72,8 @@ def problems(manifest: dict, package_root: str | Path | None = None) -> list[str
                 errors.append(f"permission '{key}' needs a reason of at most {_TAGLINE_MAX} "
                               "characters without final punctuation")
     platforms = manifest.get("platforms")
-    if platforms is not None and sorted(platforms) != sorted(PLATFORMS):
-        errors.append(f"'platforms' must be {list(PLATFORMS)}, got {platforms}")
+    if platforms is not None and sorted(platforms) != sorted(expect_platforms):
+        errors.append(f"'platforms' must be {list(expect_platforms)}, got {platforms}")
     wheels = manifest.get("wheels", [])
     if not isinstance(wheels, list):
         errors.append("'wheels' must be a list of paths")
@@ -88,9 +90,10 @@ def problems(manifest: dict, package_root: str | Path | None = None) -> list[str
     return errors
 
 
-def check(manifest: dict, package_root: str | Path | None = None) -> None:
+def check(manifest: dict, package_root: str | Path | None = None,
+          expect_platforms: tuple[str, ...] = PLATFORMS) -> None:
     """ValueError listing every problem, if any."""
-    errors = problems(manifest, package_root)
+    errors = problems(manifest, package_root, expect_platforms)
     if errors:
         raise ValueError("invalid blender_manifest.toml: " + "; ".join(errors))
 

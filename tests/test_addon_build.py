@@ -154,6 +154,28 @@ def test_size_report_is_measured_from_the_zip_and_written_into_the_docs(built_zi
         build.update_docs(tmp_path / "plain.md", report)
 
 
+def test_split_platform_zips_hold_only_their_own_wheels(wheel_cache, tmp_path):
+    paths = build.build_split(tmp_path / "split", wheel_cache, offline=True)
+    assert [p.name for p in paths] == [f"relight_photo-0.1.0-{p.replace('-', '_')}.zip" for p in manifest.PLATFORMS]
+    for index, (path, platform) in enumerate(zip(paths, manifest.PLATFORMS)):
+        folder = tmp_path / platform
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            zf.extractall(folder)
+        data = manifest.load(folder / "blender_manifest.toml")
+        assert data["platforms"] == [platform]
+        assert manifest.problems(data, folder, (platform,)) == []
+        wanted = {f"wheels/{prefix}-{_version(dist, platform)}-cp311-cp311-{PLATFORM_FILE_TAGS[prefix][index]}.whl"
+                  for dist, prefix in build.BINARY_DEPS}
+        wheels = {n for n in names if n.startswith("wheels/")}
+        assert wheels - wanted == {n for n in wheels if "fullbody_relight_core" in n} and wanted <= wheels
+    done = subprocess.run([sys.executable, str(_blender_ext_cli()), "validate", str(paths[0])],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Success" in done.stdout, done.stdout + done.stderr
+    report = build.size_report(paths)
+    assert all(f"Zip `{p.name}`: **{p.stat().st_size / 1e6:.1f} MB**" in report for p in paths)
+
+
 def test_build_is_reproducible(built_zip, wheel_cache, tmp_path):
     again = build.build(tmp_path, wheel_cache, offline=True)
     assert again.read_bytes() == built_zip.read_bytes()

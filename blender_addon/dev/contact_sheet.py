@@ -68,6 +68,7 @@ def main(argv=None) -> int:
     settings.model_path = model
     settings.light_kind = "PRESET"
     settings.preset = "sunset"
+    settings.mask_mode = "NETWORK"  # a drawn figure: the person matte looks for real people
     if bpy.ops.relight_photo.relight(image_name=image.name, synchronous=True) != {"FINISHED"}:
         print("error: the Relight operator failed", file=sys.stderr)
         return 1
