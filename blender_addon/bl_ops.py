@@ -416,10 +416,45 @@ def _lights_to_save() -> list:
     return out
 
 
+_SAVING: list = []  # [(thread, session, failures)] writing decomposition files after a save
+
+
+def _save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
+    try:
+        engine.save_decomposition(path, session.decomposition, meta, session.preview)
+    except OSError as exc:
+        session.saved_to = ""
+        failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "
+                        f"({exc.strerror or exc}): it will need Relight after reopening.")
+
+
+def wait_for_saves(context=None) -> None:
+    """Let the decomposition files being written finish (before a file is opened), and
+    show a failure in the panel."""
+    while _SAVING:
+        thread, _session, failures = _SAVING.pop(0)
+        thread.join()
+        if failures and context is not None:
+            _set_status(context, failures[0], is_error=True)
+
+
+def _poll_saves():
+    if any(thread.is_alive() for thread, _s, _f in _SAVING):
+        return 0.2
+    wait_for_saves(bpy.context)
+    return None
+
+
 @bpy.app.handlers.persistent
 def on_save_post(*_args) -> None:
     """Keep each decomposition next to the .blend (`<name>_relight/<photo id>.npz`), so
-    reopening the file restores the results without a network run."""
+    reopening the file restores the results without a network run.
+
+    With a UI the files are written by threads (compressing takes ~0.4 s at 24 MP);
+    they are not daemons, so quitting Blender waits for them, and opening a file
+    waits for them first."""
+    import threading
+
     blend = bpy.data.filepath
     if not blend:
         return
@@ -432,14 +467,19 @@ def on_save_post(*_args) -> None:
         meta = dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
                     quality=session.quality, mask_key=list(session.mask_key), source=session.source,
                     lights=_lights_to_save())
-        try:
-            engine.save_decomposition(path, session.decomposition, meta,
-                                      None if session.provisional else session.preview)
-        except OSError as exc:
-            _set_status(bpy.context, f"The relight of '{session.source}' could not be saved next to the "
-                        f".blend ({exc.strerror or exc}): it will need Relight after reopening.", is_error=True)
-            continue
         session.saved_to = path
+        failures: list = []
+        if _updates_immediately():
+            _save_one(session, path, meta, failures)
+            if failures:
+                _set_status(bpy.context, failures[0], is_error=True)
+            continue
+        thread = threading.Thread(target=_save_one, args=(session, path, meta, failures),
+                                  name="relight-save", daemon=False)
+        thread.start()
+        _SAVING.append((thread, session, failures))
+        if not bpy.app.timers.is_registered(_poll_saves):
+            bpy.app.timers.register(_poll_saves, first_interval=0.2)
 
 
 def _restore_plan(context, image, path: str) -> dict:
@@ -589,6 +629,7 @@ def _finish_restore(context, job) -> None:
 @bpy.app.handlers.persistent
 def on_load(*_args) -> None:
     """A new .blend: forget the old file's photos, bring back this file's saved relights."""
+    wait_for_saves(bpy.context)
     state.clear()
     try:
         restore_saved(bpy.context)
@@ -926,7 +967,7 @@ CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)
 _HANDLERS = ((bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
              (bpy.app.handlers.load_post, on_load),
              (bpy.app.handlers.save_post, on_save_post))
-_TIMERS = (_deferred_refresh, _full_when_resting, _poll_full_size, _poll_restore)
+_TIMERS = (_deferred_refresh, _full_when_resting, _poll_full_size, _poll_restore, _poll_saves)
 
 
 def register() -> None:
@@ -938,6 +979,7 @@ def register() -> None:
 
 
 def unregister() -> None:
+    wait_for_saves()
     for timer in _TIMERS:
         if bpy.app.timers.is_registered(timer):
             bpy.app.timers.unregister(timer)

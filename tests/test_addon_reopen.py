@@ -34,7 +34,7 @@ def addon(model, tmp_path):
     blender_addon.register()
     bpy.ops.wm.read_homefile(use_empty=True)
     yield tmp_path
-    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.read_homefile()  # the default scene (with its World) for the tests that follow
     blender_addon.unregister()
 
 
@@ -105,10 +105,12 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
     before = state.SESSIONS[pid].preview.relight("studio")
     blend = addon / "shot.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)  # as with a UI: timers, workers
+    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)  # as with a UI: threads, timers
     try:
-        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))  # the decomposition file: written by a thread
+        assert len(bl_ops._SAVING) == 1
+        bpy.ops.wm.open_mainfile(filepath=str(blend))    # which opening waits for
+        assert bl_ops._SAVING == []
         # no timer has run yet: the preview is back from the saved file, on a provisional session
         session = state.SESSIONS[pid]
         assert session.provisional and session.photo.shape[:2] == (24, 16)
