@@ -946,3 +946,30 @@ def test_automatic_mask_with_nobody_in_the_photo_says_so(addon, settings, tmp_pa
     finally:
         settings.mask_mode = "NETWORK"
         bpy.data.images.remove(bpy.data.images[name])
+
+
+def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, settings):
+    import types
+
+    settings.mask_mode = "AUTO"
+    settings.people_found = 2
+    status = bpy.context.window_manager.relight_photo_status
+    status.running, status.stage, status.progress, status.elapsed = True, "Running the network", 0.42, 3.25
+    try:
+        log = []
+        panel = types.SimpleNamespace(layout=_CheckingLayout(log))
+        space = types.SimpleNamespace(image=bpy.data.images[addon["photo"]])
+        context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=bpy.context.window_manager,
+                                        space_data=space)
+        bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
+        labels = [text for kind, text in log if kind == "label"]
+        assert ("prop", "person") in log
+        from blender_addon import bl_props
+
+        assert [item[0] for item in bl_props._person_items(settings, None)] == ["1", "2"]  # one per person
+        assert "2 people found; '.matte' shows the cut-out" in labels
+        assert "Running the network: 42% (3.2 s)" in labels and "Esc cancels" in labels
+    finally:
+        status.running, status.stage, status.progress, status.elapsed = False, "", 0.0, 0.0
+        settings.people_found = 0
+        settings.mask_mode = "NETWORK"
