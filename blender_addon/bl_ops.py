@@ -549,15 +549,23 @@ def restore_saved(context) -> int:
         plan["preview_first"] = not immediately
         if not immediately:
             _show_saved_preview(context, plan)
-    job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
-    job.plans = plans
-    state.RUNNING["restore"] = job
     if immediately:
+        job = _start_restore(plans)
         job.wait()
         _finish_restore(context, job)
     else:
-        bpy.app.timers.register(_poll_restore, first_interval=POLL_SECONDS)
+        # the worker starts on the first timer tick: starting a thread can wait for the
+        # scheduler, a stretch better not added to this one
+        state.RUNNING["restore_plans"] = plans
+        bpy.app.timers.register(_poll_restore, first_interval=0.0)
     return len(plans)
+
+
+def _start_restore(plans: list):
+    job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
+    job.plans = plans
+    state.RUNNING["restore"] = job
+    return job
 
 
 def _show_saved_preview(context, plan: dict) -> None:
@@ -581,6 +589,10 @@ def _show_saved_preview(context, plan: dict) -> None:
 
 
 def _poll_restore():
+    plans = state.RUNNING.pop("restore_plans", None)
+    if plans is not None:
+        _start_restore(plans)
+        return POLL_SECONDS
     job = state.RUNNING.get("restore")
     if job is None:
         return None

@@ -39,7 +39,7 @@ class PhotoSession:
 SESSIONS: dict[str, PhotoSession] = {}        # photo id -> session
 LIGHT_SOURCES: dict[tuple, Any] = {}          # (photo id, model, quality) -> Decomposition
 WORLDS: OrderedDict = OrderedDict()           # World node-state hash -> (WorldLight, {order: SH})
-RUNNING: dict[str, Any] = {}                  # "job": the one network job; "dial": a full-size dial job
+RUNNING: dict[str, Any] = {}                  # "job": the network job; "dial": full size; "restore"
 
 
 def remember_world(key: str, value: tuple) -> None:
@@ -58,4 +58,5 @@ def clear() -> None:
     WORLDS.clear()
     for key in list(RUNNING):
         job = RUNNING.pop(key)
-        job.cancel()
+        if hasattr(job, "cancel"):  # "restore_plans" is a list waiting for its worker
+            job.cancel()

@@ -123,7 +123,9 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
         np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3],
                                    session.preview.relight("studio", rotation_deg=50.0), atol=1e-5)
         assert bl_ops._full_when_resting() is not None  # the full size waits for the photo
-        # the worker has read the photo: the full-size layers follow the dial as it is now
+        # the first timer tick starts the worker; once it has read the photo the
+        # full-size layers follow the dial as it is now
+        assert bl_ops._poll_restore() is not None
         state.RUNNING["restore"].wait(60)
         assert bl_ops._poll_restore() is None
         restored = state.SESSIONS[pid]
