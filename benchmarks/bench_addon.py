@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     relight_wall = time.perf_counter() - t0
     assert result == {"FINISHED"}, result
     stages = op._job.progress.durations(op._job.finished_at)
-    rows.append(("Relight: press to all five images written (wall)", relight_wall, None))
+    rows.append(("Relight: press to all outputs written (wall)", relight_wall, None))
     for stage, seconds in stages:
         rows.append((f"  worker: {stage.lower()}", seconds, None))
     rows.append(("Relight: longest main-thread stretch", probe.worst, 0.100))
