@@ -24,6 +24,7 @@ import argparse
 import math
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import time
@@ -293,6 +294,7 @@ def main(argv=None) -> int:
         met = "" if goal is None else ("yes" if value <= goal else f"no (+{value - goal:.2f} s)")
         print(f"| {name} | {value:.3f} | {'' if goal is None else f'<= {goal:g}'} | {met} |")
     blender_addon.unregister()
+    shutil.rmtree(tmp, ignore_errors=True)  # the 24 MP photo, the .blend and its saved relight
     return 0
 
 
