@@ -69,6 +69,25 @@ def output_by_tag(pid: str, layer: str):
     return None
 
 
+def sync_output_names() -> int:
+    """Rename every output whose photo was renamed ('<photo>.<layer>'); returns how many.
+
+    Idempotent and cheap (one pass over the images), so it runs on every
+    dial change, Relight and image update."""
+    photos = {image.get(PHOTO_ID): image for image in bpy.data.images
+              if PHOTO_ID in image and OUTPUT_OF not in image}
+    renamed = 0
+    for image in bpy.data.images:
+        photo = photos.get(image.get(OUTPUT_OF))
+        if photo is None:
+            continue
+        want = f"{photo.name}.{image.get(OUTPUT_LAYER, '')}"
+        if image.name != want and bpy.data.images.get(want) is None:
+            image.name = want
+            renamed += 1
+    return renamed
+
+
 def owner_of(image) -> str:
     """The photo id an output image belongs to ('' for a photo)."""
     return str(image.get(OUTPUT_OF, ""))

@@ -228,6 +228,7 @@ def refresh_relit(context, preview: bool = False) -> None:
     With `preview` (a UI is there) a large photo gets its screen-sized
     preview now and the full-size image from a worker once the dial rests.
     """
+    bl_images.sync_output_names()
     session = current_session(context)
     if session is None:
         return
@@ -390,8 +391,16 @@ _in_handler = False
 def on_depsgraph_update(scene, depsgraph) -> None:
     """A World edit that changes its light (mapping, sky, image) relights live."""
     global _in_handler
-    if _in_handler or bl_world.baking() or not depsgraph.id_type_updated("WORLD"):
+    if _in_handler or bl_world.baking():
         return  # bl_world.baking(): the updates our own bake scene causes
+    if depsgraph.id_type_updated("IMAGE"):  # a photo renamed: its outputs follow at once
+        _in_handler = True
+        try:
+            bl_images.sync_output_names()
+        finally:
+            _in_handler = False
+    if not depsgraph.id_type_updated("WORLD"):
+        return
     settings = getattr(scene, "relight_photo", None)
     if settings is None or settings.light_kind != "WORLD" or scene.world is None:
         return
@@ -725,6 +734,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
     # the plan gathers every input on the main thread before the worker starts
     def _make_plan(self, context) -> dict:
         settings = _settings(context)
+        bl_images.sync_output_names()
         image = source_image(context, self.image_name)
         read_photo = bl_images.photo_reader(image)  # checks the photo has pixels and a usable size
         mask = _mask_inputs(settings, image)

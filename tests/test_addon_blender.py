@@ -769,6 +769,13 @@ def test_a_renamed_photo_keeps_its_outputs_and_dials(addon, settings):
     pointer = relit.as_pointer()
     try:
         photo.name = "renamed.png"
+        import types
+
+        # Blender's depsgraph update for the rename: the outputs follow at once
+        bl_ops.on_depsgraph_update(bpy.context.scene, types.SimpleNamespace(id_type_updated=lambda k: k == "IMAGE"))
+        assert {i.name for i in bpy.data.images if i.name.startswith("renamed.png.")} >= \
+            {f"renamed.png.{layer}" for layer in ("albedo", "alpha", "relit", "residual", "shading")}
+        assert not any(bl_images.owner_of(i) and i.name.startswith(f"{name}.") for i in bpy.data.images)
         impostor = bpy.data.images.new(name, 8, 8)  # a new image takes the old name: it is not the photo
         settings.rotation = math.radians(60.0)
         assert f"renamed.png.relit" in bpy.data.images and f"{name}.relit" not in bpy.data.images
