@@ -205,10 +205,12 @@ def render_relit(context, session: state.PhotoSession, dials=None):
     return _write_output(session, "relit", rgba, session.photo.shape[:2])
 
 
-def layer_buffers(session: state.PhotoSession, dials, token=None) -> dict:
+def layer_buffers(session: state.PhotoSession, dials, token=None, with_relit: bool = True) -> dict:
     """Every output layer as a buffer in Blender's layout (worker-safe)."""
     light, rotation, exposure, strength = dials
-    buffers = {"relit": engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)}
+    buffers = {}
+    if with_relit:
+        buffers["relit"] = engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)
     maps = engine.layers(session.decomposition, light, rotation, exposure)
     for layer in list(maps):
         if token is not None:
@@ -696,12 +698,50 @@ def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken
     progress.enter("Relighting at full size", 0.60)
     dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
     token.check()
-    buffers = layer_buffers(session, dials, token)
+    if plan.get("layers_later"):  # with a UI the relit image first, the other layers after it
+        buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
+    else:
+        buffers = layer_buffers(session, dials, token)
     progress.enter("Preparing the preview", 0.90)
     session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
     progress.enter("Writing the images", 0.95)
     return dict(session=session, buffers=buffers, light_decomposition=light_decomposition,
-                network_seconds=network_seconds)
+                network_seconds=network_seconds, dials=dials)
+
+
+def start_layers(session: state.PhotoSession, dials):
+    """The layers other than relit (albedo, shading, residual, alpha, matte) on a worker,
+    after Relight has shown the relit image; _poll_layers writes them one per tick."""
+    job = jobs.BackgroundJob(lambda: layer_buffers(session, dials, with_relit=False), label="layers")
+    job.session = session
+    previous = state.RUNNING.get("layers")
+    if previous is not None:
+        previous.cancel()
+    state.RUNNING["layers"] = job
+    if not bpy.app.timers.is_registered(_poll_layers):
+        bpy.app.timers.register(_poll_layers, first_interval=POLL_SECONDS)
+    return job
+
+
+def _poll_layers():
+    job = state.RUNNING.get("layers")
+    if job is None:
+        return None
+    job_state = job.poll()
+    if job_state is jobs.JobState.RUNNING:
+        return POLL_SECONDS
+    session = job.session
+    if job_state is jobs.JobState.FAILED:
+        _set_status(bpy.context, str(engine.user_error(job.error)), is_error=True)
+    elif job_state is jobs.JobState.DONE and state.SESSIONS.get(session.photo_id) is session \
+            and bl_images.photo_by_id(session.photo_id) is not None:
+        buffers = job.result
+        for layer in [layer for layer in LAYER_ORDER if layer in buffers]:
+            _write_output(session, layer, buffers.pop(layer), session.photo.shape[:2])
+            if buffers:
+                return 0.0  # one image per call: the UI draws in between
+    _release(job, "layers")
+    return None
 
 
 def _release(job, slot: str = "job") -> None:
@@ -774,11 +814,12 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         return (settings.light_kind, settings.preset, settings.hdr_path, settings.rotation, settings.exposure,
                 settings.strength, settings.light_image.name if settings.light_image else "")
 
-    def _start(self, context):
+    def _start(self, context, layers_later: bool = False):
         if "job" in state.RUNNING:
             raise ValueError("A relight is already running; press Esc to cancel it first.")
         self._started = time.monotonic()
         self._plan = self._make_plan(context)
+        self._plan["layers_later"] = layers_later
         plan = self._plan
         token, progress = engine.CancelToken(), jobs.Progress()
         # the thread gets plain data only: never the operator, which Blender may free
@@ -820,6 +861,9 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         wall = time.monotonic() - self._started
         message = (f"Relit '{session.source}' in {wall:.1f} s "
                    f"(network {self._result['network_seconds']:.1f} s).")
+        if self._plan.get("layers_later"):
+            start_layers(session, self._result["dials"])
+            message = message[:-1] + "; the other layers follow."
         _set_status(context, message)
         self.report({"INFO"}, message)
         if self._dial_values(_settings(context)) != self._plan["dials_at_start"]:
@@ -858,7 +902,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         if self.synchronous or pipeline.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
             return self.execute(context)
         try:
-            self._start(context)
+            self._start(context, layers_later=True)
         except ValueError as exc:
             return self._error(context, exc)
         wm = context.window_manager
@@ -989,7 +1033,7 @@ CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)
 _HANDLERS = ((bpy.app.handlers.depsgraph_update_post, on_depsgraph_update),
              (bpy.app.handlers.load_post, on_load),
              (bpy.app.handlers.save_post, on_save_post))
-_TIMERS = (_deferred_refresh, _full_when_resting, _poll_full_size, _poll_restore, _poll_saves)
+_TIMERS = (_deferred_refresh, _full_when_resting, _poll_full_size, _poll_restore, _poll_saves, _poll_layers)
 
 
 def register() -> None:

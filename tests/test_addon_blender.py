@@ -980,3 +980,37 @@ def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, s
         status.running, status.stage, status.progress, status.elapsed = False, "", 0.0, 0.0
         settings.people_found = 0
         settings.mask_mode = "NETWORK"
+
+
+def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon, settings):
+    import time
+    import types
+
+    name = addon["photo"]
+    state.SESSIONS.clear()
+    for layer in ("relit", "albedo", "shading", "residual", "alpha"):
+        if f"{name}.{layer}" in bpy.data.images:
+            bpy.data.images.remove(bpy.data.images[f"{name}.{layer}"])
+    op, context = _modal_operator(name)
+    op._start(context, layers_later=True)  # what invoke() does with a window
+    result, deadline = {"PASS_THROUGH"}, time.monotonic() + 120
+    while result == {"PASS_THROUGH"} and time.monotonic() < deadline:
+        time.sleep(0.02)
+        result = op.modal(context, types.SimpleNamespace(type="TIMER"))
+    assert result == {"FINISHED"} and op.reports[-1][1].endswith("; the other layers follow.")
+    assert f"{name}.relit" in bpy.data.images and f"{name}.albedo" not in bpy.data.images
+    try:
+        state.RUNNING["layers"].wait(60)
+        writes = 0
+        while bl_ops._poll_layers() is not None:  # one image per timer call
+            writes += 1
+        assert writes == 3 and "layers" not in state.RUNNING
+        run = session(name)
+        want = run.decomposition.layers("studio")
+        for layer in ("albedo", "shading", "residual"):
+            np.testing.assert_allclose(pixels(f"{name}.{layer}")[..., :3], want[layer], atol=TIGHT)
+        np.testing.assert_allclose(pixels(f"{name}.alpha")[..., 0], want["alpha"], atol=TIGHT)
+    finally:
+        if bpy.app.timers.is_registered(bl_ops._poll_layers):
+            bpy.app.timers.unregister(bl_ops._poll_layers)
+        state.RUNNING.pop("layers", None)
