@@ -52,6 +52,7 @@ class CancelToken:
     def __init__(self):
         self._event = threading.Event()
         self._run_options = []
+        self.stopped_inference = False  # True when cancel() ended a network pass while it ran
 
     def cancel(self) -> None:
         self._event.set()
@@ -113,6 +114,7 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
         decomposition = relighter.decompose(photo, mask=mask, working_size=working_size)
     except Exception:
         if cancel is not None and cancel.cancelled:
+            cancel.stopped_inference = True  # onnxruntime gave up the run it was in
             raise Cancelled() from None
         raise
     finally:

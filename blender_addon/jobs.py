@@ -53,7 +53,7 @@ class BackgroundJob:
                  progress: Progress | None = None):
         self.label = label
         self.progress = progress or Progress()
-        self._token = cancel_token
+        self.cancel_token = cancel_token
         self._fn = fn
         self._result: Any = None
         self._error: BaseException | None = None
@@ -76,8 +76,8 @@ class BackgroundJob:
     def cancel(self) -> None:
         """Drop the result; with a cancel token the work stops too, else the thread finishes unseen."""
         self._cancelled.set()
-        if self._token is not None:
-            self._token.cancel()
+        if self.cancel_token is not None:
+            self.cancel_token.cancel()
 
     @property
     def finished(self) -> bool:
