@@ -14,11 +14,10 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_images, bl_world, engine, jobs, pipeline, quality, state
+from . import bl_images, bl_world, engine, jobs, pipeline, quality, state, work
 
 SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, scripts)
 POLL_SECONDS = 0.05               # how often the main thread looks at a running job
-PREVIEW_LONG_SIDE = 1024          # px: the screen-sized preview shown while a dial moves on a large photo
 REST_SECONDS = 0.3                # a dial untouched this long is at rest: the full-size relight starts
 LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual", "matte")  # relit first: what the user sees
 
@@ -102,20 +101,6 @@ def _mask_inputs(settings, image) -> dict:
             raise ValueError("The photo has no alpha channel to use as the mask.")
         inputs["use_photo_alpha"] = True
     return inputs
-
-
-def _make_mask(inputs: dict, pixels: pipeline.PhotoPixels) -> tuple:
-    """(mask or None, people found or 0) on the worker: AUTO runs the person matte."""
-    if inputs["mode"] == "AUTO":
-        return engine.person_matte(pixels.rgb, inputs["person"])
-    alpha = pixels.alpha if inputs["use_photo_alpha"] else None
-    return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
-                                inputs["name"]), 0
-
-
-def _mask_key(inputs: dict) -> tuple:
-    """What the mask was made from: (mode, mask image name, or the person's number for AUTO)."""
-    return (inputs["mode"], str(inputs["person"]) if inputs["mode"] == "AUTO" else inputs["name"])
 
 
 def _light_image_key(settings, model_path: str) -> tuple | None:
@@ -205,23 +190,6 @@ def render_relit(context, session: state.PhotoSession, dials=None):
     return _write_output(session, "relit", rgba, session.photo.shape[:2])
 
 
-def layer_buffers(session: state.PhotoSession, dials, token=None, with_relit: bool = True) -> dict:
-    """Every output layer as a buffer in Blender's layout (worker-safe)."""
-    light, rotation, exposure, strength = dials
-    buffers = {}
-    if with_relit:
-        buffers["relit"] = engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)
-    maps = engine.layers(session.decomposition, light, rotation, exposure)
-    for layer in list(maps):
-        if token is not None:
-            token.check()
-        buffers[layer] = pipeline.to_blender_rgba(maps.pop(layer))  # each map freed once packed
-    if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
-        # the photo cut out by the person matte, so the user can check what was found
-        buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)
-    return buffers
-
-
 # ------------------------------------------------------------------ dials
 
 def refresh_relit(context, preview: bool = False) -> None:
@@ -283,7 +251,7 @@ def start_full_size(session: state.PhotoSession, dials, with_layers: bool = Fals
     """Relight the full-size photo on a worker; _poll_full_size writes it if no dial moved since."""
     generation = session.dial_generation
     if with_layers:
-        job = jobs.BackgroundJob(lambda: layer_buffers(session, dials), label="full-size")
+        job = jobs.BackgroundJob(lambda: work.layer_buffers(session, dials), label="full-size")
     else:
         job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials)},
                                  label="full-size")
@@ -419,24 +387,7 @@ def on_depsgraph_update(scene, depsgraph) -> None:
 
 # ------------------------------------------------------------------ save and reopen
 
-def _lights_to_save() -> list:
-    out = []
-    for (pid, model_path, quality_key), light in state.LIGHT_SOURCES.items():
-        coeffs = getattr(light, "light", light)  # a Decomposition's estimate, or restored coefficients
-        out.append([pid, model_path, quality_key, np.asarray(coeffs, np.float64).tolist()])
-    return out
-
-
 _SAVING: list = []  # [(thread, session, failures)] writing decomposition files after a save
-
-
-def _save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
-    try:
-        engine.save_decomposition(path, session.decomposition, meta, session.preview)
-    except OSError as exc:
-        session.saved_to = ""
-        failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "
-                        f"({exc.strerror or exc}): it will need Relight after reopening.")
 
 
 def wait_for_saves(context=None) -> None:
@@ -477,15 +428,15 @@ def on_save_post(*_args) -> None:
             continue  # a provisional session's file is the one it came from
         meta = dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
                     quality=session.quality, mask_key=list(session.mask_key), source=session.source,
-                    lights=_lights_to_save())
+                    lights=work.lights_to_save())
         session.saved_to = path
         failures: list = []
         if _updates_immediately():
-            _save_one(session, path, meta, failures)
+            work.save_one(session, path, meta, failures)
             if failures:
                 _set_status(bpy.context, failures[0], is_error=True)
             continue
-        thread = threading.Thread(target=_save_one, args=(session, path, meta, failures),
+        thread = threading.Thread(target=work.save_one, args=(session, path, meta, failures),
                                   name="relight-save", daemon=False)
         thread.start()
         _SAVING.append((thread, session, failures))
@@ -511,25 +462,6 @@ def _restore_plan(context, image, path: str) -> dict:
     dials = _dials_for(context, int(meta["sh_order"]), meta["model_path"])
     return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path,
                 dials=dials)
-
-
-def _restore_work(plan: dict) -> tuple:
-    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition,
-    relight it: (session, buffers); a large photo gets its preview only (the rest follows)."""
-    meta = plan["meta"]
-    pixels = plan["reader"]()
-    if pixels.digest != meta["digest"]:
-        raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
-    mask, people = _make_mask(plan["mask"], pixels)
-    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
-    session = state.PhotoSession(
-        photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
-        model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
-        digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
-        saved_to=plan["path"], people=people)
-    if plan["preview_first"] and session.preview is not None:
-        return session, {"relit": engine.relit_rgba(session.preview, *plan["dials"])}
-    return session, layer_buffers(session, plan["dials"])
 
 
 def restore_saved(context) -> int:
@@ -573,7 +505,7 @@ def restore_saved(context) -> int:
 
 
 def _start_restore(plans: list):
-    job = jobs.BackgroundJob(lambda: [_restore_work(p) for p in plans], label="restore")
+    job = jobs.BackgroundJob(lambda: [work.restore_work(p) for p in plans], label="restore")
     job.plans = plans
     state.RUNNING["restore"] = job
     return job
@@ -662,57 +594,10 @@ def on_load(*_args) -> None:
 
 # ------------------------------------------------------------------ the Relight job
 
-def _relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> dict:
-    """The worker thread's whole job: plain data in, a session and image buffers out (no bpy)."""
-    progress.enter("Reading the photo", 0.02)
-    relighter = plan["relighter"] or engine.open_relighter(plan["model_path"])
-    light = plan["light"]
-    if isinstance(light, tuple):  # checked before the network runs
-        kind, value = light
-        light = pipeline.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
-            pipeline.hdr_file_light(value, relighter.sh_order)
-    pixels = plan["read_photo"]()
-    token.check()
-    pipeline.check_photo_content(pixels.rgb)
-    if plan["mask"]["mode"] == "AUTO":
-        progress.enter("Finding the people in the photo", 0.05)
-    mask, people = _make_mask(plan["mask"], pixels)
-    token.check()
-    progress.enter("Running the network", 0.10)
-    network_start = time.monotonic()
-    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
-    light_decomposition = None
-    if plan["light_reader"] is not None:
-        progress.enter("Estimating the light of the other photo", 0.45)
-        other = plan["light_reader"]()
-        pipeline.check_photo_content(other.rgb)
-        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token)
-        light = light_decomposition
-    elif light is None:
-        light = plan["light_cached"]
-    network_seconds = time.monotonic() - network_start
-    session = state.PhotoSession(
-        photo_id=plan["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
-        model_path=plan["model_path"], quality=plan["quality"], mask_key=_mask_key(plan["mask"]),
-        digest=pixels.digest, people=people)
-    progress.enter("Relighting at full size", 0.60)
-    dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
-    token.check()
-    if plan.get("layers_later"):  # with a UI the relit image first, the other layers after it
-        buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
-    else:
-        buffers = layer_buffers(session, dials, token)
-    progress.enter("Preparing the preview", 0.90)
-    session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
-    progress.enter("Writing the images", 0.95)
-    return dict(session=session, buffers=buffers, light_decomposition=light_decomposition,
-                network_seconds=network_seconds, dials=dials)
-
-
 def start_layers(session: state.PhotoSession, dials):
     """The layers other than relit (albedo, shading, residual, alpha, matte) on a worker,
     after Relight has shown the relit image; _poll_layers writes them one per tick."""
-    job = jobs.BackgroundJob(lambda: layer_buffers(session, dials, with_relit=False), label="layers")
+    job = jobs.BackgroundJob(lambda: work.layer_buffers(session, dials, with_relit=False), label="layers")
     job.session = session
     previous = state.RUNNING.get("layers")
     if previous is not None:
@@ -823,7 +708,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         plan = self._plan
         token, progress = engine.CancelToken(), jobs.Progress()
         # the thread gets plain data only: never the operator, which Blender may free
-        self._job = jobs.BackgroundJob(lambda: _relight_work(plan, progress, token), label="relight",
+        self._job = jobs.BackgroundJob(lambda: work.relight_work(plan, progress, token), label="relight",
                                        cancel_token=token, progress=progress)
         state.RUNNING["job"] = self._job
 

@@ -837,7 +837,7 @@ def test_esc_stops_the_network_while_it_runs(addon, settings, monkeypatch):
 
 def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(addon, settings, monkeypatch):
     name = addon["photo"]
-    monkeypatch.setattr(bl_ops, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo is "large" against 24 px
+    monkeypatch.setattr(bl_ops.work, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo is "large" against 24 px
     relight(name)
     run = session(name)
     run.preview = bl_ops.engine.preview_decomposition(run.decomposition, 24)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blender_addon import engine, jobs, manifest, pipeline, quality
+from blender_addon import engine, jobs, manifest, pipeline, quality, work
 from relight import sh
 from relight.exr import write_exr
 
@@ -185,6 +185,16 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     np.testing.assert_array_equal(cut[::-1], np.dstack([rgb, rgb[..., 1]]))
     tall = rng.uniform(0, 1, (300, 400, 4)).astype(np.float32)  # more rows than one block (163)
     np.testing.assert_array_equal(pipeline.to_blender_rgba(tall).reshape(300, 400, 4)[::-1], tall)
+
+
+def test_the_relight_job_refuses_a_black_photo_before_loading_anything():
+    black = pipeline.PhotoPixels(np.zeros((64, 48, 3), np.float32), None, "d")
+    plan = dict(read_photo=lambda: black, relighter=None, model_path="/nonexistent/model.onnx",
+                light=("PRESET", "studio"), mask=dict(mode="NETWORK"))
+    progress = jobs.Progress()
+    with pytest.raises(ValueError, match=r"^The photo is black"):  # not "the model file does not exist"
+        work.relight_work(plan, progress, engine.CancelToken())
+    assert [stage for stage, _t in progress.history] == ["Reading the photo"]
 
 
 def test_buffer_pool_reuses_large_buffers_and_keeps_a_bounded_number():

@@ -100,7 +100,7 @@ def test_a_photo_changed_on_disk_is_not_restored_as_if_it_were_the_same(addon, m
 def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_the_photo_is_read(
         addon, model, monkeypatch):
     name = _setup(model, addon)
-    monkeypatch.setattr(bl_ops, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo counts as large
+    monkeypatch.setattr(bl_ops.work, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo counts as large
     assert _relight(name) == {"FINISHED"}
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
     before = state.SESSIONS[pid].preview.relight("studio")

@@ -1,0 +1,131 @@
+"""What the add-on's worker threads do: plain Python, no bpy.
+
+The Relight job (read and check the photo, person matte, network, relight,
+pack the outputs into Blender's layout), the restore job after a file is
+opened, and writing a saved decomposition. bl_ops gathers their inputs on
+Blender's main thread and hands their buffers to Blender.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import engine, jobs, pipeline, state
+
+PREVIEW_LONG_SIDE = 1024  # px: the screen-sized preview shown while a dial moves on a large photo
+
+
+def make_mask(inputs: dict, pixels: pipeline.PhotoPixels) -> tuple:
+    """(mask or None, people found or 0) on the worker: AUTO runs the person matte."""
+    if inputs["mode"] == "AUTO":
+        return engine.person_matte(pixels.rgb, inputs["person"])
+    alpha = pixels.alpha if inputs["use_photo_alpha"] else None
+    return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
+                                inputs["name"]), 0
+
+
+def mask_key(inputs: dict) -> tuple:
+    """What the mask was made from: (mode, mask image name, or the person's number for AUTO)."""
+    return (inputs["mode"], str(inputs["person"]) if inputs["mode"] == "AUTO" else inputs["name"])
+
+
+def layer_buffers(session: state.PhotoSession, dials, token=None, with_relit: bool = True) -> dict:
+    """Every output layer as a buffer in Blender's layout (worker-safe)."""
+    light, rotation, exposure, strength = dials
+    buffers = {}
+    if with_relit:
+        buffers["relit"] = engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)
+    maps = engine.layers(session.decomposition, light, rotation, exposure)
+    for layer in list(maps):
+        if token is not None:
+            token.check()
+        buffers[layer] = pipeline.to_blender_rgba(maps.pop(layer))  # each map freed once packed
+    if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
+        # the photo cut out by the person matte, so the user can check what was found
+        buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)
+    return buffers
+
+
+def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> dict:
+    """The worker thread's whole job: plain data in, a session and image buffers out (no bpy)."""
+    progress.enter("Reading the photo", 0.02)
+    pixels = plan["read_photo"]()
+    token.check()
+    pipeline.check_photo_content(pixels.rgb)  # a photo with no visible person fails before anything loads
+    relighter = plan["relighter"] or engine.open_relighter(plan["model_path"])
+    light = plan["light"]
+    if isinstance(light, tuple):  # a preset name or an HDR path: checked before the network runs
+        kind, value = light
+        light = pipeline.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
+            pipeline.hdr_file_light(value, relighter.sh_order)
+    if plan["mask"]["mode"] == "AUTO":
+        progress.enter("Finding the people in the photo", 0.05)
+    mask, people = make_mask(plan["mask"], pixels)
+    token.check()
+    progress.enter("Running the network", 0.10)
+    network_start = time.monotonic()
+    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
+    light_decomposition = None
+    if plan["light_reader"] is not None:
+        progress.enter("Estimating the light of the other photo", 0.45)
+        other = plan["light_reader"]()
+        pipeline.check_photo_content(other.rgb)
+        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token)
+        light = light_decomposition
+    elif light is None:
+        light = plan["light_cached"]
+    network_seconds = time.monotonic() - network_start
+    session = state.PhotoSession(
+        photo_id=plan["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
+        model_path=plan["model_path"], quality=plan["quality"], mask_key=mask_key(plan["mask"]),
+        digest=pixels.digest, people=people)
+    progress.enter("Relighting at full size", 0.60)
+    dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
+    token.check()
+    if plan.get("layers_later"):  # with a UI the relit image first, the other layers after it
+        buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
+    else:
+        buffers = layer_buffers(session, dials, token)
+    progress.enter("Preparing the preview", 0.90)
+    session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
+    progress.enter("Writing the images", 0.95)
+    return dict(session=session, buffers=buffers, light_decomposition=light_decomposition,
+                network_seconds=network_seconds, dials=dials)
+
+
+def restore_work(plan: dict) -> tuple:
+    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition,
+    relight it: (session, buffers); a large photo gets its preview only (the rest follows)."""
+    meta = plan["meta"]
+    pixels = plan["reader"]()
+    if pixels.digest != meta["digest"]:
+        raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
+    mask, people = make_mask(plan["mask"], pixels)
+    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
+    session = state.PhotoSession(
+        photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
+        model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
+        digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
+        saved_to=plan["path"], people=people)
+    if plan["preview_first"] and session.preview is not None:
+        return session, {"relit": engine.relit_rgba(session.preview, *plan["dials"])}
+    return session, layer_buffers(session, plan["dials"])
+
+
+def lights_to_save() -> list:
+    out = []
+    for (pid, model_path, quality_key), light in state.LIGHT_SOURCES.items():
+        coeffs = getattr(light, "light", light)  # a Decomposition's estimate, or restored coefficients
+        out.append([pid, model_path, quality_key, np.asarray(coeffs, np.float64).tolist()])
+    return out
+
+
+def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
+    try:
+        engine.save_decomposition(path, session.decomposition, meta, session.preview)
+    except OSError as exc:
+        session.saved_to = ""
+        failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "
+                        f"({exc.strerror or exc}): it will need Relight after reopening.")
