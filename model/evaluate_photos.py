@@ -5,8 +5,9 @@ photo in DIR. Real photos have no ground truth, so the one number is the
 reconstruction: the photo re-rendered from its own decomposition,
 albedo * (T . L) + E . L with the predicted light L (negative values set to
 0, as the runtime returns them), against the photo itself (linear, at the
-network's working resolution, weighted by the predicted matte, or by the
-file's alpha channel when it has one). A contact
+network's working resolution, weighted by the matte: the file's alpha channel
+when it has one, else the person segmenter's (relight.matte), else the
+network's alpha head). A contact
 sheet shows each photo relit under three bundled training presets, each at
 0 and 180 degrees. Writes OUT/photos.md, OUT/photos.json and
 OUT/contact_sheet.png, each atomically. Needs no torch.
@@ -47,7 +48,7 @@ class PhotoResult:
     name: str
     size: tuple[int, int]              # (H, W) of the photo
     working_size: tuple[int, int]      # (h, w) the network saw
-    matte: str                         # "predicted" or "file alpha"
+    matte: str                         # "file alpha", "person segmenter" or the network's alpha
     coverage: float                    # mean matte over the crop the network saw
     light_luminance: float             # mean luminance of the predicted light
     light_motion: float                # metrics.spatial_change of the person, directional light 0 vs 180 deg
@@ -74,7 +75,13 @@ def column_labels() -> list[str]:
 def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
     """Decompose one photo, measure its reconstruction and relight it for the sheet."""
     image, file_mask = photo_io.read_photo(path)
-    dec = relighter.decompose(image, mask=file_mask)
+    # as `relight image` does: the file's alpha, else the person segmenter's matte; where it
+    # finds nobody or cannot run (a test card, an image under 32 px), the network's alpha head
+    source = "file alpha" if file_mask is not None else "person segmenter"
+    try:
+        dec = relighter.decompose(image, mask=file_mask, matte="person")
+    except ValueError:  # relight.matte.NoPersonError, or too small for the segmenter
+        dec, source = relighter.decompose(image, matte="network"), "network alpha (no person found)"
     # the network's own resolution: the full-resolution result borrows the photo's
     # detail (runtime docstring), which would flatter a reconstruction measured there
     rerendered = dec.relight_working(dec)
@@ -95,7 +102,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
             tiles.append(dec.relight(name, rotation_deg=rotation))
     return PhotoResult(
         name=path.name, size=image.shape[:2], working_size=dec.working_size,
-        matte="predicted" if file_mask is None else "file alpha",
+        matte=source,
         coverage=float(dec.alpha.mean()), light_luminance=float(sh.mean_luminance(dec.light)),
         light_motion=motion,
         reconstruction=recon, tiles=tiles)
@@ -145,7 +152,8 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
     note = ("Reconstruction: the photo re-rendered from its own decomposition, albedo * (T . L) + E . L "
             "with the *predicted* light L (clamped at 0 as the runtime returns it), against the photo; "
             "linear values at the network's working resolution (crop around the person, longest side "
-            f"{working} px), each pixel weighted by the predicted matte (or the file's alpha). L1 and L2 "
+            f"{working} px), each pixel weighted by the matte (the file's alpha, else the person "
+            "segmenter's, else the network's). L1 and L2 "
             "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
             "this measures self-consistency, not relighting accuracy.")
     lines = [f"# Real photos (`{model}`)", "", note, "",

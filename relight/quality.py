@@ -4,7 +4,7 @@ Blender add-on (blender_addon/quality.py) all read PRESETS.
 
 `model` names an entry of the model registry (relight/models/models.json); the
 precision is a property of that file (its `relight.precision` metadata), so an
-fp16 preset names the fp16 export (e.g. "default-fp16"). None runs the
+fp16 preset would name an fp16 export (none ships: docs/model.md). None runs the
 registry's default model. `working_size` is the longest side of the crop around
 the person that the network sees (relight.runtime). The figures that should
 decide this table come from benchmarks/bench_tradeoffs.py (docs/TRADEOFFS.md).
@@ -29,16 +29,16 @@ class QualityPreset:
 
 
 # Fastest first. Chosen by the rule of benchmarks/bench_tradeoffs.py on the held-out set
-# (docs/TRADEOFFS.md, 2026-11-21): Draft = fastest Pareto point, Balanced = fastest Pareto
-# point within 0.5 dB of the best, Best = best interior PSNR. Measured: small @128 19.50 dB
-# in 14 ms, small @192 19.71 dB in 25 ms, default @256 20.06 dB in 58 ms (1 thread, 256 px
-# crops). fp16 files: same error, 1-5% slower on the CPU provider. Larger working sizes did
-# not lower the error of these models (trained on 128 and 256 px crops); the detail transfer
-# brings back the photo's own fine texture at full resolution whatever the size.
+# (docs/TRADEOFFS.md, 2026-11-22): Draft = fastest Pareto point, Balanced = fastest Pareto
+# point within 0.5 dB of the best, Best = best interior PSNR. Measured with the one shipped
+# model, the geometry-first network (trained on 128 px crops): @96 20.16 dB in 9.8 ms,
+# @112 21.13 dB in 11.9 ms, @160 21.14 dB in 20.2 ms (1 thread, 64 pairs, 256 px crops);
+# 128-224 px are within 0.4 dB of each other. The detail transfer brings back the photo's
+# own fine texture at full resolution whatever the size.
 PRESETS: tuple[QualityPreset, ...] = (
-    QualityPreset("draft", "Draft", "small", 128, "Fastest: the small network sees the person at 128 px"),
-    QualityPreset("balanced", "Balanced", "small", 192, "The small network sees the person at 192 px"),
-    QualityPreset("best", "Best", "default", 256, "The default network sees the person at 256 px"),
+    QualityPreset("draft", "Draft", "geometry", 96, "Fastest: the network sees the person at 96 px"),
+    QualityPreset("balanced", "Balanced", "geometry", 112, "The network sees the person at 112 px"),
+    QualityPreset("best", "Best", "geometry", 160, "The network sees the person at 160 px"),
 )
 DEFAULT = "balanced"
 

@@ -34,18 +34,23 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # The scenes: deterministic for a seed (same bodies, poses, lights, samples).
 SCENES, SEED, RES, LIGHTS, SAMPLES, ORDER = 3, 20250, 128, 2, 16, 4
-# The runtime's working size: the network was trained on 256 px crops around the person.
-WORKING_SIZE = 256
+# The runtime's working size: the default quality preset's, as a user gets it (relight/quality.py).
+WORKING_SIZE = 112
 
-# measured: default.onnx (sha256 03ef3b11935b): mean PSNR model 21.52 dB, identity 20.26 dB,
-# exposure-matched 23.10 dB over 6 pairs (`.venv/bin/python tests/test_shipped_model.py`).
-# The shipped model beats identity (+1.26 dB) but NOT exposure-matched identity (-1.58 dB;
-# docs/EVALUATION.md says why). Rule: tolerance = half the measured gain over identity
-# (0.63 dB); each margin = measured advantage - tolerance, rounded down to 0.1 dB. So the
-# guard demands a real gain over identity and, against exposure-matched identity, that the
-# model does not fall further behind than measured by more than that tolerance.
+# measured: geometry.onnx (sha256 461cff4635ee): mean PSNR model 21.40 dB, identity 20.22 dB,
+# exposure-matched 22.98 dB over 6 pairs (`.venv/bin/python tests/test_shipped_model.py`).
+# The shipped model beats identity (+1.19 dB) but NOT exposure-matched identity on these six
+# pairs (-1.58 dB; on the 96 held-out pairs of docs/EVALUATION.md it is 0.16 dB behind).
+# Rule: tolerance = half the measured gain over identity (0.59 dB); each margin = measured
+# advantage - tolerance, rounded down to 0.1 dB. So the guard demands a real gain over
+# identity and, against exposure-matched identity, that the model does not fall further
+# behind than measured by more than that tolerance.
 MARGIN_OVER_IDENTITY_DB: float | None = 0.6
-MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = -2.3
+MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = -2.2
+# measured, mean over the 6 images of each image's median normal error: geometry.onnx 25.0 deg;
+# the paper-decomposition models, whose T came out near flat, 33.8 (the 2026-11-21 default) and
+# 36.1 (trained with the geometry model's data and budget). Bound: half way, rounded down.
+MAX_MEDIAN_NORMAL_ERROR_DEG: float | None = 29.0
 
 
 # ------------------------------------------------------------------ the measurement
@@ -113,6 +118,30 @@ def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
                     "exposure-matched": metrics.psnr(scene.images[a] * (lb / la), target, weight),
                 })
     return rows
+
+
+def normal_errors(model_path: Path, scene_paths: list[Path]) -> list[float]:
+    """Median angle (degrees) per scene and light between the normals the model's transport
+    implies (T's band-1 direction) and the farm's normal pass, over fully covered pixels."""
+    from model import metrics
+    from relight import dataset
+    from relight.runtime import Relighter
+
+    relighter = Relighter(model_path, working_size=WORKING_SIZE)
+    out = []
+    for path in scene_paths:
+        scene = dataset.read_scene(path)
+        weight = metrics.interior_weight(scene.alpha[..., 0]) > 0
+        for image in scene.images:
+            dec = relighter.decompose(image, mask=scene.alpha[..., 0])
+            t = dec.transport
+            d = np.stack([t[..., 3], t[..., 1], t[..., 2]], axis=-1)
+            d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+            full = dec._to_full(np.ascontiguousarray(d, dtype=np.float32))  # to the scene's pixels
+            full /= np.maximum(np.linalg.norm(full, axis=-1, keepdims=True), 1e-12)
+            cos = np.clip((full * scene.normal).sum(-1), -1.0, 1.0)[weight]
+            out.append(float(np.median(np.degrees(np.arccos(cos)))))
+    return out
 
 
 def model_relighter(model_path: Path):
@@ -189,6 +218,17 @@ def test_shipped_default_model_beats_identity_on_held_out_lights(scenes):
     assert not problems, f"{model.name}: " + "; ".join(problems) + "\n" + table(rows, "model")
 
 
+def test_shipped_default_model_predicts_normals(scenes):
+    """The geometry the relighting is built on: the median normal error over the guard's
+    scenes stays below the measured bound (a model whose transport collapsed to flat
+    shading, as the paper-layout models did, has no normal to speak of and fails it)."""
+    if MAX_MEDIAN_NORMAL_ERROR_DEG is None:
+        pytest.fail("tests/test_shipped_model.py: the normal bound is not measured yet")
+    errors = normal_errors(default_model(), scenes())
+    print("median normal error per image (deg):", ", ".join(f"{e:.1f}" for e in errors))
+    assert float(np.mean(errors)) < MAX_MEDIAN_NORMAL_ERROR_DEG, errors
+
+
 def test_guard_passes_the_true_decomposition(scenes):
     """The harness itself: the scene's own albedo and transport (GT), relit by the runtime with
     light b's sidecar coefficients, must clear the guard. This proves the frames, SH order and
@@ -259,6 +299,9 @@ def main(argv=None) -> int:
 
     m = means(rows)
     print(table(rows, model.name))
+    errors = normal_errors(model, scene_paths)
+    print("median normal error per image (deg): " + ", ".join(f"{e:.1f}" for e in errors)
+          + f"; mean {np.mean(errors):.1f}")
     print(f"\nmeasured: {model.name} (sha256 {file_sha256(model)[:12]}): mean PSNR model {m['relit']:.2f} dB, "
           f"identity {m['identity']:.2f} dB, exposure-matched {m['exposure-matched']:.2f} dB over {len(rows)} "
           f"pairs (scenes in {folder})")

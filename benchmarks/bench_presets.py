@@ -1,0 +1,68 @@
+"""What each quality preset costs on a photo: decomposition (network at the preset's working
+size, with a mask and with the person segmenter finding it) and one relight.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_presets.py [--size 512] [--threads 2] [--repeats 7]
+
+Uses the shipped models (relight/quality.py names them) on the bundled photo
+relight/data/examples/astronaut.jpg resized to --size x --size. Times are medians
+of --repeats after a warm-up, the presets timed in alternation so that a load
+drifting on a shared machine shifts them alike (compare ratios).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from relight import photo as photo_io, quality  # noqa: E402
+from relight.runtime import Relighter, resize_linear  # noqa: E402
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=7)
+    args = p.parse_args(argv)
+    image = photo_io.read_photo(ROOT / "relight" / "data" / "examples" / "astronaut.jpg")[0]
+    image = resize_linear(image, args.size, args.size)
+    mask = np.zeros(image.shape[:2], np.float32)
+    mask[args.size // 8: -args.size // 16, args.size // 8: -args.size // 8] = 1.0
+    runs = {}
+    for preset in quality.PRESETS:
+        r = Relighter(quality.model_path(preset.key), threads=args.threads, working_size=preset.working_size)
+        d = r.decompose(image, mask)
+        runs[(preset.label, "decompose, mask given")] = lambda r=r: r.decompose(image, mask)
+        runs[(preset.label, "decompose, person segmenter")] = lambda r=r: r.decompose(image, matte="person")
+        runs[(preset.label, "relight (full size)")] = lambda d=d: d.relight("sunset")
+    for fn in runs.values():
+        fn()
+    times = {k: [] for k in runs}
+    for _ in range(args.repeats):
+        for k, fn in runs.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    print(f"# presets on a {args.size}x{args.size} photo, {args.threads} onnxruntime threads, "
+          f"median of {args.repeats} (load average {os.getloadavg()[0]:.1f})\n")
+    print("| preset | model | working size | decompose, mask given (ms) | decompose, person segmenter (ms) "
+          "| relight (ms) |")
+    print("|---|---|---|---|---|---|")
+    for preset in quality.PRESETS:
+        ms = [statistics.median(times[(preset.label, k)]) * 1e3 for k in
+              ("decompose, mask given", "decompose, person segmenter", "relight (full size)")]
+        print(f"| {preset.label} | {preset.model} | {preset.working_size} | {ms[0]:.0f} | {ms[1]:.0f} | {ms[2]:.0f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
