@@ -3,9 +3,10 @@
 With a shipped model (relight/models/models.json names a default) it
 relights the bundled real photo relight/data/examples/astronaut.jpg with
 that model (python -m model.evaluate_photos, torch-free): out/demo/
-contact_sheet.png shows the photo, its albedo and the person relit under
-three presets at 0 and 180 degrees; out/demo/photos.md holds the
-reconstruction numbers. While no model is registered it says so and runs
+contact_sheet.png shows the photo, its albedo and the person relit by a
+directional light from 0, 90, 180 and 270 degrees and by a preset at 0 and
+180 degrees; out/demo/photos.md holds the reconstruction and light-motion
+numbers. While no model is registered it says so and runs
 the smallest real farm job instead (one posed, clothed human, path-traced
 and baked), relighting that scene's ground-truth decomposition,
 albedo * (T . L'), under the presets, next to Cycles' own render.
