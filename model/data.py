@@ -19,6 +19,8 @@ network's size_multiple) and keep it in a small cache. Per training sample:
     random per-channel factor of luminance 1 (exact: light transport is
     linear per colour channel), so that light colour is not tied to the few
     training maps;
+  * with `exposure_jitter` > 0, the input light and its image scaled by
+    2^N(0, sigma^2) (exposure; the albedo target is unchanged);
   * with probability `flip_prob` a horizontal mirror (exact: mirror_signs).
 Splits: by body (validation bodies never train) and by light (held-out maps
 never reach training: asserted on every training sample).
@@ -363,7 +365,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  extra_lights: list[tuple[str, np.ndarray]] | None = None, extra_light_prob: float = 0.5,
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
-                 pack: Path | None = None):
+                 pack: Path | None = None, exposure_jitter: float = 0.0):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -375,6 +377,10 @@ class TrainingScenes(torch.utils.data.Dataset):
         if not (math.isfinite(light_tint) and light_tint >= 0):
             raise ValueError(f"light_tint must be finite and >= 0, got {light_tint}")
         self.light_tint = light_tint  # sigma of the log tint; 0: no tint (and no extra random draws)
+        if not (math.isfinite(exposure_jitter) and exposure_jitter >= 0):
+            raise ValueError(f"exposure_jitter must be finite and >= 0, got {exposure_jitter}")
+        # sigma of the input light's log2 scale; 0: none (and no extra random draws)
+        self.exposure_jitter = exposure_jitter
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed, self.epoch = seed, 0
@@ -426,6 +432,12 @@ class TrainingScenes(torch.utils.data.Dataset):
         for name in (name_a, name_b):
             # the split guarantee: held-out maps never reach training
             assert name not in self.held_out, f"held-out light {name!r} reached a training sample"
+        if self.exposure_jitter > 0:
+            # the input light (and so its image) brighter or darker; the albedo target is the same,
+            # so the network cannot read the albedo's level off the photo's brightness (exact:
+            # radiance is linear in the light)
+            gain = np.float32(2.0 ** rng.normal(0.0, self.exposure_jitter))
+            light_a, image_a = light_a * gain, image_a * gain
         if self.light_tint > 0:
             tint_a, tint_b = random_light_tint(rng, self.light_tint), random_light_tint(rng, self.light_tint)
             light_a, image_a = light_a * tint_a, image_a * tint_a[:, None, None]

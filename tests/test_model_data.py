@@ -204,3 +204,26 @@ def test_lambertian_samples_are_prt_renderings(scenes):
             prt = s["albedo"] * torch.einsum("nhw,nc->chw", s["transport"], s[light])
             # computed from the same float32 crops: float32 round-off only
             torch.testing.assert_close(s[image], prt, rtol=1e-5, atol=1e-6)
+
+
+def test_exposure_jitter_scales_the_input_light_and_image_and_keeps_the_albedo(scenes):
+    """image = rho (T . L) still holds for the jittered input light; the target light and the
+    albedo are untouched; the input light's scale varies by 2^N(0, 0.5^2)."""
+    # no mirror: the jitter's extra draw would change which samples are mirrored
+    plain = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT, flip_prob=0.0)
+    jittered = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT,
+                                   exposure_jitter=0.5, flip_prob=0.0)
+    scales = []
+    for epoch in range(8):
+        s = jittered.item(0, epoch)
+        inner = s["alpha"][0] > 0.999
+        shading = torch.einsum("nhw,nc->chw", s["transport"], s["light"])
+        prt = s["albedo"] * shading
+        err = torch.minimum((s["image"] - prt).abs(), (s["image"] - prt - GLOSS * shading).abs())
+        # the untinted resampling bound (0.01) times the largest gain 8 draws of 2^N(0, 0.25) reach
+        assert float(err[:, inner].max()) < 0.01 * 2.0 ** 1.5
+        assert torch.equal(s["albedo"], plain.item(0, epoch)["albedo"])
+        scales.append(float(s["light"][0].sum() / plain.item(0, epoch)["light"][0].sum()))
+    assert max(scales) / min(scales) > 1.2  # the exposure really varies
+    with pytest.raises(ValueError, match="exposure_jitter"):
+        data.TrainingScenes([Path("x.json")], 32, 4, exposure_jitter=-1.0)
