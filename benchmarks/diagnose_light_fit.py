@@ -9,8 +9,8 @@ visibility give T; the photo's light is then fitted (model.physics.fit_light,
 the model's own ridge and light head as the prior, rescaled to mean luminance
 0.8 as the model does) with three albedos: the farm's true albedo, the
 network's albedo prior, and none (0.5 grey everywhere). Each fitted light
-relights the photo by the model's own rule (photo-consistent albedo, its
-prior in shadow) to light b; the table gives the relit PSNR on fully covered
+relights the photo by the model's own rule (photo-consistent albedo, the
+shading floored in deep shadow) to light b; the table gives the relit PSNR on fully covered
 pixels and the fitted light's relative SH error. The true input light is the
 reference row. Below it: the albedo prior's and the final albedo's PSNR and
 the per-channel gains that would map each to the truth (model.metrics).
@@ -47,7 +47,7 @@ def relit_with(net, out, photo, weight, albedo_for_fit, light_b, light_override=
     else:
         light = light_override
     shading = torch.einsum("bnhw,bnc->bchw", out["transport"], light)
-    albedo = physics.photo_consistent_albedo(photo, shading, out["albedo_prior"], weight, net.reliable)
+    albedo = physics.photo_consistent_albedo(photo, shading, weight, net.reliable)
     return albedo * torch.einsum("bnhw,bnc->bchw", out["transport"], light_b), light
 
 

@@ -7,7 +7,7 @@ light prior; derive transport, the photo's light and the albedo by physics.
     T   = v * A_l / pi * Y_lm(n)                        (model.physics.lobe_transport)
     L_a = ridge least squares of photo ~ rho_p * (T . L), toward L_p  (model.physics.fit_light)
           (with fixed_level: rescaled to mean luminance 0.8, docs/conventions.md)
-    rho = photo / (T . L_a) where the shading is reliable, rho_p elsewhere
+    rho = photo / max(T . L_a, reliable * its mean over the person)
     E   = 0
 
 The outputs are the five of every relighting model (albedo, transport,
@@ -51,8 +51,8 @@ class GeometryNet(nn.Module):
 
     forward(image [B,3,H,W] in [-1,1]) -> dict (module docstring).
     `ridge`: the light fit's pull toward the light head, relative to the data
-    (model.physics.fit_light); `reliable`: the shading fraction of its mean
-    below which the albedo prior replaces photo / shading.
+    (model.physics.fit_light); `reliable`: the fraction of its mean below which
+    the shading is floored when the albedo is photo / shading.
     """
 
     arch = ARCH
@@ -122,7 +122,7 @@ class GeometryNet(nn.Module):
             # a fit with (almost) no light is an error, not a reason to amplify it 800x
             light = light_fit * (REFERENCE_LUMINANCE / lum.clamp(min=0.02))[:, None, None]
         shading = torch.einsum("bnhw,bnc->bchw", transport, light)
-        albedo = physics.photo_consistent_albedo(photo, shading, albedo_prior, weight, self.reliable)
+        albedo = physics.photo_consistent_albedo(photo, shading, weight, self.reliable)
         return {
             "albedo": albedo, "transport": transport, "residual": transport * 0.0,
             "light": light, "alpha": alpha,

@@ -14,8 +14,8 @@ runtime stays `albedo * (T . L') + E . L'`.
 * `fit_light`: ridge least squares for the photo's own SH light given T and an
   albedo prior, solved by Gauss-Jordan elimination without pivoting (the
   ridge makes the normal equations symmetric positive definite).
-* `photo_consistent_albedo`: photo / (T . L_a) where the shading is reliable,
-  the prior elsewhere.
+* `photo_consistent_albedo`: photo / (T . L_a), the shading floored in deep
+  shadow.
 """
 
 from __future__ import annotations
@@ -163,22 +163,19 @@ def fit_light(transport: torch.Tensor, albedo: torch.Tensor, photo: torch.Tensor
     return light.permute(0, 2, 1).to(dtype)                   # [B,n,3]
 
 
-def photo_consistent_albedo(photo: torch.Tensor, shading: torch.Tensor, prior: torch.Tensor,
-                            weight: torch.Tensor, reliable: float = 0.25, min_mean: float = 0.08,
-                            eps: float = 1e-4) -> torch.Tensor:
-    """photo / shading where the shading is at least `reliable` of its weighted mean
-    (the mean taken as at least `min_mean`; ramping in from half that), the prior
-    albedo elsewhere; in [0, 1].
+def photo_consistent_albedo(photo: torch.Tensor, shading: torch.Tensor, weight: torch.Tensor,
+                            reliable: float = 0.25, min_mean: float = 0.08) -> torch.Tensor:
+    """photo / max(shading, reliable * mean shading), in [0, 1].
 
     Where the photo and the fitted shading agree this makes the relit image the
-    photo times shading' / shading (quotient relighting); in deep shadow, where
-    a small shading error would blow up, the network's albedo takes over.
+    photo times shading' / shading (quotient relighting). In deep shadow the
+    shading is floored at `reliable` of its weighted mean over the person (the
+    mean taken as at least `min_mean`), so a small shading error cannot blow up
+    and neighbouring pixels keep one albedo source: switching to another
+    albedo there left visible patches on dark clothing in real photos.
     """
     lum = shading.mean(dim=1, keepdim=True)
     w = weight
-    mean = (lum * w).sum(dim=(2, 3), keepdim=True) / (w.sum(dim=(2, 3), keepdim=True) + eps)
-    mean = mean.clamp(min=min_mean)  # a near-black fit must not make every pixel "reliable"
-    t = lum / (reliable * mean + eps)
-    blend = ((t - 0.5) * 2.0).clamp(0.0, 1.0)
-    direct = photo / shading.clamp(min=eps)
-    return (blend * direct + (1.0 - blend) * prior).clamp(0.0, 1.0)
+    mean = (lum * w).sum(dim=(2, 3), keepdim=True) / (w.sum(dim=(2, 3), keepdim=True) + 1e-4)
+    mean = mean.clamp(min=min_mean)  # a near-black fit must not floor every pixel at ~0
+    return (photo / torch.maximum(shading, reliable * mean)).clamp(0.0, 1.0)

@@ -28,17 +28,20 @@ class QualityPreset:
     description: str
 
 
-# Fastest first. Chosen by the rule of benchmarks/bench_tradeoffs.py on the held-out set
+# Fastest first. From the rule of benchmarks/bench_tradeoffs.py on the held-out set
 # (docs/TRADEOFFS.md, 2026-11-22): Draft = fastest Pareto point, Balanced = fastest Pareto
 # point within 0.5 dB of the best, Best = best interior PSNR. Measured with the one shipped
-# model, the geometry-first network (trained on 128 px crops): @96 20.16 dB in 9.8 ms,
-# @112 21.13 dB in 11.9 ms, @160 21.14 dB in 20.2 ms (1 thread, 64 pairs, 256 px crops);
-# 128-224 px are within 0.4 dB of each other. The detail transfer brings back the photo's
-# own fine texture at full resolution whatever the size.
+# model, the geometry-first network (trained on 128 px crops): 20.5-21.3 dB at every working
+# size from 96 to 224 px, no trend (1 thread, 64 pairs, 256 px crops); @96 21.02 dB in 9.8
+# ms, @128 20.75 dB in 14.2 ms, @144 21.31 dB in 16.1 ms. The rule gives Draft = Balanced =
+# 96 px; since the sizes differ by no more than the spread between checkpoints, Balanced is
+# the size the network was trained at. The detail transfer brings back the photo's own fine
+# texture at full resolution whatever the size.
 PRESETS: tuple[QualityPreset, ...] = (
     QualityPreset("draft", "Draft", "geometry", 96, "Fastest: the network sees the person at 96 px"),
-    QualityPreset("balanced", "Balanced", "geometry", 112, "The network sees the person at 112 px"),
-    QualityPreset("best", "Best", "geometry", 160, "The network sees the person at 160 px"),
+    QualityPreset("balanced", "Balanced", "geometry", 128,
+                  "The network sees the person at 128 px, the size it was trained at"),
+    QualityPreset("best", "Best", "geometry", 144, "The network sees the person at 144 px"),
 )
 DEFAULT = "balanced"
 

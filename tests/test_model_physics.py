@@ -117,16 +117,20 @@ def test_fit_light_recovers_the_true_light_in_the_directions_the_pixels_see():
     assert (stuck - light * 0.5).abs().max() < 1e-4 * light.abs().max()
 
 
-def test_photo_consistent_albedo_is_photo_over_shading_where_lit_and_prior_in_shadow():
+def test_photo_consistent_albedo_is_photo_over_shading_with_the_shading_floored_in_shadow():
     photo = torch.tensor([0.4, 0.002, 0.3]).reshape(1, 3, 1, 1).expand(1, 3, 2, 2).clone()
     shading = torch.ones(1, 3, 2, 2)
     shading[..., 0, 0] = 0.01   # deep shadow: below reliable * mean
-    prior = torch.full((1, 3, 2, 2), 0.5)
     w = torch.ones(1, 1, 2, 2)
-    out = physics.photo_consistent_albedo(photo, shading, prior, w, reliable=0.25)
+    out = physics.photo_consistent_albedo(photo, shading, w, reliable=0.25)
     assert torch.allclose(out[..., 1, 1], photo[..., 1, 1])   # lit: photo / 1
-    assert torch.allclose(out[..., 0, 0], prior[..., 0, 0])   # shadow: the prior
+    mean = (3 * 1.0 + 0.01) / 4                                # the weighted mean shading
+    # (the code's 1e-4 guard in the mean's denominator moves it by 2.5e-5 relative)
+    assert torch.allclose(out[..., 0, 0], (photo[..., 0, 0] / (0.25 * mean)).clamp(0, 1), rtol=1e-4)
     assert float(out.min()) >= 0.0 and float(out.max()) <= 1.0
+    # a black fit does not make every pixel's floor ~0: the mean is at least min_mean
+    dark = physics.photo_consistent_albedo(photo, shading * 1e-6, w, reliable=0.25, min_mean=0.08)
+    assert torch.allclose(dark, (photo / (0.25 * 0.08)).clamp(0, 1), rtol=1e-4)
 
 
 def test_srgb_decode_inverts_the_network_encoding():
