@@ -139,6 +139,11 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
     return (light[:, 0, :] * w).sum(dim=-1) / (2.0 * math.sqrt(math.pi))
 
 
+# Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).
+GEOMETRY_LOSS_WEIGHTS = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2,
+                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5}
+
+
 def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dict[str, torch.Tensor]:
     """Loss terms of the geometry-first model (weights: name -> factor; defaults below).
 
@@ -150,8 +155,7 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     against the target image under light b (through the fit: end to end);
     reconstruction: the same under the fitted light against the input image.
     """
-    w = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2, "transport": 1.0,
-         "relight": 1.0, "reconstruction": 0.5, **(weights or {})}
+    w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
     mask = batch["alpha"]
     interior = (mask > 0.999).to(mask.dtype)
 

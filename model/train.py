@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from model.checkpoint import build_network, load_model, save_model
-from model.geometry import ARCH as GEOMETRY, GEOMETRY_PRESETS, geometry_losses
+from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS, geometry_losses
 from model.data import (DEFAULT_PADDING, EvaluationPairs, PackedScenes, TrainingScenes, find_scenes,
                         held_out_light_names, pack_scenes, preset_training_lights, split_by_body)
 from model.losses import LossWeights, relight_losses
@@ -95,23 +95,12 @@ def lr_factor(step: int, total: int, warmup: int, schedule: str, floor: float = 
     return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
-def loss_weights_from_args(args) -> LossWeights | dict:
-    """--loss-weight NAME=VALUE over the defaults: LossWeights for RelightNet, a dict
-    for the geometry-first model (model.geometry.geometry_losses' names)."""
+def loss_weights_from_args(args) -> dict:
+    """Loss weights by name: the model's defaults (LossWeights for RelightNet,
+    model.geometry.GEOMETRY_LOSS_WEIGHTS for the geometry-first model) with each
+    --loss-weight NAME=VALUE applied; --no-log-loss sets RelightNet's log term to 0."""
     geometry = args.preset in GEOMETRY_PRESETS
-    if geometry:
-        weights = {}
-        known = ("normal", "visibility", "albedo", "alpha", "light", "transport", "relight", "reconstruction")
-        for item in args.loss_weight or []:
-            name, sep, value = item.partition("=")
-            if not sep or name not in known:
-                raise ValueError(f"--loss-weight {item!r}: expected NAME=VALUE with NAME in {', '.join(known)}")
-            number = float(value)
-            if not math.isfinite(number) or number < 0:
-                raise ValueError(f"--loss-weight {name}: must be finite and >= 0")
-            weights[name] = number
-        return weights
-    weights = LossWeights()
+    weights = dict(GEOMETRY_LOSS_WEIGHTS) if geometry else LossWeights().to_dict()
     for item in args.loss_weight or []:
         name, sep, value = item.partition("=")
         if not sep:
@@ -120,13 +109,13 @@ def loss_weights_from_args(args) -> LossWeights | dict:
             number = float(value)
         except ValueError:
             raise ValueError(f"--loss-weight {name}: {value!r} is not a number") from None
-        if name not in weights.to_dict():
-            raise ValueError(f"--loss-weight: unknown term {name!r} (known: {', '.join(weights.to_dict())})")
+        if name not in weights:
+            raise ValueError(f"--loss-weight: unknown term {name!r} (known: {', '.join(weights)})")
         if not math.isfinite(number) or number < 0:
             raise ValueError(f"--loss-weight {name}: must be finite and >= 0")
-        setattr(weights, name, number)
-    if args.no_log_loss:
-        weights.log = 0.0
+        weights[name] = number
+    if args.no_log_loss and not geometry:
+        weights["log"] = 0.0
     return weights
 
 
@@ -332,8 +321,7 @@ def train(args) -> Path:
 
     weights = loss_weights_from_args(args)
     model_config = build_model_config(args)
-    module = make_lightning_module(model_config, weights if isinstance(weights, dict) else weights.to_dict(),
-                                   args.lr, args.weight_decay,
+    module = make_lightning_module(model_config, weights, args.lr, args.weight_decay,
                                    args.lr_schedule, args.warmup, args.steps)
     if args.init:
         start = load_model(args.init)
@@ -367,7 +355,7 @@ def train(args) -> Path:
     trainer.save_checkpoint(ckpt_dir / "last.ckpt", weights_only=False)  # full state, for --resume
 
     record = {"seed": args.seed, "steps": int(trainer.global_step),
-              "loss_weights": weights if isinstance(weights, dict) else weights.to_dict(),
+              "loss_weights": weights,
               "data": [str(d) for d in args.data], "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
     return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})

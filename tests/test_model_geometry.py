@@ -12,7 +12,7 @@ import torch
 
 from model import data, evaluate, physics, train
 from model.checkpoint import load_model, save_model
-from model.geometry import GeometryNet, geometry_losses, mean_luminance
+from model.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
 from model.synthetic import write_analytic_dataset
 from relight import presets
 
@@ -164,3 +164,14 @@ def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dat
                                      "albedo": sample["albedo"]}, sample)
     assert 20.0 < m90["normal_mean_deg"] <= 180.0
     assert m90["light_rel_l2"] == pytest.approx(1.0)
+
+
+def test_loss_weights_are_the_geometry_terms_for_a_geometry_preset():
+    args = train.parse_args(["--data", "d", "--out", "o", "--preset", "geo-small", "--size", "32",
+                             "--loss-weight", "normal=2"])
+    weights = train.loss_weights_from_args(args)
+    assert weights == {**GEOMETRY_LOSS_WEIGHTS, "normal": 2.0}
+    bad = train.parse_args(["--data", "d", "--out", "o", "--preset", "geo-small", "--size", "32",
+                            "--loss-weight", "log=1"])  # a RelightNet term, not a geometry one
+    with pytest.raises(ValueError, match="unknown term 'log'"):
+        train.loss_weights_from_args(bad)
