@@ -135,8 +135,9 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
     """[B] solid-angle mean luminance of lights [B,n,3] (Rec.709 Y of the DC term)."""
     from relight.colour import LUMINANCE_WEIGHTS
 
-    w = torch.tensor(LUMINANCE_WEIGHTS.tolist(), dtype=light.dtype, device=light.device)
-    return (light[:, 0, :] * w).sum(dim=-1) / (2.0 * math.sqrt(math.pi))
+    r, g, b = (float(w) for w in LUMINANCE_WEIGHTS)  # plain floats: constants in a traced graph
+    dc = light[:, 0, :]
+    return (dc[:, 0] * r + dc[:, 1] * g + dc[:, 2] * b) / (2.0 * math.sqrt(math.pi))
 
 
 # Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).

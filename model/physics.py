@@ -31,11 +31,13 @@ from relight import sh as sh_np
 _ENCODED_KNEE = 0.04045
 
 
-def sh_basis(dirs: torch.Tensor, order: int, dim: int = 1) -> torch.Tensor:
+def sh_basis(dirs: torch.Tensor, order: int, dim: int = 1, scale=None) -> torch.Tensor:
     """Real orthonormal SH of unit vectors along `dim` (size 3): [.., 3, ..] -> [.., n, ..].
 
     The same recurrences as relight.sh.sh_basis (polynomials in x, y, z; no
-    Condon-Shortley phase); `dirs` must already be unit length.
+    Condon-Shortley phase); `dirs` must already be unit length. `scale` (n
+    numbers) multiplies each coefficient, as plain floats so that a traced
+    graph holds them as constants.
     """
     x, y, z = (dirs.select(dim, i) for i in range(3))
     diag, a, b = sh_np._legendre_factors(order)
@@ -61,6 +63,8 @@ def sh_basis(dirs: torch.Tensor, order: int, dim: int = 1) -> torch.Tensor:
             p = sqrt2 * q[m][l - m]
             out[centre + m] = p * cos_m[m]
             out[centre - m] = p * sin_m[m]
+    if scale is not None:
+        out = [o * float(k) for o, k in zip(out, scale)]
     return torch.stack(out, dim=dim)
 
 
@@ -73,8 +77,7 @@ def lobe_scale(order: int) -> np.ndarray:
 def lobe_transport(normal: torch.Tensor, visibility: torch.Tensor, order: int) -> torch.Tensor:
     """Transport [B, n, H, W] of a white Lambertian point with unit `normal` [B,3,H,W]
     and ambient visibility [B,1,H,W]: v * A_l / pi * Y_lm(n)."""
-    scale = torch.tensor(lobe_scale(order), dtype=normal.dtype, device=normal.device)
-    return sh_basis(normal, order, dim=1) * scale[None, :, None, None] * visibility
+    return sh_basis(normal, order, dim=1, scale=lobe_scale(order)) * visibility
 
 
 # T_00 of an unoccluded white Lambertian point: (A_0 / pi) * Y_00 = 1 / (2 sqrt(pi))
