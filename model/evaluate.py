@@ -31,6 +31,7 @@ from relight.fileio import atomic_path, atomic_write_text
 
 from model import metrics
 from model.data import EvaluationPairs, find_scenes, held_out_light_names
+from model.physics import UNOCCLUDED_DC  # T_00 of an unoccluded white Lambertian point
 
 MAPS = ("albedo", "shading", "image")
 OUTPUTS = ("albedo", "transport", "residual", "light", "alpha")
@@ -187,7 +188,6 @@ def oracle_prt(sample: dict) -> dict[str, dict[str, float]]:
     return out
 
 
-UNOCCLUDED_DC = 1.0 / (2.0 * np.sqrt(np.pi))  # T_00 of an unoccluded white Lambertian point
 QUOTIENT_FLOOR = 0.25  # model.geometry's `reliable` default
 
 

@@ -10,7 +10,6 @@ runtime stays `albedo * (T . L') + E . L'`.
   transport of relight.prt.lambert_transport scaled by a visibility v in [0, 1]
   (ambient occlusion).
 * `visibility_from_transport`: v = T_00 / T_00(unoccluded), its supervision.
-* `normal_from_transport`: the band-1 direction of T, the normal of a lobe.
 * `fit_light`: ridge least squares for the photo's own SH light given T and an
   albedo prior, solved by Gauss-Jordan elimination without pivoting (the
   ridge makes the normal equations symmetric positive definite).
@@ -88,13 +87,6 @@ def visibility_from_transport(transport: torch.Tensor) -> torch.Tensor:
     """Ambient visibility [B,1,H,W] of a transport map [B,n,H,W]: T_00 relative to an
     unoccluded point, clamped to [0, 1] (a glossy bake can exceed 1 slightly)."""
     return (transport[:, :1] / UNOCCLUDED_DC).clamp(0.0, 1.0)
-
-
-def normal_from_transport(transport: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
-    """Unit direction of T's band 1, [B,3,H,W] in (x, y, z): for a lobe it is the
-    (bent) normal, since Y_{1,-1} ~ y, Y_{1,0} ~ z, Y_{1,1} ~ x."""
-    d = torch.stack([transport[:, 3], transport[:, 1], transport[:, 2]], dim=1)
-    return d / torch.sqrt((d * d).sum(dim=1, keepdim=True) + eps)
 
 
 def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
