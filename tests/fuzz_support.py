@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 import os
 import struct
+import warnings
 import zlib
 from collections import Counter, defaultdict
 from datetime import timedelta
@@ -61,6 +62,27 @@ def one_line_error(exc: BaseException) -> None:
     text = str(exc)
     assert text.strip(), f"{type(exc).__name__} with an empty message"
     assert "\n" not in text.strip(), f"{type(exc).__name__} message spans lines: {text!r}"
+
+
+def run_case(prop: str, call):
+    """Run one call under test: its result, or None after a one-line ValueError. Any other
+    exception fails the case, and so does a Python warning (it would be stderr lines in
+    the CLI); every outcome is counted under `prop`."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result, outcome = call(), "ok"
+        except ValueError as exc:
+            one_line_error(exc)
+            result, outcome = None, "ValueError"
+        except BaseException as exc:
+            record(prop, type(exc).__name__)
+            raise
+    if caught:
+        record(prop, "warning")
+    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
+    record(prop, outcome)
+    return result
 
 
 def pytest_terminal_summary(terminalreporter):

@@ -19,8 +19,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
-from fuzz_support import (exr_bytes, fuzz_settings, jpeg_bytes, new_case, one_line_error, png_bytes,
-                          radiance_hdr, record)
+from fuzz_support import exr_bytes, fuzz_settings, new_case, png_bytes, radiance_hdr, run_case
 from relight import envmap, exr, photo
 
 
@@ -102,26 +101,6 @@ def _forge_size(data: bytes, height: int, width: int) -> bytes:
     return bytes(out)
 
 
-def _outcome(prop: str, load):
-    """Run one case: the result, or None after a one-line ValueError; anything else fails,
-    and so does a Python warning (it would be stderr lines in the CLI)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            result, outcome = load(), "ok"
-        except ValueError as exc:
-            one_line_error(exc)
-            result, outcome = None, "ValueError"
-        except BaseException as exc:
-            record(prop, type(exc).__name__)
-            raise
-    if caught:
-        record(prop, "warning")
-    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
-    record(prop, outcome)
-    return result
-
-
 def _check_image(img: np.ndarray, mask) -> None:
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32 and img.size > 0
     assert np.all(np.isfinite(img)) and img.min() >= 0
@@ -141,7 +120,7 @@ def test_fuzz_photo_loader(seeds, folder, data):
     path = folder / "photo.bin"
     path.write_bytes(data.draw(mutated(seeds)))
     new_case("test_fuzz_photo_loader")
-    result = _outcome("photo", lambda: photo.read_photo(path))
+    result = run_case("photo", lambda: photo.read_photo(path))
     if result is not None:
         _check_image(*result)
 
@@ -161,7 +140,7 @@ def test_fuzz_mask_loader(seeds, folder, data, shape):
             except Exception:
                 pass
     new_case("test_fuzz_mask_loader")
-    mask = _outcome("mask", lambda: photo.read_mask(path, shape))
+    mask = run_case("mask", lambda: photo.read_mask(path, shape))
     if mask is not None:
         assert mask.shape == tuple(shape) and mask.dtype == np.float32
         assert np.all(np.isfinite(mask)) and mask.min() >= 0 and mask.max() <= 1 and np.any(mask > 0)
@@ -194,15 +173,15 @@ def test_fuzz_exr_loaders(folder, data):
     path = folder / "gen.exr"
     path.write_bytes(data.draw(exr_file(folder)))
     new_case("test_fuzz_exr_loaders")
-    channels = _outcome("exr.read_exr", lambda: exr.read_exr(path))
+    channels = run_case("exr.read_exr", lambda: exr.read_exr(path))
     if channels is not None:
         assert channels and all(a.ndim == 2 and a.dtype in (np.float32, np.uint32) for a in channels.values())
-    env = _outcome("exr.load_equirect", lambda: envmap.load_equirect(path))
+    env = run_case("exr.load_equirect", lambda: envmap.load_equirect(path))
     if env is not None:
         h, w = env.shape
         assert w == 2 * h and env.pixels.dtype == np.float32 and np.all(np.isfinite(env.pixels))
         assert env.pixels.min() >= 0
-    result = _outcome("exr.read_photo", lambda: photo.read_photo(path))
+    result = run_case("exr.read_photo", lambda: photo.read_photo(path))
     if result is not None:
         _check_image(*result)
 
@@ -229,10 +208,10 @@ def test_fuzz_hdr_loader(folder, data):
     path = folder / "gen.hdr"
     path.write_bytes(data)
     new_case("test_fuzz_hdr_loader")
-    img = _outcome("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
+    img = run_case("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
     if img is not None:
         assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
         assert np.all(np.isfinite(img)) and img.min() >= 0
-    env = _outcome("hdr.load_equirect", lambda: envmap.load_equirect(path))
+    env = run_case("hdr.load_equirect", lambda: envmap.load_equirect(path))
     if env is not None:
         assert env.shape[1] == 2 * env.shape[0] and np.all(np.isfinite(env.pixels))

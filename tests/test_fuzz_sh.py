@@ -9,14 +9,13 @@ one-line ValueError; never NaN, another exception, or an overflow.
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from fuzz_support import fuzz_settings, new_case, one_line_error, record
+from fuzz_support import fuzz_settings, new_case, run_case
 from relight import envmap, sh
 
 F32_MAX = float(np.finfo(np.float32).max)
@@ -43,31 +42,11 @@ def maps(draw):
         return draw(hnp.arrays(np.float64, shape, elements=elements)).astype(dtype)
 
 
-def _run(prop, fn):
-    """One case: the result, or None after a one-line ValueError; another exception or a
-    Python warning (stderr lines in the CLI) fails."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            result, outcome = fn(), "ok"
-        except ValueError as exc:
-            one_line_error(exc)
-            result, outcome = None, "ValueError"
-        except BaseException as exc:
-            record(prop, type(exc).__name__)
-            raise
-    if caught:
-        record(prop, "warning")
-    assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
-    record(prop, outcome)
-    return result
-
-
 @given(maps(), st.integers(0, 8), st.sampled_from(["float32", "float64"]))
 @fuzz_settings()
 def test_fuzz_projection(img, order, precision):
     new_case("test_fuzz_projection")
-    coeffs = _run("sh.project_equirect", lambda: sh.project_equirect(img, order, precision=precision))
+    coeffs = run_case("sh.project_equirect", lambda: sh.project_equirect(img, order, precision=precision))
     if coeffs is None:
         return
     assert coeffs.shape == ((order + 1) ** 2, 3) and coeffs.dtype == np.float64
@@ -86,7 +65,7 @@ def test_fuzz_projection(img, order, precision):
 @fuzz_settings()
 def test_fuzz_light_from_map(img, order, rotation, normalize, target):
     new_case("test_fuzz_light_from_map")
-    coeffs = _run("sh.light_from_map", lambda: envmap.light_from_map(img, order, rotation_deg=rotation,
+    coeffs = run_case("sh.light_from_map", lambda: envmap.light_from_map(img, order, rotation_deg=rotation,
                                                                        normalize=normalize, target=target))
     if coeffs is None:
         return
