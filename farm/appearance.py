@@ -1,12 +1,15 @@
-"""Appearance: skin tone, clothing shells, a hair mesh and their Principled materials.
+"""Appearance: skin, face details, clothing (tight and loose), hair, prints, and their materials.
 
 Clothing regions come from the skin weights (dominant bone per vertex) cut
 by heights measured on the rest (A-)pose, so hems stay put whatever the
-pose. Each garment is an offset shell: the body faces of its region,
-pushed out along the vertex normals. Hair is a shell over the scalp with a
-smoothly varying thickness, so it gets a transport bake like everything
-else. Materials are plain parameter dicts (recorded in the sidecar);
-`build_material` turns one into Cycles nodes.
+pose. Tight garments are offset shells: the body faces of their region
+pushed out along the vertex normals. Loose garments (shirts, jackets and
+coats with open fronts, dresses, skirts, hoods) are closed slabs with
+folds (farm.garments); hair has volume classes (farm.hair); lips, brows
+and nails are parts cut by anny's UV masks (farm.faces). Materials are
+plain parameter dicts (recorded in the sidecar); `build_material` turns one
+into Cycles nodes whose base colour, textures and prints included, is the
+socket routed to the albedo AOV, so the albedo stays exact per pixel.
 """
 
 from __future__ import annotations
@@ -17,6 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from farm import faces as face_details
+from farm import garments
+from farm import hair as hair_mod
 from farm.bake import vertex_normals
 from farm.bodies import Body
 
@@ -163,8 +169,17 @@ def material(
     pattern_p: float = 0.0,
     metallic_p: float = 0.0,
     transmission_p: float = 0.0,
+    patterns: tuple[str, ...] = ("stripes", "checks", "noise"),
+    sheen: tuple[float, float] | None = None,
 ) -> dict:
-    """Principled parameters; `diffuse_only` gives a pure Lambert surface."""
+    """Principled parameters; `diffuse_only` gives a pure Lambert surface.
+
+    Pattern kinds: stripes, checks, noise (two colours, garment scale),
+    denim (twill lines at thread scale), knit (ribs at stitch scale);
+    `sheen` adds a Principled sheen lobe (hair). Prints, irises, skin
+    mottle and hair streaks are added by `dress` (keys print / iris /
+    mottle / streaks).
+    """
     rough = float(rng.uniform(*roughness))
     spec = {
         "kind": kind,
@@ -178,11 +193,17 @@ def material(
         "transmission": float(rng.uniform(0.05, 0.3)) if rng.random() < transmission_p else 0.0,
         "specular_level": float(rng.uniform(0.3, 0.6)),
         "diffuse_roughness": rough,
+        "sheen": float(rng.uniform(*sheen)) if sheen else 0.0,
     }
     if rng.random() < pattern_p:
-        spec["pattern"] = str(rng.choice(["stripes", "checks", "noise"]))
+        spec["pattern"] = str(rng.choice(list(patterns)))
+        if spec["pattern"] == "denim":
+            spec["pattern_scale"] = float(rng.uniform(150.0, 260.0))  # 2.4-4 mm twill period
+        elif spec["pattern"] == "knit":
+            spec["pattern_scale"] = float(rng.uniform(50.0, 90.0))  # 3.5-6 mm ribs
     if diffuse_only:
-        spec.update(roughness=1.0, metallic=0.0, transmission=0.0, specular_level=0.0, diffuse_roughness=0.0)
+        spec.update(roughness=1.0, metallic=0.0, transmission=0.0, specular_level=0.0, diffuse_roughness=0.0,
+                    sheen=0.0)
     return spec
 
 
@@ -193,181 +214,516 @@ def is_diffuse(spec: dict) -> bool:
         and spec["metallic"] == 0.0
         and spec["transmission"] == 0.0
         and spec["diffuse_roughness"] == 0.0
+        and spec.get("sheen", 0.0) == 0.0
     )
 
 
 # ------------------------------------------------------------------ outfit
 
+TOP_KINDS = ("tank", "tshirt", "longsleeve", "loose_shirt", "loose_longsleeve")
+TOP_P = (0.12, 0.28, 0.2, 0.24, 0.16)
+DRESS_P = 0.18  # of the scenes whose pose allows a skirt
+OUTER_P = 0.3  # jacket or coat over the top
+OPEN_FRONT_P = 0.6
+HOOD_P = 0.3
+PRINT_P = 0.5
+PRINT_KINDS = ("logo", "text", "band", "number")
+PRINT_KIND_P = (0.35, 0.3, 0.2, 0.15)
+COVER_RINGS = 3  # a loose garment hides the body (or garment) under it this many edges in from its openings
+
+
+def face_submesh(faces: np.ndarray, keep: np.ndarray):
+    """Selected faces, reindexed; (faces, old vertex ids)."""
+    sub = faces[keep]
+    ids = np.unique(sub)
+    remap = np.full(int(faces.max()) + 1, -1, dtype=np.int64)
+    remap[ids] = np.arange(len(ids))
+    return remap[sub], ids
+
+
+def _layout(body: Body, groups: dict, h: np.ndarray) -> dict:
+    rest = body.rest_vertices
+    torso = groups["torso"]
+    chest = torso & (h > 0.68) & (h < 0.74)
+    head = groups["head"]
+    neck = head & (h < h[head].min() + 0.025)
+    return {
+        "torso_y": float(rest[torso, 1].mean()),
+        "torso_x": float(rest[torso, 0].mean()),
+        "chest": rest[chest].mean(axis=0),
+        "back_z": float(rest[torso & (h > 0.7) & (h < 0.76), 2].mean()),
+        "neck": rest[neck].mean(axis=0),
+        "neck_radius": float(np.linalg.norm(rest[neck, :2] - rest[neck, :2].mean(axis=0), axis=1).mean()),
+    }
+
+
+def sample_print(rng: np.random.Generator, layout: dict, base: list[float]) -> dict:
+    """A print placed in rest space: logo, text, chest band or a number on the back."""
+    kind = str(rng.choice(PRINT_KINDS, p=PRINT_KIND_P))
+    colours = [sample_fabric_colour(rng) for _ in range(2)]
+    chest = layout["chest"]
+    spec = {"kind": kind, "side": "back" if kind == "number" else "front", "split_y": layout["torso_y"],
+            "seed": int(rng.integers(2**31)), "colours": colours}
+    if kind == "logo":
+        spec.update(centre=[float(chest[0] + rng.uniform(-0.06, 0.06)), float(chest[2] + rng.uniform(-0.06, 0.03))],
+                    size_m=float(rng.uniform(0.05, 0.2)), shapes=int(rng.integers(1, 4)))
+    elif kind == "text":
+        letters = "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
+        text = "".join(rng.choice(list(letters), size=int(rng.integers(2, 8))))
+        spec.update(centre=[float(chest[0]), float(chest[2] + rng.uniform(-0.05, 0.03))],
+                    size_m=float(rng.uniform(0.12, 0.26)), text=text)
+    elif kind == "band":
+        spec.update(centre=[float(chest[0]), float(chest[2] + rng.uniform(-0.08, 0.04))],
+                    size_m=float(rng.uniform(0.02, 0.1)), side="all")
+    else:
+        spec.update(centre=[float(chest[0]), float(layout["back_z"])], size_m=float(rng.uniform(0.14, 0.24)),
+                    text=str(int(rng.integers(0, 100))))
+    return spec
+
+
+def print_image(spec: dict, size: int = 96) -> np.ndarray:
+    """The print's linear RGBA [size, size, 4] (row 0 = top); alpha is 0 or 1, colours from the spec."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    rng = np.random.default_rng(spec["seed"])
+    layers = [Image.new("L", (size, size), 0) for _ in spec["colours"]]
+    if spec["kind"] == "logo":
+        for k in range(spec["shapes"]):
+            d = ImageDraw.Draw(layers[k % len(layers)])
+            r = rng.uniform(0.2, 0.48) * size
+            cx, cy = rng.uniform(size / 2 - 0.5 * (size / 2 - r), size / 2 + 0.5 * (size / 2 - r), 2)
+            shape = rng.integers(4)
+            box = [cx - r, cy - r, cx + r, cy + r]
+            if shape == 0:
+                d.ellipse(box, fill=255)
+            elif shape == 1:
+                d.ellipse(box, outline=255, width=max(2, int(r * rng.uniform(0.15, 0.4))))
+            elif shape == 2:
+                d.rectangle([cx - r, cy - r * 0.5, cx + r, cy + r * 0.5], fill=255)
+            else:
+                n = int(rng.integers(3, 7)) * 2
+                ang = np.linspace(0, 2 * np.pi, n, endpoint=False) + rng.uniform(0, np.pi)
+                rad = np.where(np.arange(n) % 2 == 0, r, r * rng.uniform(0.4, 0.8))
+                d.polygon([(cx + a * np.cos(t), cy + a * np.sin(t)) for a, t in zip(rad, ang)], fill=255)
+    elif spec["kind"] in ("text", "number"):
+        text = spec["text"]
+        font = ImageFont.load_default(size=max(8, int(1.6 * size / max(len(text), 1))))
+        d = ImageDraw.Draw(layers[0])
+        box = d.textbbox((0, 0), text, font=font)
+        x = (size - (box[2] - box[0])) / 2 - box[0]
+        y = (size - (box[3] - box[1])) / 2 - box[1]
+        d.text((x, y), text, fill=255, font=font)
+    out = np.zeros((size, size, 4), dtype=np.float32)
+    for layer, colour in zip(layers, spec["colours"]):
+        m = np.asarray(layer) > 127
+        out[m, :3] = colour
+        out[m, 3] = 1.0
+    return out
+
+
+def _folds_for(rng, loose: bool):
+    if loose:
+        return garments.sample_folds(rng, (0.006, 0.018), (0.04, 0.09))
+    return garments.sample_folds(rng, (0.002, 0.005), (0.03, 0.06)) if rng.random() < 0.5 else None
+
+
+def _fold_axes(body: Body, groups: dict) -> np.ndarray:
+    axes = garments.limb_axes(body, np.argmax(body.bone_weights, axis=1))
+    axes[groups["torso"]] = (1.0, 0.0, 0.0)  # vertical drape on the torso
+    return axes
+
+
+def _tight(body, normals, mask, thickness, folds, axes):
+    t = np.full(len(body.vertices), float(thickness))
+    if folds is not None:
+        t[mask] += garments.fold_field(body.rest_vertices[mask], axes[mask], folds)
+    verts, rest, faces, nrm = shell(body, normals, mask, t)
+    _, ids = submesh(body.faces, mask)
+    return verts, rest, faces, nrm, ids
+
+
+def _slab_of(verts, rest, faces, thickness, hide_inner: bool):
+    """Closed slab; the inner layer is hidden beyond COVER_RINGS of the openings when asked."""
+    n = len(verts)
+    boundary = np.zeros(n, dtype=bool)
+    boundary[garments.boundary_edges(faces).ravel()] = True
+    deep = garments.erode(~boundary, faces, COVER_RINGS) if hide_inner else np.zeros(n, dtype=bool)
+    v, r, f, nrm = garments.thick(verts, rest, faces, thickness)
+    return v, r, f, nrm, np.concatenate([np.zeros(n, dtype=bool), deep])
+
+
+def _merge(pieces):
+    """Concatenate (vertices, rest, faces, hidden) pieces into one mesh."""
+    vs, rs, fs, hs, off = [], [], [], [], 0
+    for v, r, f, hid in pieces:
+        vs.append(v), rs.append(r), fs.append(f + off), hs.append(hid)
+        off += len(v)
+    v, f = np.concatenate(vs), np.concatenate(fs)
+    return v, np.concatenate(rs), f, vertex_normals(v, f), np.concatenate(hs)
+
+
+def _hood(body, rng, layout, torso_frame):
+    """A hood lying on the upper back: a squashed capped tube on a sagging arc behind the neck."""
+    c = layout["neck"]
+    r0 = layout["neck_radius"] + float(rng.uniform(0.045, 0.065))
+    spread = np.radians(float(rng.uniform(95, 125)))
+    sag = float(rng.uniform(0.04, 0.09))
+    t = np.linspace(-1.0, 1.0, 11)
+    theta = spread * t
+    bulge = 1.0 - t**2
+    radius = r0 + 0.03 * bulge
+    path = np.stack([c[0] + radius * np.sin(theta), c[1] + radius * np.cos(theta), c[2] - 0.02 - sag * bulge], 1)
+    tube_r = float(rng.uniform(0.03, 0.045)) * (0.55 + 0.45 * bulge)
+    v, f = garments.tube(path, tube_r, segments=10, squash=0.6)
+    posed = v @ torso_frame[0].T + torso_frame[1]
+    return posed, v, f, {"spread_deg": float(np.degrees(spread)), "sag_m": sag}
+
 
 def dress(
     body: Body, rng: np.random.Generator, diffuse_only: bool = False, skirt_allowed: bool = True
 ) -> tuple[list[Part], dict]:
-    """Body + clothing shells + hair; returns the parts and an appearance record."""
+    """Body + face details + clothing + hair; returns the parts and an appearance record."""
     normals = vertex_normals(body.vertices, body.faces)
     groups = vertex_groups(body)
     h = rest_height_fraction(body)
+    layout = _layout(body, groups, h)
+    axes = _fold_axes(body, groups)
     parts: list[Part] = []
     record: dict = {"diffuse_only": bool(diffuse_only)}
 
     skin = material("skin", rng, sample_skin(rng), (0.35, 0.6), diffuse_only)
+    skin["mottle"] = {"amount": float(rng.uniform(0.03, 0.1)), "scale": float(rng.uniform(30.0, 90.0))}
     record["skin"] = skin
-    body_mask = ~groups["eyes"]
-    faces, ids = submesh(body.faces, body_mask)
-    parts.append(Part("body", body.vertices[ids], body.rest_vertices[ids], faces, normals[ids], skin, source_ids=ids))
-    faces, ids = submesh(body.faces, groups["eyes"])
-    if len(faces):
-        eye = material("eyes", rng, [0.55, 0.52, 0.5], (0.05, 0.15), diffuse_only)
-        parts.append(Part("eyes", body.vertices[ids], body.rest_vertices[ids], faces, normals[ids], eye))
-
-    garments = []
-    # Top: torso with a hem, and sleeves of some length.
-    top_kind = str(rng.choice(["tank", "tshirt", "longsleeve"], p=[0.2, 0.45, 0.35]))
-    hem = rng.uniform(0.5, 0.57)
-    top_mask = groups["torso"] & (h > hem)
-    if top_kind in ("tshirt", "longsleeve"):
-        top_mask |= groups["upperarm"]
-    if top_kind == "longsleeve":
-        top_mask |= groups["forearm"]
-    garments.append(("top", top_kind, top_mask, rng.uniform(0.006, 0.012)))
-
-    bottom_kind = str(rng.choice(["trousers", "capri", "shorts", "skirt"], p=[0.45, 0.15, 0.25, 0.15]))
-    if bottom_kind == "skirt" and not skirt_allowed:
-        bottom_kind = "shorts"  # legs apart or bent would cut through a skirt
-    waist = rng.uniform(0.56, 0.6)
-    cut = {"trousers": rng.uniform(0.035, 0.06), "capri": rng.uniform(0.15, 0.22), "shorts": rng.uniform(0.33, 0.42),
-           "skirt": rng.uniform(0.25, 0.42)}[bottom_kind]
-    if bottom_kind == "skirt":
-        # Only the waistband follows the body; the skirt itself is a flared tube.
-        bottom_mask = groups["torso"] & (h < waist) & (h > waist - 0.04)
-        skirt = skirt_mesh(body, h, groups, waist - 0.03, cut, rng.uniform(0.0, 0.12))
-    else:
-        bottom_mask = (groups["torso"] | groups["thigh"] | groups["shin"]) & (h < waist) & (h > cut)
-        skirt = None
-    garments.append(("bottom", bottom_kind, bottom_mask, rng.uniform(0.004, 0.008)))
-
     shoe_kind = str(rng.choice(["shoes", "boots", "barefoot"], p=[0.7, 0.2, 0.1]))
+    hair_style = str(rng.choice(hair_mod.STYLES, p=hair_mod.STYLE_P))
+    hair_colour = sample_hair_colour(rng)
+
+    # ---- body, eyes, lips, brows, nails
+    regions, detail_record = face_details.region_faces(body, groups, rng, barefoot=shoe_kind == "barefoot")
+    eye_faces = groups["eyes"][body.faces].all(axis=1)
+    details = np.zeros(len(body.faces), dtype=bool)
+    for sel in regions.values():
+        details |= sel
+    keep = ~groups["eyes"][body.faces].any(axis=1) & ~details
+    faces, ids = face_submesh(body.faces, keep)
+    parts.append(Part("body", body.vertices[ids], body.rest_vertices[ids], faces, normals[ids], skin, source_ids=ids))
+    face_record = {"brows": detail_record["brows"]}
+    eye = material("eyes", rng, _hsv_linear(0.08, rng.uniform(0.02, 0.1), rng.uniform(0.75, 0.88)), (0.05, 0.15),
+                   diffuse_only)
+    rest = body.rest_vertices
+    centres = []
+    for side in (1.0, -1.0):
+        sel = groups["eyes"] & (side * rest[:, 0] > 0)
+        front = np.argmin(np.where(sel, rest[:, 1], np.inf))
+        centres.append([float(c) for c in rest[front]])
+    iris_kind = rng.random()
+    iris = (_hsv_linear(rng.uniform(0.05, 0.1), rng.uniform(0.5, 0.8), rng.uniform(0.12, 0.4)) if iris_kind < 0.6
+            else _hsv_linear(rng.uniform(0.45, 0.62), rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6)))
+    eye["iris"] = {"centres": centres, "radius_m": float(rng.uniform(0.0055, 0.0065)),
+                   "pupil_m": float(rng.uniform(0.0018, 0.0028)), "colour": iris, "pupil_colour": [0.01, 0.01, 0.01]}
+    skin_rgb = np.array(skin["base_color"])
+    lipstick = bool(rng.random() < 0.2)
+    lip_colour = (_hsv_linear(rng.uniform(-0.05, 0.03), rng.uniform(0.5, 0.9), rng.uniform(0.35, 0.75)) if lipstick
+                  else np.clip(skin_rgb * np.array([0.9, 0.62, 0.62]) * rng.uniform(0.8, 1.05), 0.005, 0.9).tolist())
+    polish = bool(rng.random() < 0.3)
+    nail_colour = (sample_fabric_colour(rng) if polish
+                   else np.clip(skin_rgb * np.array([1.3, 1.12, 1.1]) + 0.05, 0.005, 0.9).tolist())
+    brow_colour = np.clip(np.array(hair_colour if hair_style != "bald" else [0.05, 0.03, 0.02])
+                          * rng.uniform(0.4, 0.75), 0.005, 0.9).tolist()
+    detail_specs = {
+        "lips": material("lips", rng, lip_colour, (0.25, 0.5), diffuse_only),
+        "brows": material("brows", rng, brow_colour, (0.6, 0.9), diffuse_only),
+        "nails": material("nails", rng, nail_colour, (0.1, 0.35), diffuse_only),
+    }
+    for name in ("eyes", "lips", "brows", "nails"):
+        sel = eye_faces if name == "eyes" else regions[name]
+        if not sel.any():
+            continue
+        f, ids = face_submesh(body.faces, sel)
+        spec = eye if name == "eyes" else detail_specs[name]
+        parts.append(Part(name, body.vertices[ids], body.rest_vertices[ids], f, normals[ids], spec))
+        face_record[name] = {"material": spec, "faces": int(sel.sum())}
+    face_record.update(lipstick=lipstick, nail_polish=polish)
+    record["face"] = face_record
+
+    # ---- clothing
+    covered_faces = np.zeros(len(body.faces), dtype=bool)  # body faces under a garment (hidden)
+    record["garments"] = {}
+    torso_frame = hair_mod.head_frames(body, groups)[1]
+    use_dress = skirt_allowed and rng.random() < DRESS_P
+    top_kind = str(rng.choice(TOP_KINDS, p=TOP_P))
+    loose_top = top_kind.startswith("loose")
+    hem = rng.uniform(0.47, 0.52) if loose_top else rng.uniform(0.5, 0.57)
+    top_mask = groups["torso"] & (h > hem)
+    if top_kind != "tank":
+        top_mask |= groups["upperarm"]
+    if top_kind in ("longsleeve", "loose_longsleeve"):
+        top_mask |= groups["forearm"]
+    outer_kind = "none"
+    if rng.random() < OUTER_P:
+        outer_kind = "coat" if (skirt_allowed and rng.random() < 0.4) else "jacket"
+    hood = bool(rng.random() < HOOD_P) if (outer_kind != "none" or loose_top) else False
+    waist = rng.uniform(0.56, 0.6)
+
+    def add_garment(slot, kind, spec, pieces, info, body_cover):
+        nonlocal covered_faces
+        v, r, f, n, hid = _merge(pieces)
+        parts.append(Part(slot, v, r, f, n, spec, hidden=hid))
+        covered_faces |= body_cover[body.faces].all(axis=1)
+        record["garments"][slot] = {"kind": kind, "material": spec, **info}
+        return parts[-1]
+
+    def cloth(slot):
+        colour = jitter_hue(sample_fabric_colour(rng), rng)
+        pats = ("stripes", "checks", "noise", "denim", "knit") if slot != "bottom" else ("stripes", "checks", "noise", "denim", "denim")
+        return material("cloth", rng, colour, (0.55, 1.0), diffuse_only, pattern_p=0.55, metallic_p=0.03,
+                        transmission_p=0.03, patterns=pats)
+
+    # Top (or the dress's bodice).
+    top_slot = "dress" if use_dress else "top"
+    top_spec = cloth(top_slot)
+    top_thickness = float(rng.uniform(0.006, 0.012))
+    top_folds = _folds_for(rng, loose_top)
+    top_info = {"thickness_m": top_thickness, "loose": loose_top, "folds": top_folds}
+    if loose_top:
+        offset = float(rng.uniform(0.012, 0.03))
+        v, r, f, _, ids = garments.loose_shell(body, normals, top_mask, offset, top_folds, axes)
+        v, r, f, _, hid = _slab_of(v, r, f, top_thickness, hide_inner=True)
+        top_pieces = [(v, r, f, hid)]
+        top_ids = np.concatenate([ids, ids])
+        top_cover = garments.erode(top_mask, body.faces, COVER_RINGS)
+        top_info["offset_m"] = offset
+    else:
+        v, r, f, _, ids = _tight(body, normals, top_mask, top_thickness, top_folds, axes)
+        top_pieces = [(v, r, f, np.zeros(len(v), dtype=bool))]
+        top_ids = ids
+        top_cover = top_mask
+        top_info["offset_m"] = top_thickness
+    if use_dress:
+        length = rng.uniform(0.12, 0.4)  # hem height (rest fraction): knee .. ankle
+        skirt_folds = garments.sample_folds(rng, (0.01, 0.03), (0.05, 0.1))
+        sv, sr, sf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"] | groups["shin"], waist - 0.03,
+                                          length, rng.uniform(0.05, 0.3), skirt_folds)
+        sv, sr, sf, _, shid = _slab_of(sv, sr, sf, top_thickness, hide_inner=False)
+        top_pieces.append((sv, sr, sf, shid))
+        top_cover = top_cover | (groups["torso"] & (h < waist) & (h > waist - 0.05))
+        top_info.update(kind_top=top_kind, hem=float(length), skirt_folds=skirt_folds)
+    if hood and outer_kind == "none":
+        hv, hr, hf, hood_info = _hood(body, rng, layout, torso_frame)
+        top_pieces.append((hv, hr, hf, np.zeros(len(hv), dtype=bool)))
+        top_info["hood"] = hood_info
+    print_target = None if outer_kind != "none" else top_spec
+    top_part = add_garment(top_slot, "dress" if use_dress else top_kind, top_spec, top_pieces, top_info, top_cover)
+
+    # Bottom.
+    if not use_dress:
+        bottom_kind = str(rng.choice(["trousers", "capri", "shorts", "skirt"], p=[0.45, 0.15, 0.25, 0.15]))
+        if bottom_kind == "skirt" and not skirt_allowed:
+            bottom_kind = "shorts"  # legs apart or bent would cut through a skirt
+        cut = {"trousers": rng.uniform(0.035, 0.06), "capri": rng.uniform(0.15, 0.22), "shorts": rng.uniform(0.33, 0.42),
+               "skirt": rng.uniform(0.25, 0.42)}[bottom_kind]
+        spec = cloth("bottom")
+        thickness = float(rng.uniform(0.004, 0.008))
+        folds = _folds_for(rng, False)
+        if bottom_kind == "skirt":
+            # Only the waistband follows the body; the skirt itself is a flared, fluted slab.
+            mask = groups["torso"] & (h < waist) & (h > waist - 0.04)
+            skirt_folds = garments.sample_folds(rng, (0.008, 0.025), (0.05, 0.1))
+            sv, sr, sf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"], waist - 0.03, cut,
+                                              rng.uniform(0.0, 0.25), skirt_folds)
+            sv, sr, sf, _, shid = _slab_of(sv, sr, sf, thickness, hide_inner=False)
+            v, r, f, _, _ = _tight(body, normals, mask, thickness, None, axes)
+            pieces = [(v, r, f, np.zeros(len(v), dtype=bool)), (sv, sr, sf, shid)]
+            folds = skirt_folds
+        else:
+            mask = (groups["torso"] | groups["thigh"] | groups["shin"]) & (h < waist) & (h > cut)
+            v, r, f, _, _ = _tight(body, normals, mask, thickness, folds, axes)
+            pieces = [(v, r, f, np.zeros(len(v), dtype=bool))]
+        add_garment("bottom", bottom_kind, spec, pieces, {"thickness_m": thickness, "loose": bottom_kind == "skirt",
+                                                          "folds": folds}, mask)
+
+    # Jacket or coat over the top: a closed slab, often open at the front.
+    if outer_kind != "none":
+        spec = cloth("outer")
+        open_front = bool(rng.random() < OPEN_FRONT_P)
+        gap = float(rng.uniform(0.05, 0.16)) if open_front else 0.0
+        j_hem = rng.uniform(0.47, 0.52)
+        mask = (groups["torso"] & (h > j_hem)) | groups["upperarm"] | groups["forearm"]
+        if open_front:
+            mask &= ~(groups["torso"] & (rest[:, 1] < layout["torso_y"]) & (np.abs(rest[:, 0] - layout["torso_x"]) < gap / 2)
+                      & (h < 0.8))
+        offset = float(top_info["offset_m"] + (top_thickness if loose_top else 0.0) + rng.uniform(0.012, 0.03))
+        thickness = float(rng.uniform(0.006, 0.012))
+        folds = _folds_for(rng, True)
+        v, r, f, _, ids = garments.loose_shell(body, normals, mask, offset, folds, axes)
+        v, r, f, _, hid = _slab_of(v, r, f, thickness, hide_inner=not open_front)
+        pieces = [(v, r, f, hid)]
+        info = {"thickness_m": thickness, "loose": True, "offset_m": offset, "folds": folds, "open_front": open_front,
+                "gap_m": gap}
+        if outer_kind == "coat":
+            c_hem = rng.uniform(0.25, 0.42)
+            cv, cr, cf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"], j_hem + 0.03, c_hem,
+                                              rng.uniform(0.05, 0.2), folds, gap_deg=rng.uniform(25, 50) if open_front else 0.0)
+            cv, cr, cf, _, chid = _slab_of(cv, cr, cf, thickness, hide_inner=False)
+            pieces.append((cv, cr, cf, chid))
+            info["hem"] = float(c_hem)
+        if hood:
+            hv, hr, hf, hood_info = _hood(body, rng, layout, torso_frame)
+            pieces.append((hv, hr, hf, np.zeros(len(hv), dtype=bool)))
+            info["hood"] = hood_info
+        cover = garments.erode(mask, body.faces, COVER_RINGS)
+        # The top under the jacket is hidden where the jacket covers it (away from the openings).
+        top_part.hidden = top_part.hidden | np.concatenate(
+            [cover[top_ids], np.zeros(len(top_part.vertices) - len(top_ids), dtype=bool)])
+        print_target = spec if not open_front else None
+        add_garment("outer", outer_kind, spec, pieces, info, cover)
+
+    # Shoes.
     if shoe_kind != "barefoot":
         shoe_mask = groups["foot"] | (groups["shin"] & (h < (0.12 if shoe_kind == "boots" else 0.045)))
-        garments.append(("shoes", shoe_kind, shoe_mask, rng.uniform(0.008, 0.015)))
+        spec = material("shoe", rng, jitter_hue(sample_fabric_colour(rng), rng), (0.2, 0.8), diffuse_only,
+                        pattern_p=0.0, metallic_p=0.05)
+        thickness = float(rng.uniform(0.008, 0.015))
+        v, r, f, _, _ = _tight(body, normals, shoe_mask, thickness, None, axes)
+        add_garment("shoes", shoe_kind, spec, [(v, r, f, np.zeros(len(v), dtype=bool))],
+                    {"thickness_m": thickness, "loose": False, "folds": None}, shoe_mask)
 
-    record["garments"] = {}
-    covered_faces = np.zeros(len(body.faces), dtype=bool)
-    for slot, kind, mask, thickness in garments:
-        covered_faces |= mask[body.faces].all(axis=1)
-        colour = jitter_hue(sample_fabric_colour(rng), rng)
-        if slot == "shoes":
-            spec = material("shoe", rng, colour, (0.2, 0.8), diffuse_only, pattern_p=0.0, metallic_p=0.05)
-        else:
-            spec = material("cloth", rng, colour, (0.55, 1.0), diffuse_only, pattern_p=0.5, metallic_p=0.04, transmission_p=0.04)
-        verts, rest, faces, nrm = shell(body, normals, mask, thickness)
-        if slot == "bottom" and skirt is not None:
-            sv, srest, sf = skirt
-            faces = np.concatenate([faces, sf + len(verts)])
-            verts = np.concatenate([verts, sv])
-            rest = np.concatenate([rest, srest])
-            nrm = vertex_normals(verts, faces)
-        parts.append(Part(slot, verts, rest, faces, nrm, spec))
-        record["garments"][slot] = {"kind": kind, "thickness_m": float(thickness), "material": spec}
+    # A print on the visible chest garment (the top, a dress or a closed jacket).
+    if print_target is None and outer_kind != "none":
+        print_target = top_spec  # an open jacket shows the top's print between its fronts
+    if rng.random() < PRINT_P:
+        print_target["print"] = sample_print(rng, layout, print_target["base_color"])
 
-    hair = _hair(body, normals, groups, rng, diffuse_only)
-    if hair is not None:
-        parts.append(hair[0])
-        record["hair"] = hair[1]
-        covered_faces |= hair[2][body.faces].all(axis=1)
+    # ---- hair
+    made = hair_mod.make_hair(body, normals, groups, rng, hair_style)
+    if made is not None:
+        v, r, f, n, scalp, hair_record = made
+        spec = material("hair", rng, hair_colour, (0.35, 0.6), diffuse_only, sheen=(0.3, 0.8))
+        spec["streaks"] = {"amount": float(rng.uniform(0.1, 0.3)), "scale": float(rng.uniform(20.0, 60.0))}
+        scalp_faces = scalp[body.faces].all(axis=1)
+        hidden = np.zeros(len(v), dtype=bool)
+        # The cap's inner layer lies on the scalp: hidden away from its rim.
+        cap_faces, cap_ids = submesh(body.faces, scalp)
+        boundary = np.zeros(len(cap_ids), dtype=bool)
+        boundary[garments.boundary_edges(cap_faces).ravel()] = True
+        hidden[len(cap_ids):2 * len(cap_ids)] = garments.erode(~boundary, cap_faces, 2)
+        parts.append(Part("hair", v, r, f, n, spec, hidden=hidden))
+        record["hair"] = {**hair_record, "material": spec}
+        covered_faces |= scalp_faces
     else:
-        record["hair"] = {"style": "bald"}
-    # A body vertex is hidden when every face around it is under a shell.
+        record["hair"] = {"style": "bald", "volume": "none"}
+    # A body vertex is hidden when every face around it is under a garment or the hair.
     exposed = np.zeros(len(body.vertices), dtype=bool)
     exposed[body.faces[~covered_faces].ravel()] = True
     body_ids = parts[0].source_ids
     parts[0].hidden = ~exposed[body_ids]
+    for p in parts:
+        if p.hidden is None:
+            p.hidden = np.zeros(len(p.vertices), dtype=bool)
     return parts, record
-
-
-def skirt_mesh(body: Body, h: np.ndarray, groups: dict, top: float, hem: float, flare: float, segments: int = 48):
-    """A flared tube from rest height `top` down to `hem` around the hips and both thighs.
-
-    Each ring is centred on the posed body vertices at that rest height and
-    encloses all of them (plus a margin), widening by `flare` (m per m of
-    drop); returns (vertices, rest positions, faces), normals facing out.
-    """
-    rings = 8
-    levels = np.linspace(top, hem, rings)
-    legs = groups["torso"] | groups["thigh"]
-    angle = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
-    circle = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    verts, rest = [], []
-    z_top = None
-    for level in levels:
-        near = legs & (np.abs(h - level) < 0.012)
-        if near.sum() < 8:
-            raise ValueError("skirt ring found no body vertices at its height")
-        pts = body.vertices[near]
-        centre = pts[:, :2].mean(axis=0)
-        z = float(pts[:, 2].mean())
-        z_top = z if z_top is None else z_top
-        radius = np.linalg.norm(pts[:, :2] - centre, axis=1).max() + 0.012 + flare * (z_top - z)
-        ring = np.concatenate([centre + radius * circle, np.full((segments, 1), z)], axis=1)
-        verts.append(ring)
-        rest_centre = body.rest_vertices[near].mean(axis=0)
-        rest.append(np.concatenate([rest_centre[:2] + radius * circle,
-                                    np.full((segments, 1), rest_centre[2])], axis=1))
-    verts = np.concatenate(verts)
-    rest = np.concatenate(rest)
-    faces = []
-    for r in range(rings - 1):
-        for i in range(segments):
-            a, b = r * segments + i, r * segments + (i + 1) % segments
-            c, d = a + segments, b + segments
-            faces += [[a, c, b], [b, c, d]]
-    faces = np.array(faces, dtype=np.int64)
-    # Orient outward: the first face's normal must point away from its ring centre.
-    n0 = np.cross(verts[faces[0, 1]] - verts[faces[0, 0]], verts[faces[0, 2]] - verts[faces[0, 0]])
-    if np.dot(n0[:2], verts[faces[0, 0], :2] - verts[:segments, :2].mean(axis=0)) < 0:
-        faces = faces[:, ::-1]
-    return verts, rest, faces
-
-
-def _hair(body: Body, normals: np.ndarray, groups: dict, rng: np.random.Generator, diffuse_only: bool):
-    style = str(rng.choice(["bald", "short", "medium", "long"], p=[0.1, 0.4, 0.3, 0.2]))
-    if style == "bald":
-        return None
-    rest = body.rest_vertices
-    head = groups["head"]
-    eyes = groups["eyes"]
-    eye_z = rest[eyes, 2].mean()
-    eye_y = rest[eyes, 1].mean()  # front of the face (the body faces -Y)
-    centre_y = rest[head, 1].mean()
-    hairline = eye_z + rng.uniform(0.05, 0.08)
-    low = {"short": eye_z - 0.01, "medium": eye_z - 0.05, "long": eye_z - 0.14}[style]
-    back = rest[:, 1] > centre_y - 0.02
-    sides = rest[:, 1] > eye_y + rng.uniform(0.04, 0.06)
-    above = rest[:, 2] > low
-    mask = head & above & ((rest[:, 2] > hairline) | (sides & (rest[:, 2] > eye_z - 0.02)) | back)
-    record = {"style": style}
-    if style == "long":
-        # Long hair falls over the back of the neck onto the upper back.
-        torso = groups["torso"]
-        neck_base = rest[head, 2].min()
-        drop = float(rng.uniform(0.06, 0.2))
-        behind = rest[:, 1] > rest[torso, 1].mean() + 0.02
-        mask |= (head & behind) | (torso & behind & (rest[:, 2] > neck_base - drop))
-        record["drop_m"] = drop
-    base = {"short": 0.008, "medium": 0.014, "long": 0.02}[style]
-    noise = smooth_noise(rest, rng, base_freq=25.0)
-    thickness = base * (1.0 + 0.35 * noise)
-    verts, rest_v, faces, nrm = shell(body, normals, mask, thickness)
-    # Hair strands scatter broadly; a smooth GGX cap would read as a helmet.
-    spec = material("hair", rng, sample_hair_colour(rng), (0.5, 0.85), diffuse_only)
-    record.update(thickness_m=base, material=spec)
-    return Part("hair", verts, rest_v, faces, nrm, spec), record, mask
-
-
 # ------------------------------------------------------------------ Cycles
 
 
+def _node_math(nodes, links, op, a, b=None):
+    m = nodes.new("ShaderNodeMath")
+    m.operation = op
+    for k, x in enumerate((a, b)):
+        if x is None:
+            continue
+        if isinstance(x, (int, float)):
+            m.inputs[k].default_value = float(x)
+        else:
+            links.new(x, m.inputs[k])
+    return m.outputs[0]
+
+
+def _mix(nodes, links, fac, a, b):
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    if isinstance(fac, (int, float)):
+        mix.inputs["Factor"].default_value = float(fac)
+    else:
+        links.new(fac, mix.inputs["Factor"])
+    for k, x in ((6, a), (7, b)):
+        if isinstance(x, (list, tuple)):
+            mix.inputs[k].default_value = (*x, 1.0)
+        else:
+            links.new(x, mix.inputs[k])
+    return mix.outputs[2]
+
+
+def _rgb(nodes, colour):
+    node = nodes.new("ShaderNodeRGB")
+    node.outputs[0].default_value = (*colour, 1.0)
+    return node.outputs[0]
+
+
+def _scaled_rest(nodes, links, rest, scale):
+    mapping = nodes.new("ShaderNodeMapping")
+    mapping.inputs["Scale"].default_value = scale
+    links.new(rest, mapping.inputs["Vector"])
+    return mapping.outputs["Vector"]
+
+
+def _noise_fac(nodes, links, vector, scale):
+    tex = nodes.new("ShaderNodeTexNoise")
+    tex.inputs["Scale"].default_value = scale
+    links.new(vector, tex.inputs["Vector"])
+    return tex.outputs["Fac"]
+
+
+def _print_image(name: str, spec: dict):
+    import bpy
+
+    rgba = print_image(spec)
+    height, width = rgba.shape[:2]
+    image = bpy.data.images.new(f"{name}_print", width, height, alpha=True, float_buffer=True)
+    image.pixels.foreach_set(rgba[::-1].ravel())  # Blender's rows start at the bottom
+    image.pack()
+    image.colorspace_settings.name = "Linear Rec.709"
+    image.alpha_mode = "STRAIGHT"
+    return image
+
+
+def _add_print(nodes, links, rest, base, name: str, spec: dict):
+    """Base colour with the print over it (rest-space planar projection, crisp alpha)."""
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(rest, sep.inputs["Vector"])
+    cx, cz = spec["centre"]
+    size = spec["size_m"]
+    if spec["kind"] == "band":
+        # |z - cz| < size / 2 on every side: a jersey's chest band.
+        dz = _node_math(nodes, links, "ABSOLUTE", _node_math(nodes, links, "SUBTRACT", sep.outputs["Z"], cz))
+        fac = _node_math(nodes, links, "LESS_THAN", dz, size / 2)
+        return _mix(nodes, links, fac, base, spec["colours"][0])
+    # Seen from the front (-Y) the body's +X is on the viewer's right; from the back, on the left.
+    sign = 1.0 if spec["side"] == "front" else -1.0
+    u = _node_math(nodes, links, "MULTIPLY_ADD", sep.outputs["X"], sign / size)
+    u_node = u.node
+    u_node.inputs[2].default_value = 0.5 - sign * cx / size
+    v = _node_math(nodes, links, "MULTIPLY_ADD", sep.outputs["Z"], 1.0 / size)
+    v.node.inputs[2].default_value = 0.5 - cz / size
+    combine = nodes.new("ShaderNodeCombineXYZ")
+    links.new(u, combine.inputs["X"])
+    links.new(v, combine.inputs["Y"])
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = _print_image(name, spec)
+    tex.interpolation = "Closest"
+    tex.extension = "CLIP"
+    links.new(combine.outputs["Vector"], tex.inputs["Vector"])
+    side = _node_math(nodes, links, "LESS_THAN" if spec["side"] == "front" else "GREATER_THAN",
+                      sep.outputs["Y"], spec["split_y"])
+    fac = _node_math(nodes, links, "MULTIPLY", tex.outputs["Alpha"], side)
+    return _mix(nodes, links, fac, base, tex.outputs["Color"])
+
+
 def build_material(name: str, spec: dict):
-    """Principled BSDF material; returns (material, base-colour socket, material-params socket)."""
+    """Principled BSDF material; returns (material, base-colour socket, material-params socket).
+
+    The base-colour socket is the one colour that feeds the BSDF and the
+    albedo AOV, so every texture, print and detail below is in the albedo
+    exactly.
+    """
     import bpy
 
     mat = bpy.data.materials.new(name)
@@ -379,31 +735,31 @@ def build_material(name: str, spec: dict):
     bsdf.inputs["Specular IOR Level"].default_value = spec["specular_level"]
     bsdf.inputs["Diffuse Roughness"].default_value = spec["diffuse_roughness"]
     bsdf.inputs["IOR"].default_value = 1.5
+    if spec.get("sheen", 0.0) > 0.0:
+        bsdf.inputs["Sheen Weight"].default_value = spec["sheen"]
+        bsdf.inputs["Sheen Roughness"].default_value = 0.35
 
     colour_a = nodes.new("ShaderNodeRGB")
     colour_a.outputs[0].default_value = (*spec["base_color"], 1.0)
     base_socket = colour_a.outputs[0]
-    if spec["pattern"] != "none":
-        coords = nodes.new("ShaderNodeAttribute")
-        coords.attribute_type = "GEOMETRY"
-        coords.attribute_name = "relight_rest"
+    coords = nodes.new("ShaderNodeAttribute")
+    coords.attribute_type = "GEOMETRY"
+    coords.attribute_name = "relight_rest"
+    rest = coords.outputs["Vector"]
+    pattern = spec["pattern"]
+    if pattern in ("stripes", "checks", "noise"):
         colour_b = nodes.new("ShaderNodeRGB")
         colour_b.outputs[0].default_value = (*spec["second_color"], 1.0)
         scale = spec["pattern_scale"]
-        if spec["pattern"] == "stripes":
+        if pattern == "stripes":
             tex = nodes.new("ShaderNodeTexWave")
             tex.wave_type = "BANDS"
             tex.bands_direction = "XYZ"[spec["pattern_axis"]]
             tex.inputs["Scale"].default_value = scale / 4.0
             tex.inputs["Distortion"].default_value = 0.0
-            fac = tex.outputs["Fac"]
             # Wave Fac is in [0, 1]; a threshold makes crisp two-colour stripes.
-            step = nodes.new("ShaderNodeMath")
-            step.operation = "GREATER_THAN"
-            step.inputs[1].default_value = 0.5
-            links.new(fac, step.inputs[0])
-            fac = step.outputs[0]
-        elif spec["pattern"] == "checks":
+            fac = _node_math(nodes, links, "GREATER_THAN", tex.outputs["Fac"], 0.5)
+        elif pattern == "checks":
             tex = nodes.new("ShaderNodeTexChecker")
             tex.inputs["Scale"].default_value = scale
             fac = tex.outputs["Fac"]
@@ -411,13 +767,45 @@ def build_material(name: str, spec: dict):
             tex = nodes.new("ShaderNodeTexNoise")
             tex.inputs["Scale"].default_value = scale
             fac = tex.outputs["Fac"]
-        links.new(coords.outputs["Vector"], tex.inputs["Vector"])
-        mix = nodes.new("ShaderNodeMix")
-        mix.data_type = "RGBA"
-        links.new(fac, mix.inputs["Factor"])
-        links.new(colour_a.outputs[0], mix.inputs[6])
-        links.new(colour_b.outputs[0], mix.inputs[7])
-        base_socket = mix.outputs[2]
+        links.new(rest, tex.inputs["Vector"])
+        base_socket = _mix(nodes, links, fac, colour_a.outputs[0], colour_b.outputs[0])
+    elif pattern in ("denim", "knit"):
+        # Thread scale: diagonal twill (light weft showing between indigo warps) or vertical ribs.
+        tex = nodes.new("ShaderNodeTexWave")
+        tex.wave_type = "BANDS"
+        tex.bands_direction = "DIAGONAL" if pattern == "denim" else "X"
+        tex.inputs["Scale"].default_value = spec["pattern_scale"] / (10.0 if pattern == "denim" else 20.0)
+        tex.inputs["Distortion"].default_value = 0.0
+        links.new(rest, tex.inputs["Vector"])
+        base = np.array(spec["base_color"])
+        other = (0.6 * base + 0.4 * np.array([0.8, 0.8, 0.78])) if pattern == "denim" else 0.6 * base
+        fac = _node_math(nodes, links, "MULTIPLY", tex.outputs["Fac"], 0.6)
+        base_socket = _mix(nodes, links, fac, colour_a.outputs[0], [float(c) for c in other])
+    for key in ("mottle", "streaks"):
+        if key in spec:
+            # Skin mottle (isotropic) or hair streaks (stretched along Z): base x (1 -/+ amount).
+            amount, scale = spec[key]["amount"], spec[key]["scale"]
+            stretch = (1.0, 1.0, 1.0) if key == "mottle" else (1.0, 1.0, 0.1)
+            fac = _noise_fac(nodes, links, _scaled_rest(nodes, links, rest, stretch), scale)
+            base = np.array(spec["base_color"])
+            lo, hi = np.clip(base * (1 - amount), 0, 1), np.clip(base * (1 + amount), 0, 1)
+            base_socket = _mix(nodes, links, fac, [float(c) for c in lo], [float(c) for c in hi])
+    if "iris" in spec:
+        iris = spec["iris"]
+        dist = []
+        for c in iris["centres"]:
+            vm = nodes.new("ShaderNodeVectorMath")
+            vm.operation = "DISTANCE"
+            links.new(rest, vm.inputs[0])
+            vm.inputs[1].default_value = c
+            dist.append(vm.outputs["Value"])
+        d = _node_math(nodes, links, "MINIMUM", dist[0], dist[1])
+        in_iris = _node_math(nodes, links, "LESS_THAN", d, iris["radius_m"])
+        in_pupil = _node_math(nodes, links, "LESS_THAN", d, iris["pupil_m"])
+        base_socket = _mix(nodes, links, in_iris, base_socket, iris["colour"])
+        base_socket = _mix(nodes, links, in_pupil, base_socket, iris["pupil_colour"])
+    if spec.get("print"):
+        base_socket = _add_print(nodes, links, rest, base_socket, name, spec["print"])
     links.new(base_socket, bsdf.inputs["Base Color"])
     params = nodes.new("ShaderNodeCombineXYZ")
     params.inputs["X"].default_value = spec["roughness"]
