@@ -173,6 +173,9 @@ def parse_args(argv: list[str]) -> RunConfig:
 def main(argv: list[str] | None = None) -> int:
     """Run the farm; returns the process exit code."""
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--summary"]:  # python -m farm --summary DIR: dataset feature fractions (farm/summary.py)
+        from farm.summary import main as summary_main
+        return summary_main(argv[1:])
     try:
         config = parse_args(argv)
     except UsageError as err:
