@@ -562,7 +562,7 @@ def dress(
                 "gap_m": gap}
         if outer_kind == "coat":
             c_hem = rng.uniform(0.25, 0.42)
-            cv, cr, cf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"], j_hem + 0.03, c_hem,
+            cv, cr, cf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"] | groups["shin"], j_hem + 0.03, c_hem,
                                               rng.uniform(0.05, 0.2), folds, gap_deg=rng.uniform(25, 50) if open_front else 0.0)
             cv, cr, cf, _, chid = _slab_of(cv, cr, cf, thickness, hide_inner=False)
             pieces.append((cv, cr, cf, chid))

@@ -238,8 +238,11 @@ def flared_tube(body, h: np.ndarray, region: np.ndarray, top: float, hem: float,
     verts, rest = [], []
     z_top = None
     for r_i, level in enumerate(levels):
-        near = region & (np.abs(h - level) < 0.012)
-        if near.sum() < 8:
+        for tol in (0.012, 0.025, 0.05):
+            near = region & (np.abs(h - level) < tol)
+            if near.sum() >= 8:
+                break
+        else:
             raise ValueError("tube ring found no body vertices at its height")
         pts = body.vertices[near]
         centre = pts[:, :2].mean(axis=0)
