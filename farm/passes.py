@@ -284,8 +284,19 @@ def set_environment_world(
     vector is rotated by -rotation_deg. Give either a file path or float pixels
     [H, W, 3] (row 0 at the top).
     """
-    world = scene.world or bpy.data.worlds.new("World")
+    image = _load_image(image_path, pixels, name)
+    # A fresh World per light: Cycles reads the importance-map settings only
+    # when it first syncs a World, and the automatic setting of Blender 5.0
+    # builds a 4096 x 2048 map for any map without a sun (1.2-1.5 s per
+    # light change on one core, docs/benchmarks/farm_render.md). The map's
+    # own resolution is what its texels can resolve.
+    previous = scene.world
+    world = bpy.data.worlds.new(name)
+    world.cycles.sampling_method = "MANUAL"
+    world.cycles.sample_map_resolution = importance_map_resolution(image.size[0])
     scene.world = world
+    if previous is not None and previous.users == 0:
+        bpy.data.worlds.remove(previous)
     nodes, links = world.node_tree.nodes, world.node_tree.links
     nodes.clear()
     coord = nodes.new("ShaderNodeTexCoord")
@@ -294,7 +305,7 @@ def set_environment_world(
     mapping.inputs["Rotation"].default_value = (0.0, 0.0, -math.radians(rotation_deg))
     env = nodes.new("ShaderNodeTexEnvironment")
     env.interpolation = "Linear"
-    env.image = _load_image(image_path, pixels, name)
+    env.image = image
     background = nodes.new("ShaderNodeBackground")
     background.inputs["Strength"].default_value = float(strength)
     output = nodes.new("ShaderNodeOutputWorld")
@@ -302,6 +313,16 @@ def set_environment_world(
     links.new(mapping.outputs["Vector"], env.inputs["Vector"])
     links.new(env.outputs["Color"], background.inputs["Color"])
     links.new(background.outputs["Background"], output.inputs["Surface"])
+
+
+def importance_map_resolution(map_width: int) -> int:
+    """Width of the World importance map for an equirect map `map_width` texels wide.
+
+    One importance texel per map texel: finer resolves nothing more, coarser
+    spreads a small sun over neighbours (more noise). Kept within Cycles'
+    own bounds for the setting.
+    """
+    return int(min(max(int(map_width), 64), 8192))
 
 
 def _load_image(path: Path | None, pixels: np.ndarray | None, name: str):

@@ -401,3 +401,23 @@ def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
     assert scene.cycles.use_denoising and scene.cycles.denoiser == "OPENIMAGEDENOISE"
     assert scene.cycles.denoising_prefilter == prefilter.upper()
     assert np.all(np.isfinite(pt.image)) and pt.image.max() > 0
+
+
+def test_each_light_gets_a_fresh_world_with_an_importance_map_at_its_own_resolution(tmp_path):
+    """Cycles reads the map settings only when it first syncs a World, so each light
+    needs its own World; the old one is freed (no pile-up over a worker's scenes)."""
+    from farm import passes
+    import bpy
+
+    sphere = icosphere(1, radius=0.5) + (LAMBERT_WHITE,)
+    scene, _, _ = _cycles_sphere_scene(tmp_path, [sphere], 1, 16, resolution=8)
+    before = len(bpy.data.worlds)
+    for width in (256, 64, 32):
+        pixels = np.ones((width // 2, width, 3), np.float32)
+        passes.set_environment_world(scene, None, 0.0, 1.0, pixels=pixels, name=f"light{width}")
+        world = scene.world
+        assert world.name.startswith(f"light{width}")
+        assert world.cycles.sampling_method == "MANUAL"
+        assert world.cycles.sample_map_resolution == max(width, 64)
+    assert len(bpy.data.worlds) <= before + 1
+    assert passes.importance_map_resolution(20000) == 8192  # Cycles' upper bound for the setting
