@@ -22,7 +22,7 @@ import numpy as np
 
 from farm.bake import fibonacci_directions
 from relight import presets, sh
-from relight.envmap import light_from_map
+from relight.light import sh_light
 from relight.prt import lambert_transport
 from timing import median_ms  # benchmarks/timing.py
 
@@ -70,7 +70,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     orders = []
     for name in presets.list_presets():
-        c8 = light_from_map(name, REF_ORDER, normalize=True)
+        c8 = sh_light(name, REF_ORDER)
         need = sh.required_order(c8, args.fraction)
         orders.append(need)
         m_req, x_req = shading_errors(c8, T8, need)

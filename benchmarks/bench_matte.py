@@ -69,7 +69,7 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
 def main(argv=None) -> int:
     from relight import matte
     from relight.photo import read_photo
-    from relight.runtime import resize_linear
+    from relight.resample import resize_linear
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--threads", type=int, default=2)

@@ -24,7 +24,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from relight import photo as photo_io, quality  # noqa: E402
-from relight.runtime import Relighter, resize_linear  # noqa: E402
+from relight.light import sh_light  # noqa: E402
+from relight.resample import resize_linear  # noqa: E402
+from relight.runtime import Relighter  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -43,7 +45,8 @@ def main(argv=None) -> int:
         d = r.decompose(image, mask)
         runs[(preset.label, "decompose, mask given")] = lambda r=r: r.decompose(image, mask)
         runs[(preset.label, "decompose, person segmenter")] = lambda r=r: r.decompose(image, matte="person")
-        runs[(preset.label, "relight (full size)")] = lambda d=d: d.relight("sunset")
+        light = sh_light("sunset", d.sh_order)
+        runs[(preset.label, "relight (full size)")] = lambda d=d, light=light: d.relight(light)
     for fn in runs.values():
         fn()
     times = {k: [] for k in runs}

@@ -110,10 +110,11 @@ def _light_image_key(settings, model_path: str) -> tuple | None:
 
 
 def target_light(context, order: int, model_path: str):
-    """(light for relight.runtime, extra rotation in degrees) for the current settings.
+    """(light, extra rotation in degrees) for the current settings.
 
-    The light is a preset name, an HDR path, SH coefficients (the World or a
-    restored light transfer) or the Decomposition of another photo;
+    The light is a relight.light.Light (a preset, an HDR file or the World),
+    SH coefficients (a restored light transfer) or the Decomposition of another
+    photo: engine.coefficients turns any of them into what a relight takes;
     ValueError says what is missing.
     """
     settings = _settings(context)
@@ -141,7 +142,7 @@ def target_light(context, order: int, model_path: str):
 
 
 def _world_light(world, order: int):
-    """(SH light, rotation) of the world, read (or baked) and projected once per
+    """(Light, rotation) of the world, read (or baked) and projected once per
     state of its nodes (a hash of them: bl_world.fingerprint)."""
     key = bl_world.fingerprint(world)
     cached = state.WORLDS.get(key)

@@ -1,4 +1,4 @@
-"""The add-on's only contact with relight.runtime: open a model, decompose, relight, save.
+"""The add-on's side of relight.runtime: open a model, decompose, relight, save.
 
 Plain Python (no bpy). Keeps one onnxruntime session per model file, and
 the measured network time per (model, working size) so the progress bar of
@@ -103,7 +103,7 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
     CancelToken.cancel() terminates, so Esc stops even a running network pass.
-    relight.runtime.Relighter.run takes no run options, so its `run` is
+    Relighter.decompose calls its `run` without run options, so `run` is
     shadowed on the instance for this call (one network job runs at a time).
     """
     start = time.monotonic()
@@ -125,13 +125,11 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
 
 
 def _cancellable_run(relighter, cancel: CancelToken):
-    from relight.models import INPUT_NAME, OUTPUT_NAMES
+    from relight.session import ModelSession
 
     def run(net_input: np.ndarray) -> dict[str, np.ndarray]:
         cancel.check()
-        feed = {INPUT_NAME: np.ascontiguousarray(net_input, np.float32)}
-        values = relighter.session.run(list(OUTPUT_NAMES), feed, cancel.run_options())
-        return dict(zip(OUTPUT_NAMES, values))
+        return ModelSession.run(relighter, net_input, cancel.run_options())
     return run
 
 
@@ -168,7 +166,8 @@ def preview_decomposition(decomposition, long_side: int):
     Same network outputs (working resolution), so the preview is the full
     result, only smaller.
     """
-    from relight.runtime import Decomposition, resize_linear
+    from relight.decomposition import Decomposition
+    from relight.resample import resize_linear
 
     H, W = decomposition.size
     if max(H, W) <= 1.25 * long_side:
@@ -191,10 +190,20 @@ def preview_decomposition(decomposition, long_side: int):
         mask=mask, sh_order=decomposition.sh_order)
 
 
+def coefficients(decomposition, light, rotation_deg: float) -> np.ndarray:
+    """The SH coefficients a relight of `decomposition` takes: `light` (a relight.light.Light,
+    SH coefficients or another photo's Decomposition) at the model's order, turned by
+    rotation_deg about world Z."""
+    from relight.light import resolve
+
+    cache = pipeline.light_cache()
+    return resolve(light, decomposition.sh_order, cache=cache).at(rotation_deg, cache)
+
+
 def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, strength: float,
                out: np.ndarray | None = None) -> np.ndarray:
     """The relit photo blended by `strength`, as a buffer in Blender's layout (worker-safe)."""
-    relit = decomposition.relight(light, rotation_deg=rotation_deg, exposure_ev=exposure_ev)
+    relit = relight(decomposition, light, rotation_deg, exposure_ev)
     return pipeline.to_blender_rgba(pipeline.blend(relit, decomposition.photo, strength), out)
 
 
@@ -242,8 +251,8 @@ def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:
 
 def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None,
                           box: tuple | None = None):
-    """A relight.runtime.Decomposition from saved arrays over the (re-read) photo."""
-    from relight.runtime import Decomposition
+    """A relight.decomposition.Decomposition from saved arrays over the (re-read) photo."""
+    from relight.decomposition import Decomposition
 
     return Decomposition(albedo=arrays["albedo"], transport=arrays["transport"], residual=arrays["residual"],
                          light=arrays["light"], alpha=arrays["alpha"], box=tuple(box or meta["box"]),
@@ -270,12 +279,12 @@ def sh_order(relighter_or_decomposition) -> int:
 
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:
     """The photo relit, linear [H, W, 3]: the person composited over the untouched background."""
-    return decomposition.relight(light, rotation_deg=rotation_deg, exposure_ev=exposure_ev)
+    return decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev)
 
 
 def layers(decomposition, light, rotation_deg: float, exposure_ev: float) -> dict[str, np.ndarray]:
     """albedo, shading, residual [H, W, 3] under the target light, and alpha [H, W]."""
-    return decomposition.layers(light, rotation_deg=rotation_deg, exposure_ev=exposure_ev)
+    return decomposition.layers(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev)
 
 
 def save_layers(path: str, relit: np.ndarray, layer_maps: dict[str, np.ndarray]) -> Path:

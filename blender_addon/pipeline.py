@@ -294,9 +294,22 @@ def choose_mask(mode: str, photo_shape: tuple[int, int], photo_alpha: np.ndarray
 LIGHT_KINDS = ("WORLD", "HDR", "PRESET", "IMAGE")
 
 
-def hdr_file_light(path: str, order: int) -> str:
-    """The HDR file as a light for relight.runtime, after checking it reads as an equirect map."""
-    from relight.runtime import resolve_light
+def light_cache():
+    """The add-on's relight.light.LightCache: HDR files projected once per file state and
+    the rotation matrices the dials ask for again and again."""
+    if not _LIGHT_CACHE:
+        from relight.light import LightCache
+
+        _LIGHT_CACHE.append(LightCache())
+    return _LIGHT_CACHE[0]
+
+
+_LIGHT_CACHE: list = []
+
+
+def hdr_file_light(path: str, order: int):
+    """The HDR file as a relight.light.Light (read and projected here, once per file state)."""
+    from relight.light import resolve
 
     if not path:
         raise ValueError("Choose an HDR file for the light.")
@@ -304,34 +317,29 @@ def hdr_file_light(path: str, order: int) -> str:
     if not p.is_file():
         raise ValueError(f"The HDR file '{path}' does not exist.")
     try:
-        resolve_light(str(p), order)  # projected once, then cached by the runtime
+        return resolve(str(p), order, cache=light_cache())
     except (ValueError, OSError) as exc:
         if _is_black_light(exc):
             raise ValueError(f"The HDR file '{p.name}' is black, so it gives no light: "
                              "choose another file.") from None
         raise ValueError(f"The HDR file '{p.name}' cannot be read as an equirectangular map "
                          f"({_first_line(exc)}).") from None
-    return str(p)
 
 
-def preset_light(name: str, order: int) -> str:
-    """The preset name as a light for relight.runtime, after checking it loads."""
-    from relight.runtime import resolve_light
+def preset_light(name: str, order: int):
+    """The preset as a relight.light.Light (loaded and projected once)."""
+    from relight.light import resolve
 
     try:
-        resolve_light(name, order)
+        return resolve(name, order, cache=light_cache())
     except (ValueError, OSError) as exc:
         raise ValueError(f"The light preset '{name}' is not available ({_first_line(exc)}).") from None
-    return name
 
 
-def equirect_light(pixels: np.ndarray, order: int) -> np.ndarray:
-    """SH light [n, 3] of an equirect map given as pixels (the World), scaled like HDR files.
-
-    relight.runtime scales every map to the reference mean luminance; the
-    World gets the same treatment so World, HDR file and preset agree.
-    """
-    from relight import envmap
+def equirect_light(pixels: np.ndarray, order: int):
+    """The World's equirect map (pixels) as a relight.light.Light: a map like an HDR
+    file or a preset, so World, HDR file and preset are scaled alike."""
+    from relight.light import resolve
 
     h, w = pixels.shape[:2]
     if w != 2 * h:
@@ -344,7 +352,7 @@ def equirect_light(pixels: np.ndarray, order: int) -> np.ndarray:
     if float(rgb.max(initial=0.0)) <= 0.0:
         raise ValueError(BLACK_WORLD)
     try:
-        return envmap.light_from_map(rgb, order, normalize=True)
+        return resolve(rgb, order)
     except ValueError as exc:
         if _is_black_light(exc):
             raise ValueError(BLACK_WORLD) from None

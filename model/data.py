@@ -42,8 +42,9 @@ from torch.nn import functional as F
 
 from relight import sh as sh_np
 from relight.colour import LUMINANCE_WEIGHTS
-from relight.dataset import list_finished_scenes, read_scene
-from relight.prt import to_network_input
+from relight.dataset import light_map_name, list_finished_scenes, read_scene, read_sidecar, traced_lights
+from relight.light import rotate_and_normalise
+from relight.prt import render, to_network_input
 
 DEFAULT_PADDING = 20  # pixels around the mask bbox, as in the paper
 REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range
@@ -56,12 +57,7 @@ def held_out_light_names() -> frozenset[str]:
     return frozenset(str(n).lower() for n in presets.HELD_OUT)
 
 
-def light_name(light: dict) -> str:
-    """The HDR map a scene light came from: its `source` file stem, else its `name`."""
-    source = light.get("source")
-    if isinstance(source, str) and source:
-        return Path(source).stem.split(".")[0].lower()
-    return str(light.get("name", "")).lower()
+light_name = light_map_name  # the HDR map a scene light came from (relight.dataset)
 
 
 def is_held_out(light: dict, held_out: frozenset[str]) -> bool:
@@ -85,7 +81,7 @@ def split_by_body(json_paths: list[Path], val_fraction: float, seed: int = 0) ->
     """
     if not 0.0 <= val_fraction < 1.0:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
-    keys = {p: body_key(json.loads(Path(p).read_text(encoding="utf-8"))) for p in json_paths}
+    keys = {p: body_key(read_sidecar(p)) for p in json_paths}
 
     def rank(key: str) -> float:
         digest = hashlib.sha256(f"{seed}:{key}".encode()).digest()
@@ -231,10 +227,9 @@ def random_background(rng: np.random.Generator, size: int) -> np.ndarray:
 
 def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Rotate an SH light [n, 3] about Z at random, scale to a reference radiance in [0.7, 0.9]."""
-    order = sh_np.order_from_num_coeffs(base.shape[0])
-    rotated = sh_np.rotation_matrix(sh_np.z_rotation(rng.uniform(0.0, 360.0)), order) @ base
+    rotation = rng.uniform(0.0, 360.0)
     target = rng.uniform(*REFERENCE_RADIANCE)
-    scaled, _ = sh_np.normalize_reference(rotated, target)
+    scaled, _ = rotate_and_normalise(base, rotation, target)  # relight.light's recipe for maps
     return scaled.astype(np.float32)
 
 
@@ -250,13 +245,14 @@ def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
 
 def preset_training_lights(order: int) -> list[tuple[str, np.ndarray]]:
     """SH [n, 3] of every bundled HDR preset that is not held out."""
-    from relight import envmap, presets
+    from relight import presets
+    from relight.light import sh_light
 
     held_out = held_out_light_names()
     out = []
     for name in presets.training_presets():
         assert name.lower() not in held_out, f"relight.presets offered held-out map {name}"
-        out.append((name.lower(), np.asarray(envmap.light_from_map(name, order), dtype=np.float32)))
+        out.append((name.lower(), np.asarray(sh_light(name, order, normalize=False), dtype=np.float32)))
     return out
 
 
@@ -286,8 +282,7 @@ def _pack_key(json_paths: list[Path], size: int, order: int, padding: int) -> di
     """What a pack was made from: scene files (by their EXR's SHA-256) and crop settings."""
     scenes = []
     for p in json_paths:
-        meta = json.loads(Path(p).read_text(encoding="utf-8"))
-        scenes.append([Path(p).name, meta.get("exr_sha256")])
+        scenes.append([Path(p).name, read_sidecar(p)["exr_sha256"]])
     return {"format": PACK_FORMAT, "size": size, "order": order, "padding": padding, "scenes": scenes}
 
 
@@ -383,7 +378,7 @@ class TrainingScenes(torch.utils.data.Dataset):
         self.exposure_jitter = exposure_jitter
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
-        self.seed, self.epoch = seed, 0
+        self.seed = seed
         # functools.partial, not a lambda: DataLoader workers may need to pickle the dataset
         if pack is not None:  # every scene cropped once, in memory (pack_scenes)
             self.cache = PackedScenes(pack, list(json_paths), size, order, padding)
@@ -394,9 +389,6 @@ class TrainingScenes(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.cache.paths)
 
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
     def _bank_light(self, scene: CroppedScene, rng) -> tuple[str, np.ndarray]:
         pool = list(self.extra_lights) + [(name, l) for name, l, h in
                                           zip(scene.light_names, scene.lights, scene.held_out) if not h]
@@ -406,10 +398,13 @@ class TrainingScenes(torch.utils.data.Dataset):
         return name, random_reference_light(base.astype(np.float64), rng)
 
     def _prt(self, scene: CroppedScene, light: np.ndarray) -> np.ndarray:
-        return scene.albedo * np.einsum("nhw,nc->chw", scene.transport, light)
+        """albedo * (T . L), channels first (relight.prt.render)."""
+        chw = lambda a: np.moveaxis(a, 0, -1)  # noqa: E731
+        return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
 
     def __getitem__(self, i: int) -> dict:
-        return self.item(i, self.epoch)
+        """Sample i of epoch 0; training takes other epochs through model.train.EpochIndexed."""
+        return self.item(i, 0)
 
     def item(self, i: int, epoch: int) -> dict:
         """Sample i with the augmentation of `epoch` (deterministic in seed, epoch, i)."""
@@ -483,8 +478,8 @@ class EvaluationPairs(torch.utils.data.Dataset):
         self.paths = list(json_paths)
         self.pairs: list[tuple[int, int, int]] = []
         for s, path in enumerate(self.paths):
-            meta = json.loads(Path(path).read_text(encoding="utf-8"))
-            traced = [k for k in range(len(meta["lights"])) if f"image.L{k}.R" in meta["channels"]]
+            meta = read_sidecar(path)
+            traced = traced_lights(meta)
             if len(traced) < 2:
                 continue
             targets = traced

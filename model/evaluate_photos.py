@@ -28,7 +28,9 @@ from relight import photo as photo_io
 from relight import sh
 from relight.colour import srgb_encode
 from relight.fileio import atomic_path, atomic_write_text
-from relight.runtime import QUALITY_SIZES, Relighter, resize_linear
+from relight.light import sh_light
+from relight.resample import resize_linear
+from relight.runtime import QUALITY_SIZES, Relighter
 
 # a directional light turned about the person (relight.sh.directional_light): a viewer
 # should see it move across the body; then a training preset (not relight.presets.HELD_OUT),
@@ -84,12 +86,12 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         dec, source = relighter.decompose(image, matte="network"), "network alpha (no person found)"
     # the network's own resolution: the full-resolution result borrows the photo's
     # detail (runtime docstring), which would flatter a reconstruction measured there
-    rerendered = dec.relight_working(dec)
+    rerendered = dec.relight_working(dec.light)
     try:
         recon = metrics.all_metrics(rerendered, dec.photo_working, dec.alpha)
     except ValueError:  # empty matte: the network found no person
         recon = None
-    albedo = dec.layers(light=dec)["albedo"]
+    albedo = dec.layers()["albedo"]
     tiles = [image, albedo]
     working = {}
     for azimuth in SHEET_DIRECTIONS:
@@ -99,7 +101,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
     motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
     for name in SHEET_PRESETS:
         for rotation in SHEET_ROTATIONS:
-            tiles.append(dec.relight(name, rotation_deg=rotation))
+            tiles.append(dec.relight(sh_light(name, dec.sh_order, rotation_deg=rotation)))
     return PhotoResult(
         name=path.name, size=image.shape[:2], working_size=dec.working_size,
         matte=source,

@@ -18,7 +18,7 @@ import numpy as np
 
 from relight import sh as sh_np
 from relight.dataset import scene_stem, write_scene
-from relight.envmap import light_from_map
+from relight.light import sh_light
 from relight.prt import lambert_transport, shading
 
 GLOSS = 0.05  # the residual the analytic "path tracer" adds: E = GLOSS * T
@@ -62,7 +62,7 @@ def write_analytic_dataset(folder, n_scenes: int = 4, size: int = 32, order: int
     cache = {} if light_cache is None else light_cache
     for name in lights:
         if name not in cache:
-            cache[name] = (sh_np.normalize_reference(light_from_map(name, max(order, 8)), 0.8)[0])
+            cache[name] = sh_light(name, max(order, 8))
     n = sh_np.num_coeffs(order)
     paths = []
     for index in range(n_scenes):

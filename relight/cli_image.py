@@ -34,7 +34,7 @@ EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (ru
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
     from relight import quality
-    from relight.cli import ROTATE_LIMIT, bounded_int, cores_available, finite_float
+    from relight.cli_args import ROTATE_LIMIT, bounded_int, cores_available, finite_float
     from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
     from relight.runtime import MATTE_SOURCES
 
@@ -92,7 +92,7 @@ def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
     return path
 
 
-def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None) -> Path:
+def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None, light) -> Path:
     """Read, decompose, relight and write one photo; nothing is written on failure."""
     from relight.photo import read_mask, read_photo, write_image, write_layers_exr
 
@@ -104,13 +104,13 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     else:
         mask = None
     d = relighter.decompose(image, mask, matte=args.matte, person=args.person)
-    relit = d.relight(args.light, args.rotate, args.exposure, normalize=args.normalize)
+    relit = d.relight(light, args.exposure)
     stats = d.last_stats
     if stats is not None and stats.fraction > NEGATIVE_WARN_FRACTION:
         print(f"relight image: warning: {Path(out_path).name}: negative light (SH ringing) clamped to 0 "
               f"on {stats.fraction:.1%} of the person", file=sys.stderr)
     if args.layers:
-        layers = d.layers(args.light, args.rotate, args.exposure, normalize=args.normalize)
+        layers = d.layers(light, args.exposure)
         return write_layers_exr(out_path, relit, layers)
     return write_image(out_path, relit)
 
@@ -119,17 +119,19 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
 NEGATIVE_WARN_FRACTION = 0.01
 
 
-def _check_light(args, relighter) -> None:
-    """Resolve the light once up front: a bad map fails before any photo is read."""
-    from relight.runtime import resolve_light
+def _light(source, args, relighter) -> np.ndarray:
+    """The light of every photo, as SH coefficients of the model's order: resolved once,
+    before any photo is read (a bad map fails first)."""
+    from relight.light import sh_light
 
-    L = resolve_light(args.light, relighter.sh_order, args.rotate, args.normalize)
+    L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=args.normalize)
     if not np.all(np.isfinite(L)):
         raise ValueError("the light gives non-finite SH coefficients")
     peak = float(np.abs(L).max(initial=0.0)) * 2.0 ** args.exposure
     if peak > LIGHT_LIMIT:
         raise ValueError(f"the light is too bright to relight in float32 (SH coefficients up to {peak:.3g} after "
                          f"exposure, limit {LIGHT_LIMIT:g}): drop --no-normalize or lower --exposure")
+    return L
 
 
 def run_image(args) -> int:
@@ -156,21 +158,22 @@ def run_image(args) -> int:
 
     model = args.model if args.model is not None else quality.model_path(args.quality)
     relighter = Relighter(model, threads=args.threads, working_size=args.quality)
+    light_source = args.light
     if args.light_from is not None:
         from relight.photo import read_photo
 
         donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
         usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
-        args.light = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte).light
-    _check_light(args, relighter)
+        light_source = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte)
+    light = _light(light_source, args, relighter)
     if not folder:
-        written = _process(relighter, source, out_path, args, args.mask)
+        written = _process(relighter, source, out_path, args, args.mask, light)
         print(f"wrote {written}")
         return 0
-    return _run_folder(relighter, source, out_dir, args)
+    return _run_folder(relighter, source, out_dir, args, light)
 
 
-def _run_folder(relighter, source: Path, out_dir: Path, args) -> int:
+def _run_folder(relighter, source: Path, out_dir: Path, args, light) -> int:
     from tqdm import tqdm
 
     from relight.photo import PHOTO_SUFFIXES
@@ -187,7 +190,7 @@ def _run_folder(relighter, source: Path, out_dir: Path, args) -> int:
     bar = tqdm(photos, desc="relight", unit="photo", file=sys.stderr, disable=None)
     for photo in bar:
         try:
-            _process(relighter, photo, out_dir / names[photo], args, None)
+            _process(relighter, photo, out_dir / names[photo], args, None, light)
         except (ValueError, OSError, MemoryError) as exc:
             failures.append((photo, str(exc) or "out of memory"))
             bar.write(f"relight image: failed: {photo.name}: {exc}", file=sys.stderr)
@@ -198,14 +201,3 @@ def _run_folder(relighter, source: Path, out_dir: Path, args) -> int:
               + ", ".join(p.name for p, _ in failures), file=sys.stderr)
         return EXIT_FAILED
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`relight image ...` without the rest of the `relight` command."""
-    from relight.cli import main as relight_main
-
-    return relight_main(["image", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -24,6 +24,10 @@ __all__ = [
     "scene_stem",
     "write_scene",
     "read_scene",
+    "read_sidecar",
+    "traced_lights",
+    "has_transport",
+    "light_map_name",
     "list_finished_scenes",
     "transport_channel_names",
     "file_sha256",
@@ -222,13 +226,10 @@ def _resolve(path) -> tuple[Path, Path]:
     return stem.with_suffix(".exr"), stem.with_suffix(".json")
 
 
-def read_scene(path, *, verify_hash: bool = True) -> Scene:
-    """Read and validate a finished scene (path: the stem, its .exr or its .json).
-
-    ValueError when the scene is unfinished (no JSON), the EXR is missing or
-    does not match the JSON's SHA-256, or channels/shapes disagree with the JSON.
-    """
-    exr_path, json_path = _resolve(path)
+def read_sidecar(path) -> dict:
+    """The JSON sidecar of a finished scene (path: the stem, its .exr or its .json),
+    checked for its format and required keys; the EXR is not read."""
+    _, json_path = _resolve(path)
     if not json_path.is_file():
         raise ValueError(f"scene {json_path.with_suffix('')} is not finished: {json_path.name} is missing")
     try:
@@ -240,6 +241,35 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
     for key in ("index", "sh_order", "lights", "resolution", "channels", "exr_sha256"):
         if key not in meta:
             raise ValueError(f"scene sidecar {json_path} lacks {key!r}")
+    return meta
+
+
+def traced_lights(meta: dict) -> list[int]:
+    """Indices K of the sidecar's lights that have a path-traced image (image.LK)."""
+    return [k for k in range(len(meta["lights"])) if f"image.L{k}.R" in meta["channels"]]
+
+
+def has_transport(meta: dict) -> bool:
+    """True when the scene holds the SH transport pass."""
+    return "transport.00" in meta["channels"]
+
+
+def light_map_name(light: dict) -> str:
+    """The HDR map a sidecar light came from, lower case: its `source` file stem, else its `name`."""
+    source = light.get("source")
+    if isinstance(source, str) and source:
+        return Path(source).stem.split(".")[0].lower()
+    return str(light.get("name", "")).lower()
+
+
+def read_scene(path, *, verify_hash: bool = True) -> Scene:
+    """Read and validate a finished scene (path: the stem, its .exr or its .json).
+
+    ValueError when the scene is unfinished (no JSON), the EXR is missing or
+    does not match the JSON's SHA-256, or channels/shapes disagree with the JSON.
+    """
+    exr_path, json_path = _resolve(path)
+    meta = read_sidecar(json_path)
     if not exr_path.is_file():
         raise ValueError(f"scene {json_path.name} names a missing EXR {exr_path.name}")
     if verify_hash:

@@ -1,4 +1,6 @@
-"""Equirectangular HDR maps: load (OpenEXR or Radiance .hdr), validate, project to SH."""
+"""Equirectangular HDR maps: load (OpenEXR or Radiance .hdr) and validate.
+
+Turning a map into SH light (project, rotate, normalise) is relight.light's job."""
 
 from __future__ import annotations
 
@@ -9,10 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from relight import sh
 
-__all__ = ["EnvMap", "validate_equirect", "load_equirect", "read_radiance_hdr", "light_from_map",
-           "MAX_MAP_PIXELS"]
+__all__ = ["EnvMap", "validate_equirect", "load_equirect", "read_radiance_hdr", "MAX_MAP_PIXELS"]
 
 log = logging.getLogger(__name__)
 
@@ -217,39 +217,3 @@ def load_equirect(path) -> EnvMap:
     else:
         raise ValueError(f"{path}: not an OpenEXR or Radiance HDR file")
     return validate_equirect(pixels, source=str(path))
-
-
-def light_from_map(
-    source,
-    order: int,
-    *,
-    rotation_deg: float = 0.0,
-    normalize: bool = False,
-    target: float = 0.8,
-) -> np.ndarray:
-    """SH light [n, 3] from a map path, a preset name, an EnvMap or a pixel array.
-
-    Rotated by `rotation_deg` about world Z; when `normalize`, scaled to mean
-    luminance `target` (docs/conventions.md, exposure).
-    """
-    if isinstance(source, EnvMap):
-        env = source
-    elif isinstance(source, np.ndarray):
-        env = validate_equirect(source)
-    else:
-        from relight import presets
-
-        path = Path(source)
-        if not path.is_file():
-            if not isinstance(source, str) or not (
-                source in presets.list_presets() or source.startswith(presets.BLENDER_PREFIX)
-            ):
-                raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`)")
-            path = presets.preset_path(source)
-        env = load_equirect(path)
-    coeffs = sh.project_equirect(env.pixels, order)
-    if rotation_deg:
-        coeffs = sh.rotate(coeffs, sh.z_rotation(rotation_deg))
-    if normalize:
-        coeffs, _ = sh.normalize_reference(coeffs, target)
-    return coeffs

@@ -7,7 +7,7 @@
 
 Three MediaPipe networks (Apache-2.0, from the mediapipe 0.10.21 wheel),
 converted to ONNX by tools/convert_mediapipe_matte.py and loaded through the
-same hash-checked path as the relighting models (relight.runtime.open_session):
+same hash-checked path as the relighting models (relight.session.open_session):
 
 * selfie segmentation: a person probability for the whole frame, squeezed
   to 256 x 256;
@@ -126,7 +126,7 @@ def model_paths(registry_path=REGISTRY_PATH) -> dict[str, Path]:
 
 def _session(kind: str, threads: int | None = None, registry_path=REGISTRY_PATH):
     """One network's onnxruntime session, hash-checked once per process and then shared."""
-    from relight.runtime import open_session
+    from relight.session import open_session
 
     path = model_paths(registry_path)[kind]
     key = (kind, str(path.resolve()), threads, str(Path(registry_path).resolve()))
@@ -149,7 +149,7 @@ def _nchw(srgb: np.ndarray) -> np.ndarray:
 
 def _selfie(session, grid: np.ndarray) -> np.ndarray:
     """Selfie segmentation of the grid image (sRGB [h, w, 3]) -> probability on the grid."""
-    from relight.runtime import bilinear_rows, resize_linear
+    from relight.resample import bilinear_rows, resize_linear
 
     x = resize_linear(grid, NET_SIDE, NET_SIDE)  # squeezed to the square, as MediaPipe feeds it
     p = session.run(["mask"], {"image": _nchw(x)})[0][0, 0]
@@ -180,7 +180,7 @@ def _detect(session, grid: np.ndarray) -> list[np.ndarray]:
     """People found by the pose detector in an sRGB image: for each, its 4 keypoints
     [4, 2] in the image's pixels (0: hips' centre, 1: a point on the body's enclosing
     circle), after MediaPipe's weighted non-maximum suppression."""
-    from relight.runtime import resize_linear
+    from relight.resample import resize_linear
 
     h, w = grid.shape[:2]
     scale = DETECT_SIDE / max(h, w)
@@ -389,7 +389,7 @@ def _box_mean(x: np.ndarray, r: int) -> np.ndarray:
 def _upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
     """`small` [h, w] bilinearly resized to [H, W], computed only over the rows and
     columns whose taps reach a non-zero value (zeros elsewhere, left to calloc)."""
-    from relight.runtime import _axis_taps, _Bilinear
+    from relight.resample import Bilinear, axis_taps
 
     h, w = small.shape
     if (h, w) == (H, W):
@@ -401,22 +401,18 @@ def _upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
     nz_cols = np.flatnonzero(small[nz_rows[0]:nz_rows[-1] + 1].any(axis=0))
 
     def span(n_out, n_in, lo, hi):
-        i0, i1, _ = _axis_taps(n_out, n_in)
+        i0, i1, _ = axis_taps(n_out, n_in)
         touch = np.flatnonzero((i1 >= lo) & (i0 <= hi))
         return int(touch[0]), int(touch[-1]) + 1
 
     r0, r1 = span(H, h, nz_rows[0], nz_rows[-1])
     c0, c1 = span(W, w, nz_cols[0], nz_cols[-1])
-    up = _Bilinear(H, W, h, w)
+    up = Bilinear(H, W, h, w)
     cols, diff = up.prepare(small[..., None])
-    cols, diff = np.ascontiguousarray(cols[:, c0:c1, 0]), np.ascontiguousarray(diff[:, c0:c1, 0])
-    i0, _, wr = up.rows
+    prepared = np.ascontiguousarray(cols[:, c0:c1, 0]), np.ascontiguousarray(diff[:, c0:c1, 0])
     for a in range(r0, r1, 64):  # strips: the gathered rows stay in cache
         b = min(a + 64, r1)
-        dst = out[a:b, c0:c1]
-        dst[...] = diff[i0[a:b]]
-        dst *= wr[a:b, None]
-        dst += cols[i0[a:b]]
+        out[a:b, c0:c1] = up.strip(prepared, a, b)
     return out
 
 
@@ -557,7 +553,7 @@ def _edge(small: np.ndarray, grid: np.ndarray, p: np.ndarray, refine: bool) -> n
     upsampled and applied to the guide at `small`'s size, so the edge follows
     the photo's own edges there.
     """
-    from relight.runtime import bilinear_rows
+    from relight.resample import bilinear_rows
 
     h, w = small.shape[:2]
     same = grid.shape[:2] == (h, w)

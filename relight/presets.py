@@ -3,12 +3,15 @@
 Plain names ("venice", "studio", ...) are the 18 CC0 Poly Haven maps bundled
 in relight/data/hdri (from @pmndrs/assets 1.7.0). Names "blender:<name>" are
 the 8 studio-light worlds inside Blender's data files, available only where
-bpy can be imported (bpy is imported on first use, never at module import).
+Blender is: the folder is found through the bpy module a host (Blender, the
+farm) has already loaded, or else in the installed bpy wheel's data files;
+this module never imports bpy.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 __all__ = [
@@ -19,6 +22,7 @@ __all__ = [
     "list_blender_presets",
     "training_presets",
     "preset_path",
+    "is_preset_name",
 ]
 
 HDRI_DIR = Path(__file__).resolve().parent / "data" / "hdri"
@@ -32,13 +36,21 @@ def list_presets() -> list[str]:
     return sorted(p.stem for p in HDRI_DIR.glob("*.exr"))
 
 
-def _blender_world_dir() -> Path | None:
-    if importlib.util.find_spec("bpy") is None:
-        return None
-    import bpy  # only here: relight must not pull in bpy at import time
+_WORLDS = Path("datafiles") / "studiolights" / "world"
 
-    folder = bpy.utils.system_resource("DATAFILES", path="studiolights/world")
-    return Path(folder) if folder and Path(folder).is_dir() else None
+
+def _blender_world_dir() -> Path | None:
+    """Blender's studiolights/world folder, or None where there is no Blender."""
+    bpy = sys.modules.get("bpy")  # loaded by the host (Blender, the farm): ask it
+    if bpy is not None and hasattr(bpy, "utils"):
+        folder = bpy.utils.system_resource("DATAFILES", path="studiolights/world")
+        return Path(folder) if folder and Path(folder).is_dir() else None
+    spec = importlib.util.find_spec("bpy")  # the bpy wheel, found without importing it
+    for root in (spec.submodule_search_locations or []) if spec is not None else []:
+        found = sorted(p for p in Path(root).glob(f"*/{_WORLDS}") if p.is_dir())
+        if found:
+            return found[-1]
+    return None
 
 
 def list_blender_presets() -> list[str]:
@@ -55,6 +67,12 @@ def training_presets(include_blender: bool = False) -> list[str]:
     if include_blender:
         names += list_blender_presets()
     return names
+
+
+def is_preset_name(name) -> bool:
+    """True when `name` is a bundled preset's name or a "blender:" name (which
+    preset_path then checks); the one test for "is this a preset?"."""
+    return isinstance(name, str) and (name in list_presets() or name.startswith(BLENDER_PREFIX))
 
 
 def preset_path(name: str) -> Path:

@@ -17,9 +17,9 @@ import bpy
 
 import blender_addon
 from blender_addon import bl_images, bl_ops, bl_world, state
-from relight import envmap, presets, sh
+from relight import presets, sh
 from relight.exr import read_exr, write_exr
-from relight.runtime import resolve_light
+from relight.light import sh_light
 
 REPO = Path(__file__).resolve().parents[1]
 ORDER = 4
@@ -151,7 +151,7 @@ def test_relight_writes_every_layer(addon, settings):
     assert alpha.min() >= 0 and alpha.max() <= 1
     # the relit image is the runtime's relight of the cached decomposition
     run = session(name)
-    expected = run.decomposition.relight("studio")
+    expected = run.decomposition.relight(sh_light("studio", ORDER))
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
     # and the photo is the PNG decoded to linear (what relight.photo reads)
     from relight.photo import read_photo
@@ -174,8 +174,7 @@ def test_rotating_the_light_follows_the_sh_rotation(addon, settings):
     settings.rotation = math.radians(90.0)  # property update: no network run
     assert session(name) is network_runs
     after = pixels(f"{name}.relit")[..., :3]
-    L = resolve_light("studio", ORDER)  # normalised map light
-    rotated = sh.rotate(L, sh.z_rotation(90.0))
+    rotated = sh_light("studio", ORDER, rotation_deg=90.0)  # the map recipe: project, rotate, normalise
     expected = network_runs.decomposition.relight(rotated)
     np.testing.assert_allclose(after, expected, atol=TIGHT)
     assert np.abs(after - before).max() > 1e-2  # the light really moved
@@ -187,10 +186,10 @@ def test_exposure_and_strength_update_live(addon, settings):
     d = session(name).decomposition
     photo = session(name).photo
     settings.exposure = 1.0
-    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight("studio", exposure_ev=1.0),
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(sh_light("studio", ORDER), exposure_ev=1.0),
                                atol=2 * TIGHT)
     settings.strength = 0.25
-    expected = photo + 0.25 * (d.relight("studio", exposure_ev=1.0) - photo)
+    expected = photo + 0.25 * (d.relight(sh_light("studio", ORDER), exposure_ev=1.0) - photo)
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
     settings.strength = 0.0
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], photo, atol=1e-7)
@@ -209,7 +208,7 @@ def test_with_a_ui_dial_changes_are_coalesced_into_one_timer(addon, settings, mo
         assert bpy.app.timers.is_registered(bl_ops._deferred_refresh)
         np.testing.assert_array_equal(pixels(f"{name}.relit"), before)
         assert bl_ops._deferred_refresh() is None  # what Blender's timer calls, once
-        expected = session(name).decomposition.relight("studio", rotation_deg=20.0, exposure_ev=0.5)
+        expected = session(name).decomposition.relight(sh_light("studio", ORDER, rotation_deg=20.0), exposure_ev=0.5)
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
     finally:
         if bpy.app.timers.is_registered(bl_ops._deferred_refresh):
@@ -274,7 +273,7 @@ def test_light_transfer_from_another_photo(addon, settings):
     assert relight(name) == {"FINISHED"}
     key = (src[bl_images.PHOTO_ID], str(addon["model"]), "DRAFT")
     other = state.LIGHT_SOURCES[key]
-    expected = session(name).decomposition.relight(other)
+    expected = session(name).decomposition.relight(sh_light(other, ORDER))
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
 
 
@@ -287,7 +286,7 @@ def test_hdr_file_light(addon, settings, tmp_path):
     settings.hdr_path = str(path)
     name = addon["photo"]
     assert relight(name) == {"FINISHED"}
-    expected = session(name).decomposition.relight(str(path))
+    expected = session(name).decomposition.relight(sh_light(str(path), ORDER))
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
 
 
@@ -339,9 +338,10 @@ def test_world_environment_texture_equals_relights_projection_of_the_file(addon,
     try:
         scene.world = world
         settings.light_kind = "WORLD"
-        coeffs, rotation = bl_ops.target_light(bpy.context, ORDER, "")
+        world_light, rotation = bl_ops.target_light(bpy.context, ORDER, "")
         assert rotation == pytest.approx(-90.0)  # Mapping rotates the lookup: the light turns back
-        expected = envmap.light_from_map(str(path), ORDER, normalize=True)
+        coeffs = world_light.at(0.0)
+        expected = sh_light(str(path), ORDER)
         # the same half-float texels read by Blender and by OpenEXR: equal up to
         # float32 summation order in the projection (~1e-6 relative)
         np.testing.assert_allclose(coeffs, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
@@ -364,11 +364,11 @@ def test_editing_the_world_relights_live(addon, settings):
         name = addon["photo"]
         relight(name)
         d = session(name).decomposition
-        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(str(path)), atol=TIGHT)
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(sh_light(str(path), ORDER)), atol=TIGHT)
         # the user turns the Mapping node: Blender sends a depsgraph update
         world.node_tree.nodes["Mapping"].inputs["Rotation"].default_value[2] = math.radians(45.0)
         bl_ops.on_depsgraph_update(scene, updated)
-        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(str(path), rotation_deg=-45.0),
+        np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(sh_light(str(path), ORDER, rotation_deg=-45.0)),
                                    atol=TIGHT)
     finally:
         scene.world = old
@@ -780,7 +780,7 @@ def test_a_renamed_photo_keeps_its_outputs_and_dials(addon, settings):
         settings.rotation = math.radians(60.0)
         assert f"renamed.png.relit" in bpy.data.images and f"{name}.relit" not in bpy.data.images
         assert bpy.data.images["renamed.png.relit"].as_pointer() == pointer  # the same datablock, renamed
-        expected = session("renamed.png").decomposition.relight("studio", rotation_deg=60.0)
+        expected = session("renamed.png").decomposition.relight(sh_light("studio", ORDER, rotation_deg=60.0))
         np.testing.assert_allclose(pixels("renamed.png.relit")[..., :3], expected, atol=TIGHT)
         # Relight pressed on the output relights its photo, not the image now called like the old photo
         assert relight("renamed.png.relit") == {"FINISHED"}
@@ -849,7 +849,7 @@ def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(a
         # the preview: the same relight, screen-sized, in its own image; the full-size one is not resized
         assert tuple(bpy.data.images[f"{name}.preview"].size) == (16, 24)
         assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
-        small = run.preview.relight("studio", rotation_deg=30.0)
+        small = run.preview.relight(sh_light("studio", ORDER, rotation_deg=30.0))
         np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3], small, atol=TIGHT)
         assert bpy.app.timers.is_registered(bl_ops._full_when_resting)
         bpy.app.timers.unregister(bl_ops._full_when_resting)
@@ -858,7 +858,7 @@ def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(a
         job.wait(60)
         assert bl_ops._poll_full_size() is None
         assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
-        full = run.decomposition.relight("studio", rotation_deg=30.0)
+        full = run.decomposition.relight(sh_light("studio", ORDER, rotation_deg=30.0))
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], full, atol=TIGHT)
         # a full-size result that arrives after another dial move is dropped
         bl_ops.start_full_size(run, bl_ops._dials(bpy.context, run)).wait(60)
@@ -1007,7 +1007,7 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
             writes += 1
         assert writes == 3 and "layers" not in state.RUNNING
         run = session(name)
-        want = run.decomposition.layers("studio")
+        want = run.decomposition.layers(sh_light("studio", ORDER))
         for layer in ("albedo", "shading", "residual"):
             np.testing.assert_allclose(pixels(f"{name}.{layer}")[..., :3], want[layer], atol=TIGHT)
         np.testing.assert_allclose(pixels(f"{name}.alpha")[..., 0], want["alpha"], atol=TIGHT)

@@ -14,6 +14,7 @@ import pytest
 from blender_addon import engine, jobs, manifest, pipeline, quality, work
 from relight import sh
 from relight.exr import write_exr
+from relight.light import sh_light
 
 ADDON_DIR = Path(__file__).resolve().parents[1] / "blender_addon"
 EPS32 = float(np.finfo(np.float32).eps)
@@ -88,7 +89,9 @@ def test_hdr_file_light_accepts_an_exr_and_rejects_bad_files(tmp_path):
     env = _equirect()
     good = tmp_path / "env.exr"
     write_exr(good, {c: env[..., i] for i, c in enumerate("RGB")})
-    assert pipeline.hdr_file_light(str(good), 4) == str(good)
+    resolved = pipeline.hdr_file_light(str(good), 4)
+    np.testing.assert_array_equal(resolved.base, sh.project_equirect(env, 4))  # projected once, here
+    assert resolved.target == 0.8 and sh.mean_luminance(resolved.at(30.0)) == pytest.approx(0.8, rel=1e-12)
     with pytest.raises(ValueError, match="Choose an HDR file"):
         pipeline.hdr_file_light("", 4)
     with pytest.raises(ValueError, match="does not exist"):
@@ -102,14 +105,15 @@ def test_hdr_file_light_accepts_an_exr_and_rejects_bad_files(tmp_path):
 def test_preset_light_checks_the_name():
     names = pipeline.preset_names()
     assert "studio" in names
-    assert pipeline.preset_light("studio", 2) == "studio"
+    np.testing.assert_array_equal(pipeline.preset_light("studio", 2).at(45.0),
+                                  sh_light("studio", 2, rotation_deg=45.0))
     with pytest.raises(ValueError, match="The light preset 'nowhere' is not available"):
         pipeline.preset_light("nowhere", 2)
 
 
 def test_world_pixels_are_scaled_like_hdr_files():
     env = _equirect()
-    coeffs = pipeline.equirect_light(env, 4)
+    coeffs = pipeline.equirect_light(env, 4).at(0.0)
     # the runtime scales maps to mean luminance 0.8 (docs/conventions.md)
     assert sh.mean_luminance(coeffs) == pytest.approx(0.8, rel=1e-9)
     raw = sh.project_equirect(env, 4)

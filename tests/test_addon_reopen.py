@@ -15,6 +15,7 @@ import bpy
 
 import blender_addon
 from blender_addon import bl_images, bl_ops, pipeline, state
+from relight.light import sh_light
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
@@ -103,7 +104,7 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
     monkeypatch.setattr(bl_ops.work, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo counts as large
     assert _relight(name) == {"FINISHED"}
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
-    before = state.SESSIONS[pid].preview.relight("studio")
+    before = state.SESSIONS[pid].preview.relight(sh_light("studio", state.SESSIONS[pid].decomposition.sh_order))
     blend = addon / "shot.blend"
     monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)  # as with a UI: threads, timers
     try:
@@ -121,7 +122,7 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
         settings.rotation = math.radians(50.0)
         assert bl_ops._deferred_refresh() is None  # the dial already works, on the preview
         np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3],
-                                   session.preview.relight("studio", rotation_deg=50.0), atol=1e-5)
+                                   session.preview.relight(sh_light("studio", session.preview.sh_order, rotation_deg=50.0)), atol=1e-5)
         assert bl_ops._full_when_resting() is not None  # the full size waits for the photo
         # the first timer tick starts the worker; once it has read the photo the
         # full-size layers follow the dial as it is now
@@ -133,7 +134,8 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
         state.RUNNING["dial"].wait(60)
         while bl_ops._poll_full_size() is not None:
             pass
-        full = restored.decomposition.relight("studio", rotation_deg=50.0)
+        full = restored.decomposition.relight(sh_light("studio", restored.decomposition.sh_order,
+                                                                       rotation_deg=50.0))
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], full, atol=1e-5)
         assert all(tuple(bpy.data.images[f"{name}.{layer}"].size) == (48, 72) for layer in LAYERS)
     finally:

@@ -11,6 +11,7 @@ from relight.cli import main
 from relight.colour import srgb_encode
 from relight.exr import read_exr, write_exr
 from relight.photo import read_photo
+from relight.light import sh_light
 from relight.runtime import Relighter
 
 
@@ -52,7 +53,7 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
     assert f"wrote {out}" in stdout
     img, _ = read_photo(photo)
     d = Relighter(model, working_size="draft").decompose(img)
-    expect = d.relight("studio", 30, 0.5)
+    expect = d.relight(sh_light("studio", d.sh_order, rotation_deg=30), 0.5)
     got = np.asarray(Image.open(out)) / 255.0
     # 8-bit sRGB output: within half a code value of the encoded API result
     assert np.max(np.abs(got - srgb_encode(expect))) <= 0.5 / 255 + 1e-6
@@ -79,7 +80,7 @@ def test_light_transfer_from_another_photo(model, tmp_path, capsys):
     assert code == 0, err
     r = Relighter(model, working_size="draft")
     d = r.decompose(read_photo(photo)[0])
-    expect = d.relight(r.decompose(read_photo(donor)[0]))
+    expect = d.relight(r.decompose(read_photo(donor)[0]).light)
     # (reading an EXR photo clamps negative radiance, which a random network can produce)
     np.testing.assert_array_equal(read_photo(out)[0], np.maximum(expect, 0))
     code, _, err = _run(capsys, photo, "--light", "studio", "--light-from", donor, "--model", model)

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from relight import envmap, exr, presets, sh
+from relight import envmap, exr, light, presets, sh
 
 RNG = np.random.default_rng(11)
 
@@ -147,18 +147,21 @@ def test_load_bad_files(tmp_path):
         envmap.load_equirect(tmp_path / "sq.exr")
 
 
-def test_light_from_map_sources_agree(tmp_path):
+def test_light_sources_agree(tmp_path):
     path = presets.preset_path("venice")
-    by_name = envmap.light_from_map("venice", 4)
-    by_path = envmap.light_from_map(str(path), 4)
-    by_env = envmap.light_from_map(envmap.load_equirect(path), 4)
+    by_name = light.sh_light("venice", 4, normalize=False)
+    by_path = light.sh_light(str(path), 4, normalize=False)
+    by_env = light.sh_light(envmap.load_equirect(path), 4, normalize=False)
+    by_pixels = light.sh_light(envmap.load_equirect(path).pixels, 4, normalize=False)
     np.testing.assert_array_equal(by_name, by_path)
     np.testing.assert_array_equal(by_name, by_env)
-    rotated = envmap.light_from_map("venice", 4, rotation_deg=45.0, normalize=True, target=0.7)
+    np.testing.assert_array_equal(by_name, by_pixels)
+    np.testing.assert_array_equal(by_name, sh.project_equirect(envmap.load_equirect(path).pixels, 4))
+    rotated = light.sh_light("venice", 4, rotation_deg=45.0, target=0.7)
     expected, _ = sh.normalize_reference(sh.rotate(by_name, sh.z_rotation(45.0)), 0.7)
-    np.testing.assert_allclose(rotated, expected, rtol=1e-12)
+    np.testing.assert_array_equal(rotated, expected)  # the recipe: project, rotate about Z, normalise
     with pytest.raises(ValueError, match="neither a file nor a preset"):
-        envmap.light_from_map("no-such-light", 4)
+        light.sh_light("no-such-light", 4)
 
 
 # ---------------------------------------------------------------- presets

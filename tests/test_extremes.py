@@ -23,7 +23,10 @@ from export.random_model import export_random_model, random_relightnet
 from farm.bake import fibonacci_directions
 from relight import envmap, presets, sh
 from relight.prt import lambert_transport
-from relight.runtime import DETAIL_EPS, DETAIL_MAX, Decomposition, Relighter, resize_linear
+from relight.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
+from relight.light import sh_light
+from relight.resample import resize_linear
+from relight.runtime import Relighter
 
 ORDER = 4
 SUN = 1e5
@@ -162,7 +165,7 @@ def test_relight_image_output_is_non_negative(tmp_path, capsys):
     Image.fromarray(rng.integers(20, 235, (60, 50, 3), dtype=np.uint8)).save(tmp_path / "p.png")
     # through the API at the draft size, as the command below: this network and light do ring below 0
     d = Relighter(model, working_size="draft").decompose(read_photo(tmp_path / "p.png")[0])
-    d.relight(str(tmp_path / "sun.exr"))
+    d.relight(sh_light(str(tmp_path / "sun.exr"), d.sh_order))
     assert d.last_stats.clamped > 0
     for out, extra in (("o.exr", []), ("l.exr", ["--layers"])):
         code = main(["image", str(tmp_path / "p.png"), "--light", str(tmp_path / "sun.exr"), "--model",
@@ -200,7 +203,7 @@ def test_black_and_saturated_photos(relighter, kind):
     mask[5:35, 5:25] = 1.0
     for m in (mask, None):
         d = relighter.decompose(photo, m)
-        out = d.relight("venice")
+        out = d.relight(sh_light("venice", d.sh_order))
         assert out.shape == photo.shape and np.all(np.isfinite(out))
         y0, y1, x0, x1 = d.box
         assert d.working_size != (y1 - y0, x1 - x0)  # resized: the detail path ran
@@ -220,7 +223,7 @@ def test_bright_specks_on_black_do_not_blow_up(relighter):
     photo = np.zeros((512, 512, 3), np.float32)
     photo[::16, ::16] = 1.0
     d = relighter.decompose(photo, np.ones((512, 512), np.float32))
-    out = d.relight("venice")
+    out = d.relight(sh_light("venice", d.sh_order))
     assert np.all(np.isfinite(out))
     assert np.abs(out).max() <= _detail_bound(1.0)
     # black pixels: abs((0 + eps) * Q - eps) <= (DETAIL_MAX + 1) * eps
@@ -232,7 +235,7 @@ def test_tiny_photos_relight(relighter, size):
     rng = np.random.default_rng(size)
     photo = rng.uniform(0.1, 0.9, (size, size, 3)).astype(np.float32)
     d = relighter.decompose(photo, np.ones((size, size), np.float32))
-    out = d.relight("venice")
+    out = d.relight(sh_light("venice", d.sh_order))
     assert out.shape == photo.shape and np.all(np.isfinite(out))
 
 
@@ -290,13 +293,14 @@ def test_fp16_cancelling_transport_parts(tmp_path):
 BIG_CHILD = r"""
 import sys
 import numpy as np
-from relight.runtime import DETAIL_EPS, DETAIL_MAX, Decomposition, Relighter, resize_linear
+from relight.light import sh_light
+from relight.runtime import Relighter
 r = Relighter(sys.argv[1], threads=1, working_size=64)
 side = 8000
 photo = np.empty((side, side, 3), np.float32)
 photo[...] = np.linspace(0.05, 0.9, side, dtype=np.float32)[:, None, None]
 d = r.decompose(photo)
-out = d.relight("venice")
+out = d.relight(sh_light("venice", d.sh_order))
 ok = out.shape == photo.shape and all(np.isfinite(out[i:i + 500]).all() for i in range(0, side, 500))
 kib = int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1])
 print("FINITE", ok, "PEAK_RSS_BYTES", kib * 1024)

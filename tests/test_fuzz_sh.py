@@ -1,4 +1,4 @@
-"""Fuzzing the SH projection and light_from_map (Hypothesis; profile in fuzz_support).
+"""Fuzzing the SH projection and the map recipe (relight.light.map_light) (Hypothesis; profile in fuzz_support).
 
 Property: any array (any real dtype, shape, values including NaN, Inf,
 negatives, subnormals and values near float32's maximum) gives finite
@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fuzz_support import fuzz_settings, new_case, run_case
-from relight import envmap, sh
+from relight import envmap, light, sh
 
 F32_MAX = float(np.finfo(np.float32).max)
 
@@ -63,10 +63,10 @@ def test_fuzz_projection(img, order, precision):
 @given(maps(), st.integers(0, 6), st.floats(-1e6, 1e6), st.booleans(),
        st.floats(1e-6, 1e6))
 @fuzz_settings()
-def test_fuzz_light_from_map(img, order, rotation, normalize, target):
-    new_case("test_fuzz_light_from_map")
-    coeffs = run_case("sh.light_from_map", lambda: envmap.light_from_map(img, order, rotation_deg=rotation,
-                                                                       normalize=normalize, target=target))
+def test_fuzz_map_light(img, order, rotation, normalize, target):
+    new_case("test_fuzz_map_light")
+    coeffs = run_case("light.map_light", lambda: light.map_light(img, order, rotation,
+                                                                 target if normalize else None)[0])
     if coeffs is None:
         return
     assert coeffs.shape == ((order + 1) ** 2, 3) and np.all(np.isfinite(coeffs))

@@ -23,6 +23,7 @@ from relight import envmap, photo, sh
 from relight.cli import main
 from relight.colour import srgb_encode
 from relight.models import write_sidecar
+from relight.light import sh_light
 from relight.runtime import Relighter
 
 LIMIT_AS = 3 * 1024**3  # the goal: within 3 GB
@@ -305,7 +306,8 @@ def test_negative_numbers_are_values(tmp_path, model, capsys):
     out = tmp_path / "o.png"
     assert main(["image", str(path), "--light", "studio", "--exposure", "-1e0", "--model", model, "--matte", "network",
                  "--quality", "draft", "--out", str(out)]) == 0, capsys.readouterr().err
-    expect = Relighter(model, working_size="draft").decompose(photo.read_photo(path)[0]).relight("studio", 0, -1.0)
+    d = Relighter(model, working_size="draft").decompose(photo.read_photo(path)[0])
+    expect = d.relight(sh_light("studio", d.sh_order), -1.0)
     got = np.asarray(Image.open(out)) / 255.0
     assert np.max(np.abs(got - srgb_encode(expect))) <= 0.5 / 255 + 1e-6  # half an 8-bit step
 

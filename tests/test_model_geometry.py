@@ -15,6 +15,7 @@ from model.checkpoint import load_model, save_model
 from model.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
 from model.synthetic import write_analytic_dataset
 from relight import presets
+from relight.light import sh_light
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -136,7 +137,7 @@ def test_onnx_export_matches_torch_and_the_runtime_relights_with_it(tmp_path):
     mask = np.zeros((40, 30), np.float32)
     mask[5:35, 8:22] = 1.0
     d = Relighter(path, threads=1, working_size=32).decompose(photo, mask=mask)
-    relit = d.relight("studio")
+    relit = d.relight(sh_light("studio", d.sh_order))
     assert relit.shape == photo.shape and np.all(np.isfinite(relit))
     assert np.array_equal(relit[mask == 0], photo[mask == 0])
 

@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 from export.random_model import export_random_model
-from relight import models, runtime, sh
+from relight import composite, models, sh
 from relight.exr import write_exr
 from relight.prt import to_network_input
-from relight.runtime import DETAIL_EPS, DETAIL_MAX, Relighter, bilinear_rows, resolve_light
+from relight.decomposition import DETAIL_EPS, DETAIL_MAX
+from relight.light import LightCache, sh_light
+from relight.resample import bilinear_rows
+from relight.runtime import Relighter
 
 ORDER = 4
 N = (ORDER + 1) ** 2
@@ -58,7 +61,7 @@ def test_own_light_reproduces_the_networks_reconstruction(relighter):
     raw = relighter.run(to_network_input(photo, mask).transpose(2, 0, 1)[None])
     np.testing.assert_array_equal(d.albedo, raw["albedo"][0].transpose(1, 2, 0))
     np.testing.assert_array_equal(d.light, raw["light"][0])
-    out = d.relight(d)
+    out = d.relight(sh_light(d, ORDER))
     exact, bound = _formula(d, d.light)
     assert np.all(np.abs(out - exact) <= bound)
 
@@ -83,13 +86,13 @@ def test_outside_matte_pixels_are_untouched_bit_for_bit(relighter):
     mask = np.zeros(photo.shape[:2], np.float32)
     mask[10:30, 20:40] = np.linspace(0, 1, 20)[None, :]  # soft edge, zeros in column 20
     d = relighter.decompose(photo, mask)
-    out = d.relight("studio", rotation_deg=45, exposure_ev=1.5)
+    out = d.relight(sh_light("studio", ORDER, rotation_deg=45), exposure_ev=1.5)
     outside = mask == 0
     np.testing.assert_array_equal(out[outside], photo[outside])
     assert not np.allclose(out[~outside], photo[~outside])
     # and without a mask: pixels the predicted matte leaves out, and everything outside the crop
     d2 = relighter.decompose(photo)
-    out2 = d2.relight("studio")
+    out2 = d2.relight(sh_light("studio", ORDER))
     alpha = d2.full_alpha()
     np.testing.assert_array_equal(out2[alpha == 0], photo[alpha == 0])
 
@@ -97,13 +100,13 @@ def test_outside_matte_pixels_are_untouched_bit_for_bit(relighter):
 def test_rotating_by_360_degrees_is_identity(relighter):
     d = relighter.decompose(_photo(seed=3), np.ones((48, 64), np.float32))
     L = np.random.default_rng(4).normal(0, 0.3, (N, 3))
-    a, b = d.relight(L), d.relight(L, rotation_deg=360.0)
+    a, b = d.relight(L), d.relight(sh_light(L, ORDER, rotation_deg=360.0))
     np.testing.assert_array_equal(a, b)  # whole turns are recognised exactly
-    c = d.relight(L, rotation_deg=360.0 + 1e-9)
+    c = d.relight(sh_light(L, ORDER, rotation_deg=360.0 + 1e-9))
     # a rotation matrix 1e-9 rad from identity: coefficients move by ~1e-9 * l
     np.testing.assert_allclose(c, a, atol=1e-6)
-    Lr = resolve_light(L, ORDER, rotation_deg=123.0)
-    back = resolve_light(Lr, ORDER, rotation_deg=237.0)
+    Lr = sh_light(L, ORDER, rotation_deg=123.0)
+    back = sh_light(Lr, ORDER, rotation_deg=237.0)
     np.testing.assert_allclose(back, L, atol=1e-9)
 
 
@@ -111,7 +114,8 @@ def test_exposure_plus_one_doubles_the_persons_radiance(relighter):
     mask = np.zeros((48, 64), np.float32)
     mask[4:44, 8:56] = 1.0
     d = relighter.decompose(_photo(seed=4), mask)
-    a, b = d.relight("studio"), d.relight("studio", exposure_ev=1.0)
+    L = sh_light("studio", ORDER)
+    a, b = d.relight(L), d.relight(L, exposure_ev=1.0)
     person = mask == 1
     # scaling the light by 2 is exact in binary floating point, and alpha == 1 there
     np.testing.assert_array_equal(b[person], 2.0 * a[person])
@@ -134,7 +138,7 @@ def test_light_transfer_uses_the_other_photos_light(relighter):
     d1 = relighter.decompose(_photo(seed=6), mask)
     d2 = relighter.decompose(_photo(seed=7)[::-1].copy(), mask)
     assert not np.allclose(d1.light, d2.light)
-    np.testing.assert_array_equal(d1.relight(d2), d1.relight(d2.light))
+    np.testing.assert_array_equal(d1.relight(sh_light(d2, ORDER)), d1.relight(d2.light))
 
 
 def test_hdr_map_light_is_projected_and_normalised(relighter, tmp_path):
@@ -144,18 +148,19 @@ def test_hdr_map_light_is_projected_and_normalised(relighter, tmp_path):
     path = tmp_path / "white.exr"
     write_exr(path, {c: np.full((h, w), value, np.float32) for c in "RGB"})
     # a constant map has only L00 = value * integral(Y00) = value * 2 sqrt(pi)
-    raw = resolve_light(str(path), ORDER, normalize=False)
+    cache = LightCache()
+    raw = sh_light(str(path), ORDER, normalize=False, cache=cache)
     # (the row quadrature is midpoint-like: its error on the zonal terms falls as
     # 1/H^2, measured 5e-3 of L00 at H = 16, so 1e-3 holds with margin at H = 64)
     np.testing.assert_allclose(raw[0], value * 2 * math.sqrt(math.pi), rtol=1e-3)
     np.testing.assert_allclose(raw[1:], 0, atol=1e-3 * raw[0, 0])
-    norm = resolve_light(path, ORDER)
+    norm = sh_light(path, ORDER, cache=cache)
     assert sh.mean_luminance(norm) == pytest.approx(0.8, rel=1e-9)
-    np.testing.assert_array_equal(d.relight(path), d.relight(norm))
-    np.testing.assert_array_equal(d.relight(str(path), normalize=False), d.relight(raw))
+    with pytest.raises(ValueError, match="SH coefficients"):
+        d.relight(path)  # the runtime takes coefficients only: relight.light resolves files
     # the cache notices a changed file
     write_exr(path, {c: np.full((h, w), 2 * value, np.float32) for c in "RGB"})
-    np.testing.assert_allclose(resolve_light(path, ORDER, normalize=False), 2 * raw, rtol=1e-6)
+    np.testing.assert_allclose(sh_light(path, ORDER, normalize=False, cache=cache), 2 * raw, rtol=1e-6)
 
 
 def test_layers_recompose_the_relit_person(relighter):
@@ -232,7 +237,8 @@ def test_decompose_without_mask_finds_a_box_and_is_deterministic(relighter):
     y0, y1, x0, x1 = a.box
     assert 0 <= y0 < y1 <= 96 and 0 <= x0 < x1 <= 128
     assert a.box == b.box and max(a.working_size) == 64
-    np.testing.assert_array_equal(a.relight("studio"), b.relight("studio"))
+    L = sh_light("studio", ORDER)
+    np.testing.assert_array_equal(a.relight(L), b.relight(L))
     assert np.all((a.alpha == 0) | (a.alpha >= 1 / 255))
 
 
@@ -279,19 +285,31 @@ def test_bad_decompose_input(relighter, photo, mask, message):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(light=np.zeros((5, 3))), "coeff|square|order"),
-    (dict(light=np.full((9, 3), np.nan)), "NaN|finite"),
-    (dict(light=object()), "light must be"),
-    (dict(light="no-such-preset"), "neither a file nor a preset"),
-    (dict(light=""), "empty"),
-    (dict(light=np.zeros((9, 3)), rotation_deg=float("nan")), "finite"),
-    (dict(light=np.zeros((9, 3)), exposure_ev="bright"), "exposure"),
-    (dict(light=np.zeros((9, 3)), exposure_ev=1e6), "exposure"),
+    (dict(coeffs=np.zeros((5, 3))), "coeff|square|order"),
+    (dict(coeffs=np.full((9, 3), np.nan)), "NaN|finite"),
+    (dict(coeffs=object()), "light must be"),
+    (dict(coeffs="studio"), "SH coefficients"),
+    (dict(coeffs=np.zeros((9, 3)), exposure_ev="bright"), "exposure"),
+    (dict(coeffs=np.zeros((9, 3)), exposure_ev=1e6), "exposure"),
 ])
 def test_bad_relight_input(relighter, kwargs, message):
     d = relighter.decompose(_photo(), np.ones((48, 64), np.float32))
     with pytest.raises(ValueError, match=message):
         d.relight(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(source=np.zeros((5, 3))), "coeff|square|order"),
+    (dict(source=np.full((9, 3), np.nan)), "NaN|finite"),
+    (dict(source=object()), "light must be"),
+    (dict(source="no-such-preset"), "neither a file nor a preset"),
+    (dict(source=""), "empty"),
+    (dict(source=np.zeros((9, 3)), rotation_deg=float("nan")), "finite"),
+    (dict(source=np.zeros((9, 3)), rotation_deg="west"), "degrees"),
+])
+def test_bad_light_source(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        sh_light(order=ORDER, **kwargs)
 
 
 def test_bad_session_options(model_path):
@@ -313,18 +331,6 @@ def test_runtime_modules_import_neither_torch_nor_bpy_nor_onnx():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "[]"
-
-
-def test_preview_is_the_working_resolution_composite(relighter):
-    photo = _photo(96, 128, seed=14)
-    mask = np.zeros((96, 128), np.float32)
-    mask[20:80, 30:100] = 1.0
-    d = relighter.decompose(photo, mask)
-    prev = d.preview("studio", rotation_deg=10)
-    assert prev.shape == d.working_size + (3,)
-    a = d.alpha[..., None]
-    np.testing.assert_array_equal(prev, a * d.relight_working("studio", 10) + (1 - a) * d.photo_working)
-    np.testing.assert_array_equal(prev[d.alpha == 0], d.photo_working[d.alpha == 0])
 
 
 def _reference_relight(d, L, detail: bool, exposure_ev: float) -> np.ndarray:
@@ -349,8 +355,8 @@ def _reference_relight(d, L, detail: bool, exposure_ev: float) -> np.ndarray:
 def test_tiled_threaded_compositing_equals_the_whole_frame_formula(relighter, monkeypatch, masked):
     # tiles of 2 rows and bands of 8: many tiles per band, several bands on the thread pool
     H, W = 150, 200
-    monkeypatch.setattr(runtime, "TILE_VALUES", 3 * W * 2)
-    monkeypatch.setattr(runtime, "BAND_ROWS", 8)
+    monkeypatch.setattr(composite, "TILE_VALUES", 3 * W * 2)
+    monkeypatch.setattr(composite, "BAND_ROWS", 8)
     photo = _photo(H, W, seed=15)
     mask = None
     if masked:

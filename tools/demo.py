@@ -41,7 +41,7 @@ def relight_photo(model: Path) -> list[Path]:
 
 
 def relight_farm_scene() -> list[Path]:
-    from relight import dataset, envmap, photo, prt
+    from relight import dataset, light, photo, prt
 
     scenes = OUT / "scenes"
     cmd = [sys.executable, "-m", "farm", "--out", str(scenes), "--scenes", "1", "--seed", "7",
@@ -53,7 +53,7 @@ def relight_farm_scene() -> list[Path]:
     tiles = [scene.images[0], scene.prt[0] * a]  # Cycles vs albedo * (T . L), same light
     outs = []
     for name in PRESETS:
-        L = envmap.light_from_map(name, scene.sh_order, normalize=True)
+        L = light.sh_light(name, scene.sh_order)
         relit = prt.render(scene.albedo, scene.transport, None, L) * a
         outs.append(photo.write_png(OUT / f"scene_{name}.png", relit))
         tiles.append(relit)

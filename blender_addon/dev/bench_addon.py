@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     import bpy  # noqa: F401  (imported before the add-on modules that need it)
 
     from blender_addon import bl_images, bl_world, engine, pipeline, quality
-    from relight import presets, runtime
+    from relight import presets
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))
     model = Path(args.model) if args.model else _export_default_model(tmp)
@@ -86,7 +86,7 @@ def main(argv=None) -> int:
         print(f"| {p.label} | {p.working_long_side} | {med:.3f} | {best:.3f} |")
 
     d = decompositions["BALANCED"]
-    light = runtime.resolve_light("studio", relighter.sh_order)
+    light = pipeline.preset_light("studio", relighter.sh_order)
     angle = iter(range(10 ** 6))
     relit_holder = {}
 

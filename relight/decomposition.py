@@ -1,0 +1,219 @@
+"""What the network saw in one photo, and relighting it: rho * (T . L') + E . L'.
+
+A Decomposition keeps the network's outputs at working resolution over the
+crop around the person. Relighting evaluates the formula (relight.prt) over the
+matte's pixels only, clamps it at 0 (negative light is SH ringing,
+docs/conventions.md), and hands it to relight.composite, which brings it to the
+photo's resolution over the untouched original. The light is SH coefficients
+[n, 3]: relight.light turns maps, presets and other photos into them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from relight import sh
+from relight.composite import ALPHA_FLOOR, DETAIL_EPS, composite
+from relight.light import fit_order
+from relight.resample import Bilinear
+
+__all__ = ["DETAIL_EPS", "DETAIL_MAX", "Decomposition", "RelightStats", "exposure_scale"]
+
+DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
+STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
+
+
+def exposure_scale(exposure_ev) -> float:
+    """2 ** exposure_ev, for a finite exposure within +-64 EV (ValueError otherwise)."""
+    try:
+        ev = float(exposure_ev)
+    except (TypeError, ValueError):
+        raise ValueError(f"exposure must be a number of EV stops, got {exposure_ev!r}") from None
+    if not math.isfinite(ev) or abs(ev) > 64:
+        raise ValueError(f"exposure must be finite and within +-64 EV, got {exposure_ev}")
+    return 2.0 ** ev
+
+
+def _grow(inside: np.ndarray) -> np.ndarray:
+    """3x3 binary dilation of a [h, w] bool map (numpy only)."""
+    out = inside.copy()
+    out[1:] |= inside[:-1]
+    out[:-1] |= inside[1:]
+    rows = out.copy()
+    out[:, 1:] |= rows[:, :-1]
+    out[:, :-1] |= rows[:, 1:]
+    return out
+
+
+@dataclass(frozen=True)
+class RelightStats:
+    """Negative light clamped to 0 by one relight, counted at working resolution
+    over the matte's pixels (alpha > 0)."""
+
+    clamped: int    # pixels with a channel of albedo * (T . L') + E . L' below 0
+    pixels: int     # pixels of the matte
+    darkest: float  # the most negative channel value before the clamp (0.0 when none)
+
+    @property
+    def fraction(self) -> float:
+        return self.clamped / self.pixels if self.pixels else 0.0
+
+
+@dataclass
+class Decomposition:
+    """What the network saw in one photo, kept at working resolution.
+
+    albedo [h, w, 3], transport [h, w, n], residual [h, w, n], alpha [h, w]
+    and light [n, 3] belong to the crop `box` = (y0, y1, x0, x1) of the photo
+    resized to `working_size` = (h, w). `photo` is the original (not copied).
+    """
+
+    albedo: np.ndarray
+    transport: np.ndarray
+    residual: np.ndarray
+    light: np.ndarray
+    alpha: np.ndarray
+    box: tuple[int, int, int, int]
+    working_size: tuple[int, int]
+    photo: np.ndarray = field(repr=False)
+    photo_working: np.ndarray = field(repr=False)   # the crop at working resolution
+    mask: np.ndarray | None = field(default=None, repr=False)  # user mask (full resolution)
+    sh_order: int = 4
+    person_matte: object = field(default=None, repr=False)  # relight.matte.PersonMatte when it gave the mask
+
+    def __post_init__(self):
+        h, w = self.working_size
+        n = sh.num_coeffs(self.sh_order)
+        # matte pixels grown by one: the bilinear taps of every full-resolution
+        # pixel inside the matte then read relit values, never the zeros around
+        self._matte = np.flatnonzero(_grow(self.alpha > 0).reshape(-1))
+        self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
+        self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
+        self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
+        inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
+        self._inside = inside.astype(np.float32)
+        self._inside_count = int(np.count_nonzero(inside))
+        self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
+        y0, y1, x0, x1 = self.box
+        self._up = Bilinear(y1 - y0, x1 - x0, h, w)
+        self._alpha_prepared = None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(H, W) of the photo."""
+        return self.photo.shape[:2]
+
+    def _light(self, coeffs, exposure_ev) -> np.ndarray:
+        """SH coefficients [m, 3] fitted to the model's order, times 2**exposure_ev, float32."""
+        if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
+            raise ValueError(f"light must be SH coefficients [n, 3] (relight.light.sh_light makes them from a "
+                             f"map, preset or photo), got {type(coeffs).__name__}")
+        arr = np.asarray(coeffs)
+        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+            raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
+        L = fit_order(arr.astype(np.float64), sh.num_coeffs(self.sh_order)) * exposure_scale(exposure_ev)
+        return L.astype(np.float32)
+
+    def relight_working(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
+        """The relit person at working resolution, [h, w, 3], zero outside the matte:
+        max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
+
+        A radiance is >= 0; negative values are SH truncation ringing (or network
+        error), not light: they are set to 0 and counted in `last_stats`
+        (docs/conventions.md, "Ringing and negative light").
+        """
+        L = self._light(coeffs, exposure_ev)
+        h, w = self.working_size
+        relit = self._albedo_m * (self._transport_m @ L)
+        relit += self._residual_m @ L
+        # per-pixel minimum as two column minima: relit.min(axis=1) loops 3 values at a time, 30x slower
+        darkest = np.minimum(np.minimum(relit[:, 0], relit[:, 1]), relit[:, 2])
+        np.minimum(darkest, np.float32(0.0), out=darkest)
+        darkest *= self._inside  # only the person's pixels count, not the grown ring
+        self.last_stats = RelightStats(clamped=int(np.count_nonzero(darkest)), pixels=self._inside_count,
+                                       darkest=float(darkest.min()))
+        np.maximum(relit, np.float32(0.0), out=relit)
+        if self._matte.size == h * w:  # matte covers the crop: no scatter needed
+            return relit.reshape(h, w, 3)
+        out = np.zeros((h * w, 3), np.float32)
+        out[self._matte] = relit
+        return out.reshape(h, w, 3)
+
+    def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True) -> np.ndarray:
+        """The photo relit by the SH light `coeffs`, linear float32 [H, W, 3] at full resolution.
+
+        `coeffs`: SH coefficients [m, 3] (cut or zero-padded to the model's order;
+        relight.light.sh_light makes them from a map, preset or another photo),
+        scaled by 2**exposure_ev. Pixels outside the matte keep their values bit
+        for bit. When the crop was resized for the network, `detail` relights the
+        full-resolution photo by the upsampled quotient relit / photo of working
+        resolution (keeps the photo's fine texture); without it the relit person
+        is just upsampled. The relit person is >= 0 (negative light clamped;
+        `last_stats` counts it).
+        """
+        scale = np.float32(exposure_scale(exposure_ev))
+        relit = self.relight_working(coeffs, 0.0)
+        quotient = detail and not self._up.identity
+        if quotient:
+            source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
+            # capped: a bright speck averaged away at working resolution would
+            # otherwise be multiplied by relit / (its dark surroundings)
+            np.clip(source, 0.0, DETAIL_MAX, out=source)
+        else:
+            source = relit
+        # exposure folded into what is upsampled: a power of two for whole EV
+        # steps, so +1 EV still doubles the person exactly
+        source *= scale
+        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale)
+
+    def _alpha_strip(self, r0: int, r1: int) -> np.ndarray:
+        y0, _, x0, x1 = self.box
+        if self.mask is not None:
+            return self.mask[y0 + r0:y0 + r1, x0:x1, None]
+        if self._up.identity:
+            return self.alpha[r0:r1, :, None]  # already floored at decomposition
+        if self._alpha_prepared is None:
+            self._alpha_prepared = self._up.prepare(self.alpha[..., None])
+        a = self._up.strip(self._alpha_prepared, r0, r1)  # a fresh array
+        a[a < ALPHA_FLOOR] = 0.0
+        return a
+
+    def full_alpha(self) -> np.ndarray:
+        """The matte at full resolution [H, W] (zero outside the crop)."""
+        H, W = self.size
+        out = np.zeros((H, W), np.float32)
+        y0, y1, x0, x1 = self.box
+        for r0 in range(0, y1 - y0, STRIP_ROWS):
+            r1 = min(r0 + STRIP_ROWS, y1 - y0)
+            out[y0 + r0:y0 + r1, x0:x1] = self._alpha_strip(r0, r1)[..., 0]
+        return out
+
+    def layers(self, coeffs=None, exposure_ev: float = 0.0) -> dict[str, np.ndarray]:
+        """Full-resolution albedo, shading T . L', residual E . L' ([H, W, 3], zero
+        outside the matte) and alpha [H, W]; L' is the SH light `coeffs`, or the
+        photo's own light when None. albedo * shading + residual is the relit
+        person before the clamp at 0 (the layers keep their sign: linear, for
+        compositing)."""
+        L = self._light(self.light if coeffs is None else coeffs, exposure_ev)
+        h, w = self.working_size
+        maps = {}
+        for name, values in (("albedo", self._albedo_m), ("shading", self._transport_m @ L),
+                             ("residual", self._residual_m @ L)):
+            small = np.zeros((h * w, 3), np.float32)
+            small[self._matte] = values
+            maps[name] = self._to_full(small.reshape(h, w, 3))
+        maps["alpha"] = self.full_alpha()
+        return maps
+
+    def _to_full(self, small: np.ndarray) -> np.ndarray:
+        H, W = self.size
+        out = np.zeros((H, W, small.shape[2]), np.float32)
+        prepared = self._up.prepare(small)
+        y0, y1, x0, x1 = self.box
+        for r0 in range(0, y1 - y0, STRIP_ROWS):
+            r1 = min(r0 + STRIP_ROWS, y1 - y0)
+            out[y0 + r0:y0 + r1, x0:x1] = self._up.strip(prepared, r0, r1)
+        return out

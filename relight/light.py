@@ -1,0 +1,207 @@
+"""The light as a value: every source of light becomes SH coefficients [n, 3] here, once.
+
+    L = sh_light("studio", 4, rotation_deg=90)   # a bundled preset (relight.presets)
+    L = sh_light("map.hdr", 4)                   # an equirect HDR file (.exr / .hdr)
+    L = sh_light(world_pixels, 4)                # equirect pixels [H, 2H, 3] (the add-on's World bake)
+    L = sh_light(coeffs, 4, rotation_deg=30)     # SH coefficients [m, 3]: cut or zero-padded to order 4
+    L = sh_light(decomposition, 4)               # light transfer: another photo's estimated light
+
+A map (file, preset or pixels) follows one recipe, `map_light`: project it to SH,
+rotate it about world Z, scale it to the reference mean luminance
+(docs/conventions.md, exposure); the farm's lights, the training bank, `relight sh`,
+`relight image` and the add-on all call it. SH coefficients and another photo's
+light are light already: they are only fitted to the order and rotated.
+`map_file` is the one "file or preset?" decision. `resolve` loads and projects
+a source once into a `Light` value; `Light.at(rotation_deg)` gives the
+coefficients that the runtime's `Decomposition.relight` takes. A caller that
+turns lights again and again (the add-on's dials) passes a `LightCache`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from relight import sh
+
+__all__ = ["REFERENCE_LUMINANCE", "Light", "LightCache", "fit_order", "map_file", "map_light", "resolve",
+           "rotate_z", "rotate_and_normalise", "sh_light"]
+
+REFERENCE_LUMINANCE = 0.8  # mean luminance a map is scaled to (docs/conventions.md, exposure)
+
+
+class LightCache:
+    """A small LRU of projected maps (per file state and order) and Z-rotation matrices,
+    for a caller that resolves the same lights many times (a UI's dials). Thread-safe."""
+
+    def __init__(self, size: int = 32):
+        self.size = size
+        self.items: OrderedDict = OrderedDict()
+        self.lock = threading.Lock()  # a UI thread and a worker may resolve at once
+
+    def get(self, key, make):
+        with self.lock:
+            if key in self.items:
+                self.items.move_to_end(key)
+                return self.items[key]
+        value = make()  # outside the lock: a slow projection does not block other lights
+        value.flags.writeable = False  # shared between callers
+        with self.lock:
+            self.items[key] = value
+            while len(self.items) > self.size:
+                self.items.popitem(last=False)
+        return value
+
+
+def _cached(cache: LightCache | None, key, make):
+    return make() if cache is None else cache.get(key, make)
+
+
+def map_file(source) -> Path:
+    """The HDR file `source` names: an existing file, else a preset name (relight.presets).
+
+    ValueError when it is neither."""
+    from relight import presets
+
+    if isinstance(source, str) and not source:
+        raise ValueError("light is an empty string: give an HDR map path or a preset name")
+    path = Path(source)
+    if path.is_file():
+        return path
+    if isinstance(source, str) and presets.is_preset_name(source):
+        return presets.preset_path(source)
+    raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`)")
+
+
+def _check_rotation(rotation_deg) -> float:
+    try:
+        rotation_deg = float(rotation_deg)
+    except (TypeError, ValueError):
+        raise ValueError(f"rotation must be a number of degrees, got {rotation_deg!r}") from None
+    if not math.isfinite(rotation_deg):
+        raise ValueError(f"rotation must be finite, got {rotation_deg}")
+    return rotation_deg
+
+
+def rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
+    """SH light [n, 3] (float64) turned by `rotation_deg` about world Z; a whole number
+    of turns returns an unrotated copy."""
+    c = sh.validate_coeffs(coeffs)
+    rotation_deg = _check_rotation(rotation_deg)
+    if rotation_deg % 360.0 == 0.0:
+        return np.array(c, dtype=np.float64)
+    order = sh.order_from_num_coeffs(c.shape[0])
+    M = _cached(cache, ("rot", rotation_deg, order),
+                lambda: sh.rotation_matrix(sh.z_rotation(rotation_deg), order))
+    return M @ c
+
+
+def rotate_and_normalise(coeffs, rotation_deg: float, target: float | None = REFERENCE_LUMINANCE,
+                         cache: LightCache | None = None) -> tuple[np.ndarray, float]:
+    """(coeffs turned about Z then scaled to mean luminance `target`, the scale);
+    target None: no scaling (scale 1.0)."""
+    rotated = rotate_z(coeffs, rotation_deg, cache)
+    if target is None:
+        return rotated, 1.0
+    scaled, scale = sh.normalize_reference(rotated, target)
+    return scaled, float(scale)
+
+
+def _pixels(source) -> np.ndarray:
+    from relight.envmap import EnvMap, load_equirect, validate_equirect
+
+    if isinstance(source, EnvMap):
+        return source.pixels
+    if isinstance(source, (str, os.PathLike)):
+        return load_equirect(source).pixels
+    return validate_equirect(source).pixels
+
+
+def map_light(pixels, order: int, rotation_deg: float = 0.0,
+              target: float | None = REFERENCE_LUMINANCE) -> tuple[np.ndarray, float]:
+    """The map recipe: (SH [n, 3] of the equirect map `pixels` (an array, EnvMap or
+    file) projected at `order`, turned by `rotation_deg` about world Z, scaled to
+    mean luminance `target` (None: unscaled), the scale)."""
+    return rotate_and_normalise(sh.project_equirect(_pixels(pixels), order), rotation_deg, target)
+
+
+def fit_order(coeffs, n: int) -> np.ndarray:
+    """SH coefficients [m, 3] (float64) cut or zero-padded to n rows."""
+    c = sh.validate_coeffs(coeffs)
+    if c.shape[0] >= n:
+        return c[:n]
+    return np.concatenate([c, np.zeros((n - c.shape[0], 3), c.dtype)], axis=0)
+
+
+def _file_key(path: Path) -> tuple:
+    st = path.stat()
+    return str(path.resolve()), st.st_mtime_ns, st.st_size
+
+
+@dataclass(frozen=True)
+class Light:
+    """A light resolved once (see `resolve`): its SH [n, 3] before any rotation and
+    scaling, and the mean luminance it is scaled to after rotation (None: used as
+    is). `at(rotation_deg)` gives the coefficients a relight takes."""
+
+    base: np.ndarray
+    target: float | None = None
+
+    @property
+    def order(self) -> int:
+        return sh.order_from_num_coeffs(self.base.shape[0])
+
+    def at(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> np.ndarray:
+        """SH light [n, 3], float64: turned by `rotation_deg` about world Z, then scaled."""
+        return rotate_and_normalise(self.base, rotation_deg, self.target, cache)[0]
+
+
+def resolve(source, order: int, *, normalize: bool = True, target: float = REFERENCE_LUMINANCE,
+            cache: LightCache | None = None) -> Light:
+    """Any light source (see the module docstring) as a Light of SH order `order`.
+
+    A map (path, preset name, equirect pixels [H, W, 3|4] or EnvMap) is loaded
+    and projected here, once, and scaled to `target` at `Light.at` unless
+    normalize=False (a black map fails here); SH coefficients [m, 3], a Light
+    and a Decomposition's estimated light are cut or zero-padded to the order
+    and used as they are.
+    """
+    from relight.envmap import EnvMap
+
+    n = sh.num_coeffs(order)
+    goal = float(target) if normalize else None
+    if isinstance(source, Light):
+        return Light(fit_order(source.base, n), source.target)
+    if isinstance(source, (str, os.PathLike)):
+        path = map_file(source)
+        base = _cached(cache, ("map", _file_key(path), order), lambda: sh.project_equirect(_pixels(path), order))
+    elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
+        return Light(fit_order(source.light, n))
+    elif isinstance(source, EnvMap):
+        base = sh.project_equirect(source.pixels, order)
+    else:
+        arr = np.asarray(source)
+        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+            raise ValueError(f"light must be an HDR path, preset name, equirect pixels, SH array [n, 3] or "
+                             f"Decomposition, got {type(source).__name__}")
+        if arr.ndim != 3:  # SH coefficients
+            return Light(fit_order(arr.astype(np.float64), n))
+        base = sh.project_equirect(_pixels(arr), order)
+    if goal is not None:
+        sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
+    return Light(base, goal)
+
+
+def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool = True,
+             target: float = REFERENCE_LUMINANCE, cache: LightCache | None = None) -> np.ndarray:
+    """SH light [(order+1)^2, 3], float64, of any light source turned by `rotation_deg`
+    about world Z: resolve(source, ...).at(rotation_deg). Maps follow `map_light`'s
+    recipe (project, rotate, scale to `target` unless normalize=False)."""
+    rotation_deg = _check_rotation(rotation_deg)
+    return resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)

@@ -1,0 +1,95 @@
+"""The hash-checked onnxruntime session: how every ONNX file of the project is opened.
+
+`open_session` reads a model file once, compares its SHA-256 with the registry's
+entry or the .sha256 file beside it (relight.models) and only then hands the
+bytes to onnxruntime, so nothing unchecked is ever loaded; the person matte's
+networks use it directly. `ModelSession` adds the checks of a relighting
+network (its metadata and its input/output names) and runs it; the runtime's
+Relighter and model.evaluate.Predictor both use it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from relight.models import CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES, REGISTRY_PATH, expected_digest
+
+__all__ = ["ModelSession", "open_session"]
+
+
+def open_session(path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
+                 registry_path: str | os.PathLike = REGISTRY_PATH):
+    """(onnxruntime session, SHA-256) of a model file whose hash matches its record."""
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"model file not found: {path}")
+    want = expected_digest(path, registry_path)
+    data = path.read_bytes()  # hash exactly the bytes the session loads
+    got = hashlib.sha256(data).hexdigest()
+    if got != want:
+        raise ValueError(f"{path}: SHA-256 mismatch (file {got[:16]}..., expected {want[:16]}...): "
+                         "the model file is corrupt or was modified; refusing to load it")
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads or 0
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    try:
+        session = ort.InferenceSession(data, opts, providers=providers or ["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types
+        raise ValueError(f"{path}: onnxruntime cannot load it ({exc})") from None
+    return session, got
+
+
+class ModelSession:
+    """A relighting network's session: SHA-256 checked, metadata and graph names checked.
+
+    path: the .onnx file; threads: intra-op threads (None: onnxruntime's default,
+    all cores); providers: execution providers (default CPU only). Attributes:
+    session, sha256, metadata, sh_order, size_multiple, model_path.
+    """
+
+    def __init__(self, path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
+                 registry_path: str | os.PathLike = REGISTRY_PATH):
+        self.model_path = Path(path)
+        self.session, self.sha256 = open_session(self.model_path, threads, providers, registry_path)
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
+        self._read_metadata()
+
+    def _read_metadata(self) -> None:
+        md, where = self.metadata, self.model_path
+        if md.get("relight.format") != ONNX_FORMAT:
+            raise ValueError(f"{where}: not a relighting model (metadata relight.format is "
+                             f"{md.get('relight.format')!r}, expected {ONNX_FORMAT!r})")
+        if md.get("relight.conventions") != CONVENTION_VERSION:
+            raise ValueError(f"{where}: made for conventions {md.get('relight.conventions')!r}, "
+                             f"this runtime implements {CONVENTION_VERSION!r}")
+        try:
+            self.sh_order = int(md["relight.sh_order"])
+            self.size_multiple = int(md["relight.size_multiple"])
+        except (KeyError, ValueError):
+            raise ValueError(f"{where}: metadata lacks a valid relight.sh_order / relight.size_multiple") from None
+        names = [o.name for o in self.session.get_outputs()]
+        if sorted(names) != sorted(OUTPUT_NAMES) or [i.name for i in self.session.get_inputs()] != [INPUT_NAME]:
+            raise ValueError(f"{where}: graph must map {INPUT_NAME!r} to {list(OUTPUT_NAMES)}, "
+                             f"has {[i.name for i in self.session.get_inputs()]} -> {names}")
+
+    def output_channels(self, name: str):
+        """The channel count (axis 1) the graph declares for output `name` (None when symbolic)."""
+        for o in self.session.get_outputs():
+            if o.name == name:
+                return o.shape[1] if isinstance(o.shape[1], int) else None
+        raise KeyError(name)
+
+    def run(self, net_input: np.ndarray, run_options=None) -> dict[str, np.ndarray]:
+        """Run the graph on [B, 3, H, W] float32 (H, W multiples of size_multiple)."""
+        feed = {INPUT_NAME: np.ascontiguousarray(net_input, np.float32)}
+        values = self.session.run(list(OUTPUT_NAMES), feed, run_options)
+        return dict(zip(OUTPUT_NAMES, values))
