@@ -74,23 +74,16 @@ def slab(outer: np.ndarray, inner: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.concatenate([faces, faces[:, ::-1] + n, rim_faces]).astype(np.int64)
 
 
-def adjacency(faces: np.ndarray, n: int):
-    """Row-normalised vertex adjacency (scipy CSR) of a triangle mesh."""
-    from scipy import sparse
-
-    e = directed_edges(faces)
-    e = np.concatenate([e, e[:, ::-1]])
-    a = sparse.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    a.data[:] = 1.0
-    deg = np.asarray(a.sum(axis=1)).ravel()
-    return sparse.diags(1.0 / np.maximum(deg, 1.0)) @ a
-
-
 def smooth_field(values: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
-    a = adjacency(faces, len(values))
-    out = values
+    """`iterations` rounds of v <- (v + mean of the edge neighbours) / 2 (numpy only)."""
+    e = directed_edges(np.asarray(faces, dtype=np.int64))
+    e = np.concatenate([e, e[:, ::-1]])
+    deg = np.bincount(e[:, 0], minlength=len(values)).astype(np.float64)
+    out = np.asarray(values, dtype=np.float64)
     for _ in range(iterations):
-        out = 0.5 * out + 0.5 * (a @ out)
+        acc = np.zeros_like(out)
+        np.add.at(acc, e[:, 0], out[e[:, 1]])
+        out = 0.5 * out + 0.5 * acc / np.maximum(deg, 1.0)[:, None]
     return out
 
 

@@ -84,15 +84,21 @@ def features(meta: dict) -> dict[str, bool]:
     return f
 
 
+def _box_sum(x: np.ndarray) -> np.ndarray:
+    """Sum over the TEXTURE_WINDOW x TEXTURE_WINDOW window around each pixel, zero outside (x: [H, W, C])."""
+    r = TEXTURE_WINDOW // 2
+    p = np.pad(x, ((r + 1, r), (r + 1, r), (0, 0)))
+    c = p.cumsum(0).cumsum(1)
+    k = TEXTURE_WINDOW
+    return c[k:, k:] - c[:-k, k:] - c[k:, :-k] + c[:-k, :-k]
+
+
 def texture_counts(albedo: np.ndarray, alpha: np.ndarray) -> tuple[int, int]:
     """(person pixels differing from their neighbourhood mean by > 0.04, person pixels with neighbours)."""
-    from scipy.ndimage import uniform_filter
-
     m = (alpha.reshape(alpha.shape[:2]) > 0.999).astype(np.float64)
     a = albedo.astype(np.float64) * m[..., None]
-    k = TEXTURE_WINDOW
-    box_m = uniform_filter(m, k, mode="constant") * k * k - m
-    box_a = np.stack([uniform_filter(a[..., c], k, mode="constant") * k * k for c in range(3)], -1) - a
+    box_m = _box_sum(m[..., None])[..., 0] - m
+    box_a = _box_sum(a) - a
     valid = (m > 0) & (box_m > 0.5)
     mean = box_a[valid] / box_m[valid][:, None]
     differs = np.abs(albedo[valid] - mean).max(axis=1) > TEXTURE_THRESHOLD
