@@ -360,7 +360,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  extra_lights: list[tuple[str, np.ndarray]] | None = None, extra_light_prob: float = 0.5,
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
-                 pack: Path | None = None, exposure_jitter: float = 0.0):
+                 pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = True):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -376,6 +376,7 @@ class TrainingScenes(torch.utils.data.Dataset):
             raise ValueError(f"exposure_jitter must be finite and >= 0, got {exposure_jitter}")
         # sigma of the input light's log2 scale; 0: none (and no extra random draws)
         self.exposure_jitter = exposure_jitter
+        self.capture = capture  # photo-like capture (model/capture.py), on for training
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
@@ -444,6 +445,11 @@ class TrainingScenes(torch.utils.data.Dataset):
             composite = image_a  # the rendered HDR world behind the person
         else:
             composite = alpha * image_a + (1 - alpha) * random_background(rng, self.size)
+        if self.capture:  # real background, white balance, exposure, blur, noise, JPEG; image and light gained alike
+            from model.capture import photo_like
+
+            composite, image_a, light_a, _ = photo_like(composite, image_a, alpha, light_a,
+                                                        np.random.default_rng([self.seed, epoch, i, 20]))
         masked = rng.uniform() < self.mask_prob
         sample = {
             "input": _network_input(composite, alpha if masked else None),
