@@ -34,7 +34,9 @@ def body_model():
         anny.paths.set_anny_cache_path(cache)
         import torch
 
-        torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+        # The cores this process may use (a farm worker is pinned to its share):
+        # idle OpenMP threads on other cores spin and steal them from the other workers.
+        torch.set_num_threads(max(1, min(2, len(os.sched_getaffinity(0)))))
         _MODEL = anny.Anny()
     return _MODEL
 
