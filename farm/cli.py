@@ -11,49 +11,15 @@ import argparse
 import math
 import os
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
+from farm.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
 
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
 MAX_SCENE_INDEX = 999_999
 KNOWN_PASSES = tuple(sorted(PASS_NAMES))
-DEFAULT_JOB_MODULE = "farm.scene"
-
-
-class UsageError(ValueError):
-    """A command-line option is missing, malformed or out of range."""
-
-
-class FarmError(RuntimeError):
-    """The run cannot go on (output not writable, disk full, workers cannot start)."""
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything one farm run needs; built by parse_args."""
-
-    out: Path
-    scenes: int
-    seed: int
-    first: int = 0
-    scene: SceneOptions = field(default_factory=SceneOptions)
-    workers: int = 1
-    recycle: int = 20
-    timeout: float = 1800.0
-    retries: int = 3
-    resume: bool = False
-    ray: str | None = None
-    job_module: str = DEFAULT_JOB_MODULE
-    progress: bool = True
-
-    @property
-    def indices(self) -> range:
-        return range(self.first, self.first + self.scenes)
-
-
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad command line as one line on stderr and exit code 2."""
 
@@ -138,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true", help="skip finished scenes in --out")
     r.add_argument("--ray", metavar="auto|ADDRESS", default=None,
                    help="run on a Ray cluster (extra 'distributed')")
+    r.add_argument("--pin", action=argparse.BooleanOptionalAction, default=True,
+                   help="pin each local worker to its own share of the cores (when workers <= cores)")
     r.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     # Module with SceneOptions and render_scene; tests swap in a fault-injecting one.
     r.add_argument("--job-module", default=DEFAULT_JOB_MODULE, help=argparse.SUPPRESS)
@@ -166,7 +134,7 @@ def parse_args(argv: list[str]) -> RunConfig:
         # Absolute: workers run in the repository root, Ray tasks on other nodes.
         out=Path(os.path.abspath(a.out)), scenes=a.scenes, seed=a.seed, first=a.first, scene=scene,
         workers=a.workers, recycle=a.recycle, timeout=a.timeout, retries=a.retries,
-        resume=a.resume, ray=a.ray, job_module=a.job_module, progress=a.progress,
+        resume=a.resume, ray=a.ray, job_module=a.job_module, progress=a.progress, pin=a.pin,
     )
 
 

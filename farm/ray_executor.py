@@ -23,7 +23,7 @@ import threading
 import time
 from pathlib import Path
 
-from farm.cli import FarmError, RunConfig
+from farm.run_config import FarmError, RunConfig
 from farm.executors import (
     REPO_ROOT,
     WORKER_LOG_DIR,

@@ -467,3 +467,33 @@ def test_worker_that_cannot_start_stops_the_run_with_its_error(tmp_path):
     assert "exited with code 1): ModuleNotFoundError: No module named 'tests.no_such_job'" in lines[0]
     s = run_log(out)["runs"][-1]["summary"]
     assert (s["done"], s["failed"], s["not_started"]) == (0, 0, 3)
+
+
+def test_worker_cpus_are_disjoint_equal_shares_or_none():
+    from farm.executors import worker_cpus
+
+    cores = {0, 1, 2, 3, 5, 7}
+    shares = [worker_cpus(slot, 3, cores) for slot in range(3)]
+    assert shares == [{0, 1}, {2, 3}, {5, 7}]
+    assert [worker_cpus(slot, 4, cores) for slot in range(4)] == [{0}, {1}, {2}, {3}]  # 5, 7 left idle
+    assert worker_cpus(0, 7, cores) is None  # more workers than cores: the OS schedules them
+    assert worker_cpus(0, 1, {3}) == {3}
+
+
+def test_started_worker_runs_on_its_pinned_cores():
+    import functools
+    import subprocess
+
+    from farm.executors import _start_child
+
+    core = min(os.sched_getaffinity(0))
+    out = subprocess.run(
+        [sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"],
+        capture_output=True, text=True, check=True, preexec_fn=functools.partial(_start_child, {core}),
+    ).stdout
+    assert json.loads(out) == [core]
+
+
+def test_pin_flag_reaches_the_run_config(tmp_path):
+    assert cli.parse_args(["--out", str(tmp_path), "--scenes", "1", "--seed", "0"]).pin is True
+    assert cli.parse_args(["--out", str(tmp_path), "--scenes", "1", "--seed", "0", "--no-pin"]).pin is False
