@@ -228,12 +228,11 @@ def sh_order_points(data, orders, *, repeat: int = 7, max_scenes: int = 64,
     from bench_adaptive_order import relight_ms
 
     from model.data import find_scenes
-    from relight.dataset import read_scene
+    from relight.dataset import has_transport, read_scene, read_sidecar, traced_lights
 
     paths = find_scenes(data)[:max_scenes]
-    metas = [json.loads(Path(p).read_text(encoding="utf-8")) for p in paths]
-    usable = [p for p, m in zip(paths, metas)
-              if "transport.00" in m["channels"] and any(c.startswith("image.L") for c in m["channels"])]
+    metas = [read_sidecar(p) for p in paths]
+    usable = [p for p, m in zip(paths, metas) if has_transport(m) and traced_lights(m)]
     if not usable:
         raise ValueError(f"{data}: the SH section needs scenes with both transport and path-traced passes")
     data_order = min(int(m["sh_order"]) for p, m in zip(paths, metas) if p in usable)

@@ -669,7 +669,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         # a shipped model opens on the worker; a custom one here, to learn its SH order
         relighter = engine.open_relighter(model_path) if order is None else None
         order = relighter.sh_order if relighter is not None else order
-        long_side = quality.preset(settings.quality).working_long_side
+        long_side = quality.preset(settings.quality).working_size
         light = light_cached = light_reader = None
         light_key = _light_image_key(settings, model_path)
         rotation = math.degrees(settings.rotation)

@@ -273,10 +273,6 @@ def expected_seconds(model_path: str, working_size: int) -> float | None:
     return _SECONDS.get((str(Path(model_path)), working_size))
 
 
-def sh_order(relighter_or_decomposition) -> int:
-    return int(relighter_or_decomposition.sh_order)
-
-
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:
     """The photo relit, linear [H, W, 3]: the person composited over the untouched background."""
     return decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev)

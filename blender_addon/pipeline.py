@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from . import quality
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha", "preview", "matte")
 # preview: screen-sized relit; matte: the photo cut out by the person matte (to check it)
@@ -393,14 +392,13 @@ def model_path_for(quality_key: str, override: str = "") -> Path:
         if not p.is_file():
             raise ValueError(f"The model file '{override}' does not exist.")
         return p
-    from relight import models
     from relight import quality as core_quality
 
-    registry = models.load_registry(models.REGISTRY_PATH)  # looked up now: tests point it elsewhere
-    name = core_quality.model_name(quality.preset(quality_key).key, registry)
-    if name is None:
-        raise ValueError("No relighting model is installed: choose a model file (.onnx) in the panel.")
-    p = models.REGISTRY_PATH.parent / registry["models"][name]["file"]
+    core_quality.preset(quality_key)  # an unknown key is its own error
+    try:
+        p = core_quality.model_path(quality_key)  # the registry looked up now: tests point it elsewhere
+    except ValueError:
+        raise ValueError("No relighting model is installed: choose a model file (.onnx) in the panel.") from None
     if not p.is_file():
         raise ValueError(f"The relighting model '{p.name}' is missing from the installation.")
     return p

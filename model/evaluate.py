@@ -28,6 +28,7 @@ import torch
 
 from relight.colour import srgb_encode
 from relight.fileio import atomic_path, atomic_write_text
+from relight.prt import render
 
 from model import metrics
 from model.data import EvaluationPairs, find_scenes, held_out_light_names
@@ -38,27 +39,24 @@ OUTPUTS = ("albedo", "transport", "residual", "light", "alpha")
 
 
 class Predictor:
-    """Runs a checkpoint (torch, eval mode) or an ONNX file on [B,3,H,W] float32 inputs."""
+    """Runs a checkpoint (torch, eval mode) or an ONNX file on [B,3,H,W] float32 inputs.
+
+    An ONNX file opens through relight.session.ModelSession, as in the runtime: its
+    SHA-256 (registry or .sha256 file beside it), metadata and graph names are checked."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         if not self.path.is_file():
             raise ValueError(f"model not found: {self.path}")
         if self.path.suffix == ".onnx":
-            import onnxruntime as ort
+            from relight.session import ModelSession
+            from relight.sh import num_coeffs
 
-            self.session = ort.InferenceSession(str(self.path), providers=["CPUExecutionProvider"])
-            names = [o.name for o in self.session.get_outputs()]
-            missing = [n for n in OUTPUTS if n not in names]
-            if missing:
-                raise ValueError(f"{self.path}: ONNX model lacks outputs {missing}")
-            self.input_name = self.session.get_inputs()[0].name
-            outputs = self.session.get_outputs()
-            n = outputs[names.index("light")].shape[1]
-            t = outputs[names.index("transport")].shape[1]
-            self.n_coeffs = n if isinstance(n, int) else None
+            self.session = ModelSession(self.path)
+            self.n_coeffs = num_coeffs(self.session.sh_order)
+            t = self.session.output_channels("transport")
             # the T* ablation exports 3n transport channels (docs/model.md)
-            self.tstar = isinstance(n, int) and isinstance(t, int) and n > 1 and t == 3 * n
+            self.tstar = self.n_coeffs > 1 and t == 3 * self.n_coeffs
             self.model = None
         elif self.path.suffix == ".safetensors":
             from model.checkpoint import load_model
@@ -81,10 +79,10 @@ class Predictor:
                 out = self.model(x)
             return {k: out[k].numpy() for k in OUTPUTS}
         try:
-            values = self.session.run(list(OUTPUTS), {self.input_name: image.astype(np.float32)})
+            out = self.session.run(image)
         except Exception as exc:  # onnxruntime raises its own types (e.g. a size the graph rejects)
             raise ValueError(f"{self.path.name} failed on an input of shape {image.shape}: {exc}") from None
-        return dict(zip(OUTPUTS, values))
+        return {k: out[k] for k in OUTPUTS}
 
 
 def _hwc(x: np.ndarray) -> np.ndarray:
@@ -100,9 +98,11 @@ def shading_np(transport: np.ndarray, light: np.ndarray, tstar: bool) -> np.ndar
 
 
 def render_np(pred: dict, light: np.ndarray, tstar: bool) -> np.ndarray:
+    """The relit image [H, W, 3] of one prediction (channels first) under `light`:
+    relight.prt.render's albedo * (T . L) + E . L, or T* . L for the T* ablation."""
     if tstar:
         return shading_np(pred["transport"], light, True)
-    return _hwc(pred["albedo"]) * shading_np(pred["transport"], light, False) + shading_np(pred["residual"], light, False)
+    return render(_hwc(pred["albedo"]), _hwc(pred["transport"]), _hwc(pred["residual"]), light)
 
 
 def evaluate_prediction(pred: dict, sample: dict, tstar: bool) -> dict[str, dict[str, float]]:

@@ -1,6 +1,7 @@
 """Train RelightNet on scene files: `python -m model.train --data DIR --out DIR [options]`.
 
-Lightning on the CPU by default; CUDA with mixed precision when present.
+Lightning on the CPU by default (--device cpu); --device cuda (or --device auto when a
+CUDA device is present) trains on the GPU with mixed precision.
 AdamW, lr 5e-5 (the paper's). Writes to --out:
   checkpoints/last.ckpt   Lightning state for --resume (loaded with weights_only=True)
   model.safetensors/.json final weights + config (model.checkpoint), seed and args recorded

@@ -811,10 +811,10 @@ def test_esc_stops_the_network_while_it_runs(addon, settings, monkeypatch):
     import time
     import types
 
-    from blender_addon import quality as addon_quality
+    from relight.quality import QualityPreset
 
     # a working size that makes the tiny network run for seconds, so Esc lands inside it
-    slow = addon_quality.QualityPreset("DRAFT", "Draft", None, 1024, "slow")
+    slow = QualityPreset("draft", "Draft", None, 1024, "slow")
     monkeypatch.setattr(bl_ops.quality, "preset", lambda key: slow)
     name = addon["photo"]
     state.SESSIONS.clear()

@@ -261,3 +261,22 @@ def test_interior_mask_drops_partly_covered_pixels():
         "relighting/image"]["l1"] > 0.0
     with pytest.raises(ValueError, match="mask"):
         evaluate.with_metric_weight(dict(sample), "edges")
+
+
+def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
+    from export.random_model import export_random_model
+    from relight.session import ModelSession
+
+    path, _, _ = export_random_model(tmp_path / "m.onnx", seed=1, sh_order=2, width=4, depth=2)
+    x = np.random.default_rng(0).uniform(-1, 1, (1, 3, 32, 32)).astype(np.float32)
+    predictor = evaluate.Predictor(path)
+    assert predictor.order == 2 and not predictor.tstar
+    want = ModelSession(path).run(x)
+    got = predictor(x)
+    for k in evaluate.OUTPUTS:
+        np.testing.assert_array_equal(got[k], want[k])
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="SHA-256 mismatch"):
+        evaluate.Predictor(path)

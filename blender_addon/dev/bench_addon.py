@@ -77,13 +77,14 @@ def main(argv=None) -> int:
     print("|---|---|---|---|")
     decompositions = {}
     wanted = set(args.qualities.upper().split(",")) | {"BALANCED"}
-    for p in quality.QUALITY_PRESETS:
-        if p.key not in wanted:
+    for key, label, _ in quality.enum_items():
+        if key not in wanted:
             continue
-        engine.decompose(relighter, photo, None, p.working_long_side)  # warm-up
+        size = quality.preset(key).working_size
+        engine.decompose(relighter, photo, None, size)  # warm-up
         med, best = _timed(lambda: decompositions.__setitem__(
-            p.key, engine.decompose(relighter, photo, None, p.working_long_side)), args.repeat)
-        print(f"| {p.label} | {p.working_long_side} | {med:.3f} | {best:.3f} |")
+            key, engine.decompose(relighter, photo, None, size)), args.repeat)
+        print(f"| {label} | {size} | {med:.3f} | {best:.3f} |")
 
     d = decompositions["BALANCED"]
     light = pipeline.preset_light("studio", relighter.sh_order)
@@ -102,7 +103,7 @@ def main(argv=None) -> int:
     relight_step(); blend_step(); write_step()  # noqa: E702  (warm-up)
     # a random network finds no person, so its crop is the whole frame (the
     # worst case); with the figure as mask the runtime works on its box only
-    masked = engine.decompose(relighter, photo, figure, quality.preset("BALANCED").working_long_side)
+    masked = engine.decompose(relighter, photo, figure, quality.preset("BALANCED").working_size)
     rows = [("relight (runtime, full resolution)", _timed(relight_step, args.repeat)),
             ("  same, crop = the figure's box (mask)",
              _timed(lambda: engine.relight(masked, light, float(next(angle)), 0.0), args.repeat)),
