@@ -230,9 +230,10 @@ def save_decomposition(path: str | os.PathLike, decomposition, meta: dict, previ
         if preview.mask is not None:
             arrays["preview_mask"] = preview.mask.astype(np.float16)
         info["preview_box"] = list(preview.box)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, meta=np.array(json.dumps(info)), **arrays)
-    os.replace(tmp, path)
+    from relight.fileio import atomic_path
+
+    with atomic_path(path, ".npz") as tmp:
+        np.savez_compressed(tmp, meta=np.array(json.dumps(info)), **arrays)
     return path
 
 

@@ -94,14 +94,10 @@ def save_atomic(model: onnx.ModelProto, out: str | os.PathLike) -> tuple[Path, s
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.checker.check_model(model, full_check=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(model.SerializeToString())
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from relight.fileio import atomic_path
+
+    with atomic_path(out) as tmp:
+        tmp.write_bytes(model.SerializeToString())
     digest = file_sha256(out)
     write_sidecar(out, digest)
     return out, digest

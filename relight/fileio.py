@@ -1,4 +1,4 @@
-"""Atomic file writes and file hashing, shared by every writer in the project.
+"""Atomic file writes and file hashing.
 
 A reader never sees a half-written file: data goes to a temporary file in the
 same folder (so os.replace is an atomic rename) and replaces the target only

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import subprocess
 import sys
 import tempfile
@@ -100,9 +99,10 @@ def main(argv=None) -> int:
         draw.text((6 + i * (tw + 4), 4), label, fill=(230, 230, 230))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.tmp.png")
-    sheet.save(partial, optimize=True)
-    os.replace(partial, out)
+    from relight.fileio import atomic_path
+
+    with atomic_path(out, ".png") as partial:
+        sheet.save(partial, optimize=True)
     print(f"wrote {out} ({out.stat().st_size // 1024} KiB, {len(tiles)} tiles)")
     blender_addon.unregister()
     return 0
