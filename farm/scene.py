@@ -1,10 +1,17 @@
-"""One synthetic scene, end to end: body, pose, clothes, camera, lights, bake, Cycles, files.
+"""One synthetic scene, end to end, in four steps (Kubric-style):
 
-`render_scene` runs inside a bpy process (the bpy module, or Blender's own
-Python), resets Blender to factory settings itself and draws every random
-choice from numpy.random.default_rng([seed, index]); the sidecar records all
-of them. Same seed and index -> the same geometry (hash recorded) and the
-same sidecar apart from timings.
+    sample_scene(index, seed, options)  -> SceneSample   numpy: body, pose, clothes, camera, lights
+    bake_scene(sample)                  -> SceneBake     numpy + embree: per-vertex SH transport
+    build_blender_scene(scene, ...)                      bpy: meshes, AOVs, materials, camera
+    render_buffers(scene, ...)          -> channels      Cycles: geometry pass, one image per light
+
+`render_scene` runs them in a bpy process (the bpy module, or Blender's own
+Python), resetting Blender to factory settings first. Every random choice is
+drawn from numpy.random.default_rng([seed, index]) in a fixed order (the
+bake from [seed, index, 1]); `SceneSample.record()` is the plain-JSON
+description the sidecar keeps. Same seed and index -> the same geometry (hash
+recorded) and the same sidecar apart from timings; sampling runs without
+Blender when no procedural sky is drawn (or a sky renderer is given).
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ import hashlib
 import importlib.metadata
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -70,30 +78,86 @@ def visible_vertices(cam_vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return seen
 
 
-def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
-    """Synthesize, bake and render scene `index`; returns the finished JSON path."""
-    from farm import appearance, bake, bodies, camera, lights, passes, poses
+@dataclass
+class SceneSample:
+    """What was drawn for one scene, before anything is baked or built in Blender."""
 
+    index: int
+    seed: int
+    options: SceneOptions
+    body: object  # farm.bodies.BodyParams
+    pose: object  # farm.poses.Pose
+    yaw_deg: float
+    penetration: float
+    penetration_pair: object
+    parts: list  # farm.appearance.Part, in scene order
+    look: dict  # the appearance record
+    camera: object  # farm.camera.Camera
+    lights: list  # farm.lights.Light
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """Start of each part's vertices in the concatenated mesh (len(parts) + 1 entries)."""
+        return np.cumsum([0] + [len(p.vertices) for p in self.parts])
+
+    def mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(vertices, faces, normals) of all parts concatenated, in world space."""
+        offsets = self.offsets
+        vertices = np.concatenate([p.vertices for p in self.parts])
+        faces = np.concatenate([p.faces + offsets[i] for i, p in enumerate(self.parts)])
+        normals = np.concatenate([p.normals for p in self.parts])
+        return vertices, faces, normals
+
+    def geometry_record(self) -> dict:
+        vertices, faces, _ = self.mesh()
+        return {
+            "hash": geometry_hash(vertices, faces),
+            "vertices": len(vertices),
+            "faces": len(faces),
+            "parts": {p.name: len(p.vertices) for p in self.parts},
+        }
+
+    def record(self) -> dict:
+        """The plain-JSON description of the scene (what the sidecar keeps)."""
+        return {
+            "index": int(self.index),
+            "seed": int(self.seed),
+            "sh_order": self.options.sh_order,
+            "options": self.options.to_json(),
+            "lights": [light.record() for light in self.lights],
+            "camera": self.camera.as_dict(),
+            "body": self.body.as_dict(),
+            "pose": {**self.pose.as_dict(), "yaw_deg": self.yaw_deg, "penetration": float(self.penetration),
+                     "penetration_pair": self.penetration_pair},
+            "appearance": self.look,
+            "geometry": self.geometry_record(),
+        }
+
+
+def _check_index_and_seed(index, seed) -> None:
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
         raise ValueError(f"scene index must be a non-negative integer, got {index!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+
+
+def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
+    """Draw body, pose, clothes, camera and lights of scene `index` (numpy, anny; no bpy).
+
+    `render_sky(params) -> [H, W, 3]` renders a procedural sky when the light
+    pool draws one (render_scene passes Cycles' Sky Texture).
+    """
+    from farm import appearance, bodies, camera, lights, poses
+
+    _check_index_and_seed(index, seed)
     options.validate()
-    threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
-    out_dir = Path(out_dir)
-    asked = frozenset(options.passes)
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
-    t_total = time.perf_counter()
 
     def stage(name, t0):
         timings[name] = round(time.perf_counter() - t0, 4)
 
-    t0 = time.perf_counter()
-    scene = passes.reset_scene()
-    stage("reset", t0)
-
-    # Body and pose.
     t0 = time.perf_counter()
     params = bodies.sample_body(rng)
     rest_body = bodies.build_body(params, None)
@@ -117,7 +181,6 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
     body.joints = _yaw(body.joints, yaw, pivot)
     stage("pose", t0)
 
-    # Appearance.
     t0 = time.perf_counter()
     diffuse_only = bool(rng.random() < DIFFUSE_ONLY_SHARE)
     parts, look = appearance.dress(
@@ -125,159 +188,206 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
     )
     stage("appearance", t0)
 
-    all_vertices = np.concatenate([p.vertices for p in parts])
-    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
-    all_faces = np.concatenate([p.faces + offsets[i] for i, p in enumerate(parts)])
-    all_normals = np.concatenate([p.normals for p in parts])
-
     t0 = time.perf_counter()
-    cam = camera.frame_person(all_vertices, rng)
+    cam = camera.frame_person(np.concatenate([p.vertices for p in parts]), rng)
     stage("camera", t0)
 
-    # Lights (the sky needs Cycles; everything else is numpy).
     t0 = time.perf_counter()
     pool = lights.light_pool(options.light_pool)
+    scene_lights = [
+        lights.sample_light(rng, pool, options.sh_order, cam.world_to_camera, render_sky)
+        for _ in range(options.lights)
+    ]
+    stage("lights", t0)
+    return SceneSample(
+        index=int(index), seed=int(seed), options=options, body=params, pose=pose, yaw_deg=yaw,
+        penetration=float(penetration), penetration_pair=pair, parts=parts, look=look, camera=cam,
+        lights=scene_lights, timings=timings,
+    )
+
+
+@dataclass
+class SceneBake:
+    """Per-vertex SH transport in the camera frame (None when the "prt" pass is off)."""
+
+    transport: np.ndarray | None
+    record: dict
+    seconds: float = 0.0
+    ray_seconds: float = 0.0
+
+
+def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
+    """Bake the transport of the vertices that can reach a pixel (rays in the camera frame:
+    they are invariant under the rigid change of frame)."""
+    from farm import appearance, bake
+
+    options = sample.options
+    record = {"directions": options.bake_directions, "specular": "skipped"}
+    if "prt" not in options.passes:
+        return SceneBake(None, record)
+    t0 = time.perf_counter()
+    vertices, faces, normals = sample.mesh()
+    cam = sample.camera
+    cam_vertices = cam.to_camera(vertices)
+    cam_normals = normals @ cam.world_to_camera.T
+    parts = sample.parts
+    specular_needed = not all(appearance.is_diffuse(p.material) for p in parts)
+    use_specular = options.specular == "on" or (options.specular == "auto" and specular_needed)
+    materials = None
+    view_point = None
+    if use_specular:
+        materials = bake.VertexMaterials(
+            roughness=np.concatenate([np.full(len(p.vertices), p.material["roughness"]) for p in parts]),
+            metallic=np.concatenate([np.full(len(p.vertices), p.material["metallic"]) for p in parts]),
+            specular=np.concatenate([np.full(len(p.vertices), 2.0 * p.material["specular_level"]) for p in parts]),
+        )
+        view_point = np.zeros(3)  # the camera is the origin of its own frame
+    seen = visible_vertices(cam_vertices, faces)
+    seen &= ~np.concatenate([p.hidden if p.hidden is not None else np.zeros(len(p.vertices), bool) for p in parts])
+    bake_rng = np.random.default_rng([sample.seed, sample.index, 1])
+    result = bake.bake_transport(
+        cam_vertices, faces, cam_normals, options.sh_order, options.bake_directions,
+        view_point=view_point, materials=materials, rng=bake_rng, threads=threads or None, active=seen,
+    )
+    record.update(
+        specular="baked" if result.specular else ("skipped (all diffuse)" if options.specular == "auto" else "off"),
+        rays=result.rays,
+        baked_vertices=int(seen.sum()),
+        alpha_floor=result.alpha_floor,
+    )
+    return SceneBake(result.transport, record, time.perf_counter() - t0, result.ray_seconds)
+
+
+def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
+    """Meshes with per-vertex normal, depth and transport attributes routed to AOVs, their
+    materials, the camera and the first light's World; returns the AovSpec."""
+    from farm import appearance, camera, passes
+
+    options = sample.options
+    cam = sample.camera
+    vertices, _, normals = sample.mesh()
+    cam_vertices = cam.to_camera(vertices)
+    cam_normals = normals @ cam.world_to_camera.T
+    offsets = sample.offsets
+    passes.configure_film(scene, (options.resolution, options.resolution))
+    passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
+    attribute_names = ["normal", "depth"]
+    if baked.transport is not None:
+        attribute_names += [f"t{i}" for i in range(_transport_blocks(options))]
+    spec = passes.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
+    passes.register_aovs(scene.view_layers[0], spec)
+    for i, part in enumerate(sample.parts):
+        lo, hi = offsets[i], offsets[i + 1]
+        attrs = {
+            "normal": cam_normals[lo:hi],
+            "depth": np.repeat(cam_vertices[lo:hi, 1:2], 3, axis=1),
+            "rest": part.rest,
+        }
+        if baked.transport is not None:
+            for k, block in enumerate(passes.pack_vectors(baked.transport[lo:hi])):
+                attrs[f"t{k}"] = block
+        obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
+        mat, base_socket, params_socket = appearance.build_material(part.name, part.material)
+        passes.add_attribute_aovs(mat, attribute_names)
+        passes.add_socket_aov(mat, "albedo", base_socket)
+        passes.add_socket_aov(mat, "material", params_socket)
+        obj.data.materials.append(mat)
+    first = sample.lights[0]
+    passes.set_environment_world(scene, None, first.rotation_deg, first.scale, pixels=first.pixels, name="light0")
+    return spec
+
+
+def _transport_blocks(options: SceneOptions) -> int:
+    return (sh.num_coeffs(options.sh_order) + 2) // 3
+
+
+def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir: Path, timings: dict) -> dict:
+    """Cycles' geometry pass, the PRT images from the baked transport, one path-traced
+    image per light; returns the scene's channels (relight.dataset names)."""
+    from farm import passes
+
+    options = sample.options
+    t0 = time.perf_counter()
+    geo = passes.render_geometry(scene, spec, work_dir, samples=GEOMETRY_SAMPLES)
+    timings["geometry_pass"] = round(time.perf_counter() - t0, 4)
+
+    alpha = geo.alpha
+    inside = alpha > 1e-6
+    normal = geo.aovs["normal"]
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)
+    channels = {
+        "alpha": alpha,
+        "albedo": np.where(inside[..., None], geo.aovs["albedo"], 0.0).astype(np.float32),
+        "normal": normal,
+        "material": np.where(inside[..., None], geo.aovs["material"], 0.0).astype(np.float32),
+        "depth": geo.aovs["depth"][..., 0].astype(np.float32),
+    }
+    if baked.transport is not None:
+        n_coeffs = sh.num_coeffs(options.sh_order)
+        stacked = np.concatenate([geo.aovs[f"t{i}"] for i in range(_transport_blocks(options))], axis=-1)
+        t_pix = stacked[..., :n_coeffs].astype(np.float32)
+        channels["transport"] = t_pix
+        for k, light in enumerate(sample.lights):
+            shade = prt.shading(t_pix, light.sh).astype(np.float32)
+            channels[f"shading.L{k}"] = shade
+            channels[f"prt.L{k}"] = (channels["albedo"] * shade).astype(np.float32)
+
+    path_trace_seconds = []
+    if "pt" in options.passes:
+        t0 = time.perf_counter()
+        for k, light in enumerate(sample.lights):
+            if k > 0:
+                passes.set_environment_world(
+                    scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=f"light{k}"
+                )
+            pt = passes.render_path_traced(scene, work_dir, f"light{k}", options.samples, options.denoise,
+                                           prefilter=options.denoise_prefilter)
+            channels[f"image.L{k}"] = pt.image
+            path_trace_seconds.append(round(pt.seconds, 4))
+        timings["path_trace"] = round(time.perf_counter() - t0, 4)
+    timings["path_trace_render_calls"] = path_trace_seconds
+    return channels
+
+
+def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
+    """Sample, bake, build and render scene `index`; returns the finished JSON path."""
+    from farm import lights, passes
+
+    _check_index_and_seed(index, seed)
+    options.validate()
+    threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
+    out_dir = Path(out_dir)
+    t_total = time.perf_counter()
+
+    t0 = time.perf_counter()
+    scene = passes.reset_scene()
+    timings = {"reset": round(time.perf_counter() - t0, 4)}
     work = passes.work_directory(out_dir)
     work_dir = Path(work.name)
     try:
-        sky_render = lambda params_: passes.render_sky_equirect(params_, lights.SKY_SIZE, work_dir)
-        scene_lights = [
-            lights.sample_light(rng, pool, options.sh_order, cam.world_to_camera, sky_render)
-            for _ in range(options.lights)
-        ]
-        stage("lights", t0)
-
-        # Transport bake in the camera frame (rays are invariant under the rigid change of frame).
-        n_coeffs = sh.num_coeffs(options.sh_order)
-        cam_vertices = cam.to_camera(all_vertices)
-        cam_normals = all_normals @ cam.world_to_camera.T
-        specular_needed = not all(appearance.is_diffuse(p.material) for p in parts)
-        use_specular = options.specular == "on" or (options.specular == "auto" and specular_needed)
-        passes_record = {"asked": sorted(asked), "skipped": []}
-        transport = None
-        bake_record = {"directions": options.bake_directions, "specular": "skipped"}
-        bake_rng = np.random.default_rng([int(seed), int(index), 1])
-        if "prt" in asked:
-            t0 = time.perf_counter()
-            materials = None
-            view_point = None
-            if use_specular:
-                materials = bake.VertexMaterials(
-                    roughness=np.concatenate([np.full(len(p.vertices), p.material["roughness"]) for p in parts]),
-                    metallic=np.concatenate([np.full(len(p.vertices), p.material["metallic"]) for p in parts]),
-                    specular=np.concatenate([np.full(len(p.vertices), 2.0 * p.material["specular_level"]) for p in parts]),
-                )
-                view_point = np.zeros(3)  # the camera is the origin of its own frame
-            seen = visible_vertices(cam_vertices, all_faces)
-            seen &= ~np.concatenate([p.hidden if p.hidden is not None else np.zeros(len(p.vertices), bool) for p in parts])
-            result = bake.bake_transport(
-                cam_vertices, all_faces, cam_normals, options.sh_order, options.bake_directions,
-                view_point=view_point, materials=materials, rng=bake_rng, threads=threads or None, active=seen,
-            )
-            transport = result.transport
-            bake_record.update(
-                specular="baked" if result.specular else ("skipped (all diffuse)" if options.specular == "auto" else "off"),
-                rays=result.rays,
-                baked_vertices=int(seen.sum()),
-                alpha_floor=result.alpha_floor,
-            )
-            timings["bake_rays"] = round(result.ray_seconds, 4)
-            stage("bake", t0)
-        else:
-            passes_record["skipped"].append("prt")
-        if "pt" not in asked:
-            passes_record["skipped"].append("pt")
-
-        # Blender scene.
+        sample = sample_scene(
+            index, seed, options,
+            render_sky=lambda params: passes.render_sky_equirect(params, lights.SKY_SIZE, work_dir),
+        )
+        timings.update(sample.timings)
+        baked = bake_scene(sample, threads)
+        if baked.transport is not None:
+            timings["bake_rays"] = round(baked.ray_seconds, 4)
+            timings["bake"] = round(baked.seconds, 4)
         t0 = time.perf_counter()
-        passes.configure_film(scene, (options.resolution, options.resolution))
-        passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
-        attribute_names = ["normal", "depth"]
-        if transport is not None:
-            attribute_names += [f"t{i}" for i in range((n_coeffs + 2) // 3)]
-        spec = passes.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
-        passes.register_aovs(scene.view_layers[0], spec)
-        for i, part in enumerate(parts):
-            lo, hi = offsets[i], offsets[i + 1]
-            attrs = {
-                "normal": cam_normals[lo:hi],
-                "depth": np.repeat(cam_vertices[lo:hi, 1:2], 3, axis=1),
-                "rest": part.rest,
-            }
-            if transport is not None:
-                for k, block in enumerate(passes.pack_vectors(transport[lo:hi])):
-                    attrs[f"t{k}"] = block
-            obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
-            mat, base_socket, params_socket = appearance.build_material(part.name, part.material)
-            passes.add_attribute_aovs(mat, attribute_names)
-            passes.add_socket_aov(mat, "albedo", base_socket)
-            passes.add_socket_aov(mat, "material", params_socket)
-            obj.data.materials.append(mat)
-        first = scene_lights[0]
-        passes.set_environment_world(scene, None, first.rotation_deg, first.scale, pixels=first.pixels, name="light0")
-        stage("scene_build", t0)
-
-        t0 = time.perf_counter()
-        geo = passes.render_geometry(scene, spec, work_dir, samples=GEOMETRY_SAMPLES)
-        stage("geometry_pass", t0)
-
-        alpha = geo.alpha
-        inside = alpha > 1e-6
-        normal = geo.aovs["normal"]
-        length = np.linalg.norm(normal, axis=-1, keepdims=True)
-        normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)
-        channels = {
-            "alpha": alpha,
-            "albedo": np.where(inside[..., None], geo.aovs["albedo"], 0.0).astype(np.float32),
-            "normal": normal,
-            "material": np.where(inside[..., None], geo.aovs["material"], 0.0).astype(np.float32),
-            "depth": geo.aovs["depth"][..., 0].astype(np.float32),
-        }
-        if transport is not None:
-            stacked = np.concatenate([geo.aovs[f"t{i}"] for i in range((n_coeffs + 2) // 3)], axis=-1)
-            t_pix = stacked[..., :n_coeffs].astype(np.float32)
-            channels["transport"] = t_pix
-            for k, light in enumerate(scene_lights):
-                shade = prt.shading(t_pix, light.sh).astype(np.float32)
-                channels[f"shading.L{k}"] = shade
-                channels[f"prt.L{k}"] = (channels["albedo"] * shade).astype(np.float32)
-
-        path_trace_seconds = []
-        if "pt" in asked:
-            t0 = time.perf_counter()
-            for k, light in enumerate(scene_lights):
-                if k > 0:
-                    passes.set_environment_world(
-                        scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=f"light{k}"
-                    )
-                pt = passes.render_path_traced(scene, work_dir, f"light{k}", options.samples, options.denoise,
-                                               prefilter=options.denoise_prefilter)
-                channels[f"image.L{k}"] = pt.image
-                path_trace_seconds.append(round(pt.seconds, 4))
-            stage("path_trace", t0)
-        timings["path_trace_render_calls"] = path_trace_seconds
+        spec = build_blender_scene(scene, sample, baked)
+        timings["scene_build"] = round(time.perf_counter() - t0, 4)
+        channels = render_buffers(scene, sample, spec, baked, work_dir, timings)
     finally:
         work.cleanup()
 
-    geometry = {
-        "hash": geometry_hash(all_vertices, all_faces),
-        "vertices": len(all_vertices),
-        "faces": len(all_faces),
-        "parts": {p.name: len(p.vertices) for p in parts},
-    }
+    asked = frozenset(options.passes)
+    skipped = [name for name in ("prt", "pt") if name not in asked]
     meta = {
-        "index": int(index),
-        "seed": int(seed),
-        "sh_order": options.sh_order,
-        "options": options.to_json(),
-        "lights": [light.record() for light in scene_lights],
-        "camera": cam.as_dict(),
-        "body": params.as_dict(),
-        "pose": {**pose.as_dict(), "yaw_deg": yaw, "penetration": float(penetration), "penetration_pair": pair},
-        "appearance": look,
-        "geometry": geometry,
-        "bake": bake_record,
-        "passes": passes_record,
+        **sample.record(),
+        "bake": baked.record,
+        "passes": {"asked": sorted(asked), "skipped": skipped},
         "versions": _versions(),
         "timings": timings,
     }
@@ -285,3 +395,4 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
     timings["total_before_write"] = round(time.perf_counter() - t_total, 4)
     _, json_path = dataset.write_scene(stem, channels, meta)
     return json_path
+
