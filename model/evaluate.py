@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relight.colour import srgb_encode
-from relight.fileio import atomic_path, atomic_write_text
+from relight.sheet import contact_sheet as _contact_sheet
+from relight.sheet import write_sheet
+from relight.fileio import atomic_write_text
 from relight.prt import render
 
 from model import metrics
@@ -355,26 +356,9 @@ def markdown_table(results: dict[str, dict], n_pairs: int, data: str, mask: str 
     return "\n".join(lines) + "\n"
 
 
-def _display(linear_hwc: np.ndarray) -> np.ndarray:
-    return (srgb_encode(np.clip(linear_hwc, 0.0, 1.0)) * 255.0 + 0.5).astype(np.uint8)
-
-
 def contact_sheet(rows: list[list[np.ndarray]]) -> np.ndarray:
-    """Tiles linear [H, W, 3] images: one row per pair, sRGB-encoded, 2 px gutters."""
-    h, w = rows[0][0].shape[:2]
-    cols = max(len(r) for r in rows)
-    sheet = np.full((len(rows) * (h + 2), cols * (w + 2), 3), 255, np.uint8)
-    for i, row in enumerate(rows):
-        for j, img in enumerate(row):
-            sheet[i * (h + 2):i * (h + 2) + h, j * (w + 2):j * (w + 2) + w] = _display(img)
-    return sheet
-
-
-def _atomic_write_png(path: Path, pixels: np.ndarray) -> None:
-    from PIL import Image
-
-    with atomic_path(path, ".png") as tmp:
-        Image.fromarray(pixels).save(tmp, format="PNG")
+    """Tiles linear [H, W, 3] images: one row per pair, sRGB-encoded, 2 px gutters (relight.sheet)."""
+    return _contact_sheet(rows)
 
 
 ORACLE_ROW = "ground-truth PRT, no E (oracle)"
@@ -509,7 +493,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
          "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
          "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs]}, indent=1) + "\n")
-    _atomic_write_png(out / "contact_sheet.png", contact_sheet(sheet))
+    write_sheet(out / "contact_sheet.png", contact_sheet(sheet))
     return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
             "parametric_transport_rel_l2": ceiling}
 

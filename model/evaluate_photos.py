@@ -26,10 +26,11 @@ import numpy as np
 from model import metrics
 from relight import photo as photo_io
 from relight import sh
-from relight.colour import srgb_encode
-from relight.fileio import atomic_path, atomic_write_text
+from relight.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
+from relight.sheet import contact_sheet as _contact_sheet
+from relight.sheet import write_sheet
+from relight.fileio import atomic_write_text
 from relight.light import sh_light
-from relight.resample import resize_linear
 from relight.runtime import QUALITY_SIZES, Relighter
 
 # a directional light turned about the person (relight.sh.directional_light): a viewer
@@ -41,7 +42,7 @@ SHEET_ROTATIONS = (0.0, 180.0)
 EXAMPLES_DIR = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples"
 TILE = 192          # px: each contact-sheet image is fitted into a TILE x TILE box
 GUTTER = 2
-LABEL_HEIGHT = 14   # px of the header row naming the columns
+LABEL_HEIGHT = _SHEET_LABEL_HEIGHT  # px of the header row naming the columns
 BACKDROP = 255      # sheet background (white)
 
 
@@ -110,44 +111,9 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         reconstruction=recon, tiles=tiles)
 
 
-def _fit_tile(linear: np.ndarray, tile: int) -> np.ndarray:
-    """sRGB uint8 [tile, tile, 3]: the image scaled to fit, centred on the backdrop."""
-    h, w = linear.shape[:2]
-    s = tile / max(h, w)
-    th, tw = max(1, round(h * s)), max(1, round(w * s))
-    small = resize_linear(np.clip(linear, 0.0, 1.0), th, tw)
-    out = np.full((tile, tile, 3), BACKDROP, np.uint8)
-    y, x = (tile - th) // 2, (tile - tw) // 2
-    out[y:y + th, x:x + tw] = np.rint(srgb_encode(np.clip(small, 0.0, 1.0)) * 255.0)
-    return out
-
-
 def contact_sheet(rows: list[list[np.ndarray]], labels: list[str] | None = None, tile: int = TILE) -> np.ndarray:
     """uint8 sheet: one row of linear images per photo, each fitted into a tile; optional header."""
-    from PIL import Image, ImageDraw
-
-    cols = max(len(r) for r in rows)
-    top = LABEL_HEIGHT if labels else 0
-    sheet = np.full((top + len(rows) * (tile + GUTTER), cols * (tile + GUTTER), 3), BACKDROP, np.uint8)
-    for i, row in enumerate(rows):
-        for j, img in enumerate(row):
-            y, x = top + i * (tile + GUTTER), j * (tile + GUTTER)
-            sheet[y:y + tile, x:x + tile] = _fit_tile(img, tile)
-    if labels:
-        canvas = Image.fromarray(sheet)
-        draw = ImageDraw.Draw(canvas)
-        for j, text in enumerate(labels[:cols]):
-            draw.text((j * (tile + GUTTER) + 2, 1), text, fill=(0, 0, 0))
-        sheet = np.asarray(canvas)
-    return sheet
-
-
-def write_png_u8(path: Path, pixels: np.ndarray) -> Path:
-    from PIL import Image
-
-    with atomic_path(path, ".png") as tmp:
-        Image.fromarray(pixels, "RGB").save(tmp, format="PNG", compress_level=6)
-    return path
+    return _contact_sheet(rows, tile=tile, gutter=GUTTER, backdrop=BACKDROP, labels=labels)
 
 
 def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
@@ -196,7 +162,7 @@ def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced",
     results = [evaluate_photo(relighter, p) for p in paths]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_png_u8(out / sheet_name, contact_sheet([r.tiles for r in results], column_labels(), tile))
+    write_sheet(out / sheet_name, contact_sheet([r.tiles for r in results], column_labels(), tile))
     model_label = Path(model_path).name
     atomic_write_text(out / "photos.md", markdown_table(results, model_label, relighter.working_size))
     record = {"model": str(model_path), "model_sha256": relighter.sha256, "working_size": relighter.working_size,

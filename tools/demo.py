@@ -18,18 +18,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out" / "demo"
 PRESETS = ("sunset", "studio", "forest")  # training maps, as model.evaluate_photos.SHEET_PRESETS
 EXAMPLE_PHOTO = ROOT / "relight" / "data" / "examples" / "astronaut.jpg"
-
-
-def _sheet(tiles: list[np.ndarray]) -> np.ndarray:
-    h = max(t.shape[0] for t in tiles)
-    padded = [np.pad(t, ((0, h - t.shape[0]), (0, 4), (0, 0))) for t in tiles]
-    return np.concatenate(padded, axis=1)
 
 
 def relight_photo(model: Path) -> list[Path]:
@@ -41,7 +34,7 @@ def relight_photo(model: Path) -> list[Path]:
 
 
 def relight_farm_scene() -> list[Path]:
-    from relight import dataset, light, photo, prt
+    from relight import dataset, light, photo, prt, sheet
 
     scenes = OUT / "scenes"
     cmd = [sys.executable, "-m", "farm", "--out", str(scenes), "--scenes", "1", "--seed", "7",
@@ -57,7 +50,7 @@ def relight_farm_scene() -> list[Path]:
         relit = prt.render(scene.albedo, scene.transport, None, L) * a
         outs.append(photo.write_png(OUT / f"scene_{name}.png", relit))
         tiles.append(relit)
-    outs.append(photo.write_png(OUT / "contact_sheet.png", _sheet(tiles)))
+    outs.append(sheet.write_sheet(OUT / "contact_sheet.png", sheet.contact_sheet([tiles], gutter=4, backdrop=0)))
     return outs
 
 
