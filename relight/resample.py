@@ -45,11 +45,12 @@ class Bilinear:
         channels = int(np.prod(channel_shape, dtype=np.intp))
         return np.repeat(wc, channels).reshape(wc.shape + tuple(channel_shape))
 
-    def columns(self, src_rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Rows [k, w, ...] interpolated to the output width, [k, W, ...] (a fresh array)."""
+    def columns(self, src: np.ndarray, weights: np.ndarray, axis: int = 1) -> np.ndarray:
+        """Rows [k, w, ...] (axis 1), or one row [w, ...] (axis 0), interpolated to the
+        output width: [k, W, ...] or [W, ...] (a fresh array)."""
         c0, c1, _ = self.cols
-        out = np.take(src_rows, c0, axis=1)
-        step = np.take(src_rows, c1, axis=1)
+        out = np.take(src, c0, axis=axis)
+        step = np.take(src, c1, axis=axis)
         step -= out
         step *= weights
         out += step
@@ -97,7 +98,7 @@ class SourceRows:
 
     def _row(self, k: int) -> np.ndarray:
         if k not in self.rows:
-            self.rows[k] = self.up.columns(self.src[k:k + 1], self.weights)[0]
+            self.rows[k] = self.up.columns(self.src[k], self.weights, axis=0)
         return self.rows[k]
 
     def pair(self, k: int) -> tuple[np.ndarray, np.ndarray]:
