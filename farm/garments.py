@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from farm.bake import vertex_normals
+from farm.meshops import smooth_noise, submesh
 
 # ------------------------------------------------------------------ mesh tools
 
@@ -162,7 +163,6 @@ def fold_field(rest: np.ndarray, axes: np.ndarray, folds: dict) -> np.ndarray:
     The phase runs along each vertex's axis (rest position . axis), warped by
     a smooth noise so the folds meander; the amplitude varies smoothly too.
     """
-    from farm.appearance import smooth_noise
 
     noise_rng = np.random.default_rng(folds["noise_seed"])
     warp = smooth_noise(rest, noise_rng, octaves=2, base_freq=8.0)
@@ -181,7 +181,6 @@ def loose_shell(body, body_normals: np.ndarray, mask: np.ndarray, offset, folds:
 
     Returns (vertices, rest, faces, normals, body ids); folds displace outward.
     """
-    from farm.appearance import submesh
 
     faces, ids = submesh(body.faces, mask)
     if len(faces) == 0:

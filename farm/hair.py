@@ -23,6 +23,7 @@ import numpy as np
 
 from farm import garments as g
 from farm.bake import vertex_normals
+from farm.meshops import smooth_noise, submesh
 
 STYLES = ("bald", "buzz", "short", "medium", "long", "ponytail", "bun", "afro")
 STYLE_P = (0.07, 0.10, 0.24, 0.20, 0.21, 0.07, 0.05, 0.06)
@@ -53,7 +54,6 @@ def _carry(points: np.ndarray, frames, z_head: float, z_torso: float) -> np.ndar
 
 
 def _cap(body, normals, groups, rng, style, layout):
-    from farm.appearance import smooth_noise
 
     rest = body.rest_vertices
     head, eyes = groups["head"], groups["eyes"]
@@ -64,7 +64,6 @@ def _cap(body, normals, groups, rng, style, layout):
     sides = rest[:, 1] > eye_y + rng.uniform(0.04, 0.06)
     mask = head & ~eyes & (rest[:, 2] > low) & (
         (rest[:, 2] > hairline) | (sides & (rest[:, 2] > eye_z - 0.02)) | back)
-    from farm.appearance import submesh
 
     faces, ids = submesh(body.faces, mask)
     lo, hi = CAP[style]

@@ -1,0 +1,32 @@
+"""Small numpy mesh helpers shared by the clothing, hair and appearance modules."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def submesh(faces: np.ndarray, vertex_mask: np.ndarray):
+    """Faces whose three vertices are all selected, reindexed; (faces, old vertex ids)."""
+    keep = vertex_mask[faces].all(axis=1)
+    sub = faces[keep]
+    ids = np.unique(sub)
+    remap = np.full(len(vertex_mask), -1, dtype=np.int64)
+    remap[ids] = np.arange(len(ids))
+    return remap[sub], ids
+
+
+def smooth_noise(points: np.ndarray, rng: np.random.Generator, octaves: int = 3, base_freq: float = 6.0) -> np.ndarray:
+    """A smooth scalar field in [-1, 1]: sum of random plane waves (deterministic given rng)."""
+    total = np.zeros(len(points))
+    norm = 0.0
+    for o in range(octaves):
+        for _ in range(3):
+            k = rng.standard_normal(3)
+            k *= base_freq * (2.0 ** o) / np.linalg.norm(k)
+            phase = rng.uniform(0, 2 * math.pi)
+            amp = 0.5 ** o
+            total += amp * np.sin(points @ k + phase)
+            norm += amp
+    return total / norm
