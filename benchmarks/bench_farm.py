@@ -1,6 +1,7 @@
 """Render-farm throughput: scenes/hour, path-traced images/hour and time outside path tracing.
 
     .venv/bin/python benchmarks/bench_farm.py --scenes 4 --workers 1,2
+    .venv/bin/python benchmarks/bench_farm.py --tree before=/tmp/farm_old --rounds 2 ...
 
 Runs the real farm (`python -m farm`, real farm.scene.render_scene) once per
 worker count into a temporary folder and prints one table row each:
@@ -51,7 +52,7 @@ def flat_timings(timings: dict, prefix: str = "") -> dict[str, float]:
     return flat
 
 
-def run_once(workers: int, args) -> dict:
+def run_once(workers: int, args, repo: Path = REPO, label: str = "this tree") -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_farm_", dir=args.tmp) as tmp:
         out = Path(tmp) / "out"
         command = [sys.executable, "-m", "farm", "--out", str(out), "--scenes", str(args.scenes),
@@ -59,9 +60,9 @@ def run_once(workers: int, args) -> dict:
                    "--samples", str(args.samples), "--denoise" if args.denoise else "--no-denoise",
                    "--workers", str(workers), "--no-progress"]
         env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH")) if p)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(repo), env.get("PYTHONPATH")) if p)
         t0 = time.monotonic()
-        r = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True)
+        r = subprocess.run(command, cwd=repo, env=env, capture_output=True, text=True)
         wall_outer = time.monotonic() - t0
         if r.returncode != 0:
             raise SystemExit(f"farm run failed ({r.returncode}): {r.stderr.strip().splitlines()[-1:]}")
@@ -82,6 +83,7 @@ def run_once(workers: int, args) -> dict:
     warm_share = (1.0 - sum(s.get(n, 0.0) for _, s in warm for n in pt_names) / sum(r["seconds"] for r, _ in warm)
                   if warm else float("nan"))
     return {
+        "tree": label,
         "workers": workers,
         "scenes": summary["done"],
         "retried": summary["retried"],
@@ -138,6 +140,10 @@ def main() -> None:
     p.add_argument("--pt-stage", default="path_trace_render_calls",
                    help="comma list of sidecar timing stages that are Cycles path tracing")
     p.add_argument("--tmp", default=None, help="folder for the temporary outputs")
+    p.add_argument("--tree", action="append", default=[], metavar="LABEL=PATH",
+                   help="also run the farm of another checkout (e.g. a git worktree of an older commit), "
+                        "alternating with this one; rows are labelled")
+    p.add_argument("--rounds", type=int, default=1, help="alternating rounds over the trees")
     p.add_argument("--runner-only", type=int, default=0, metavar="N",
                    help="instead: N instant scenes (tests/farm_fault_job.py) to time the runner itself")
     args = p.parse_args()
@@ -150,14 +156,16 @@ def main() -> None:
             print(f"| {r['workers']} | {r['scenes']} | {r['wall']:.2f} | {r['ms_per_scene']:.1f} |")
         return
     args.pt_stage = [s.strip() for s in args.pt_stage.split(",") if s.strip()]
-    rows = [run_once(int(w), args) for w in args.workers.split(",")]
+    trees = [("this tree", REPO)] + [(t.split("=", 1)[0], Path(t.split("=", 1)[1]).resolve()) for t in args.tree]
+    rows = [run_once(int(w), args, repo, label)
+            for _ in range(args.rounds) for w in args.workers.split(",") for label, repo in trees]
     print(f"# {args.scenes} scenes, {args.res}x{args.res}, K={args.lights}, {args.samples} spp, "
           f"denoise={'on' if args.denoise else 'off'}; path-tracing stages: {', '.join(rows[0]['pt_names'])}")
-    print("| workers | scenes done | retried | failed | wall s | scenes/hour | path-traced images/hour "
+    print("| tree | workers | scenes done | retried | failed | wall s | scenes/hour | path-traced images/hour "
           "| outside PT (run) | outside PT (warm scenes) | runner + start-up |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['workers']} | {r['scenes']} | {r['retried']} | {r['failed']} | {r['wall']:.1f} | "
+        print(f"| {r['tree']} | {r['workers']} | {r['scenes']} | {r['retried']} | {r['failed']} | {r['wall']:.1f} | "
               f"{r['scenes_per_hour']:.0f} | {r['images_per_hour']:.0f} | {100 * r['outside_pt']:.1f}% | "
               f"{warm_text(r)} | {100 * r['runner_share']:.1f}% |")
     for r in rows:
@@ -166,7 +174,7 @@ def main() -> None:
             print(f"\n{r['workers']} worker(s), failed attempts: {kinds}")
     print()
     names = sorted({n for r in rows for n in r["stage_means"]})
-    print("| stage (mean s per scene) | " + " | ".join(f"{r['workers']} worker(s)" for r in rows) + " |")
+    print("| stage (mean s per scene) | " + " | ".join(f"{r['tree']}, {r['workers']} worker(s)" for r in rows) + " |")
     print("|---|" + "---|" * len(rows))
     for n in names:
         print(f"| {n} | " + " | ".join(f"{r['stage_means'].get(n, 0.0):.2f}" for r in rows) + " |")
