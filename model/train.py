@@ -235,6 +235,9 @@ def parse_args(argv=None):
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
                    help="scale the input light and image by 2^N(0, SIGMA^2), albedo target unchanged "
                         "(exposure augmentation, exact; 0: off)")
+    p.add_argument("--capture", action=argparse.BooleanOptionalAction, default=True,
+                   help="photo-like capture of the input (model/capture.py: real backgrounds, white balance, "
+                        "exposure, blur, noise, JPEG)")
     p.add_argument("--no-presets", action="store_true", help="extra lights from scene lights only")
     p.add_argument("--loss-weight", action="append", metavar="NAME=VALUE")
     p.add_argument("--no-residual", action="store_true", help="ablation: without E")
@@ -305,7 +308,7 @@ def train(args) -> Path:
     train_set = TrainingScenes(train_paths, args.size, args.order, padding=args.padding, extra_lights=extra, pack=pack,
                                extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob,
                                flip_prob=args.flip_prob, light_tint=args.light_tint,
-                               exposure_jitter=args.exposure_jitter,
+                               exposure_jitter=args.exposure_jitter, capture=args.capture,
                                lambertian=args.lambertian, seed=args.seed, held_out=held_out,
                                cache_size=args.cache_scenes)
     loader_kw = dict(num_workers=args.workers, persistent_workers=args.workers > 0)
