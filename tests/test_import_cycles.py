@@ -105,17 +105,7 @@ def test_the_graph_sees_lazy_and_relative_imports():
     assert "relight.light" in graph["farm.lights"]
 
 
-# Cycles in farm/ being taken apart by the farm's half of issue 19 (the run config out of
-# farm/cli.py; the garment/hair modules). Delete an entry when its cycle is gone: a cycle
-# not listed here fails the test.
-KNOWN_FARM_CYCLES = (
-    ["farm.cli", "farm.executors", "farm.ray_executor"],
-    ["farm.appearance", "farm.garments", "farm.hair"],
-)
-
-
 @pytest.mark.parametrize("package", PACKAGES)
 def test_no_import_cycles(package):
     found = [c for c in cycles(import_graph()) if any(m.split(".")[0] == package for m in c)]
-    found = [c for c in found if c not in KNOWN_FARM_CYCLES]
     assert found == [], f"import cycles through {package}/: {found}"
