@@ -23,18 +23,17 @@ import threading
 import time
 from pathlib import Path
 
-from farm.run_config import FarmError, RunConfig
-from farm.executors import (
-    REPO_ROOT,
+from farm.outputs import (
     WORKER_LOG_DIR,
-    RunBook,
-    Summary,
     check_scene,
     disk_room,
     expected_scene_bytes,
     plan_run,
     remove_partial_files,
 )
+from farm.pool import REPO_ROOT
+from farm.run_config import FarmError, RunConfig
+from farm.runbook import RunBook, Summary
 from farm.worker import is_disk_full
 
 ATTEMPT_DIR = "attempts"

@@ -39,7 +39,7 @@ class RunConfig:
     ray: str | None = None
     job_module: str = DEFAULT_JOB_MODULE
     progress: bool = True
-    pin: bool = True  # local workers pinned to disjoint cores (farm.executors.worker_cpus)
+    pin: bool = True  # local workers pinned to disjoint cores (farm.pool.worker_cpus)
 
     @property
     def indices(self) -> range:

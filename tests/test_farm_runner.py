@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from farm import cli, executors
+from farm import cli, pool, progress, runbook
 from relight.dataset import read_scene
 
 REPO = Path(__file__).resolve().parent.parent
@@ -54,7 +54,7 @@ def events(fault_dir: Path) -> list[tuple[str, int, int]]:
 
 
 def run_log(out: Path) -> dict:
-    return json.loads((out / executors.RUN_LOG_NAME).read_text())
+    return json.loads((out / runbook.RUN_LOG_NAME).read_text())
 
 
 def digest(path: Path) -> str:
@@ -147,12 +147,12 @@ def test_worker_command_under_real_blender(monkeypatch):
     fake_bpy = types.SimpleNamespace(app=types.SimpleNamespace(binary_path="/opt/blender/blender"))
     monkeypatch.setitem(sys.modules, "bpy", fake_bpy)
     config = cli.parse_args(["--out", "/tmp/o", "--scenes", "1", "--seed", "0"])
-    command = executors.worker_command(config)
+    command = pool.worker_command(config)
     assert command[:2] == ["/opt/blender/blender", "-b"]
     assert command[command.index("-P") + 1] == str(REPO / "farm" / "worker.py")
     assert command[command.index("--") + 1:][:2] == ["--job-module", "farm.scene"]
     monkeypatch.setitem(sys.modules, "bpy", types.SimpleNamespace(app=types.SimpleNamespace(binary_path="")))
-    assert executors.worker_command(config)[:3] == [sys.executable, "-m", "farm.worker"]
+    assert pool.worker_command(config)[:3] == [sys.executable, "-m", "farm.worker"]
 
 
 def test_worker_script_protocol(tmp_path):
@@ -435,7 +435,7 @@ def test_real_scene_end_to_end_through_render_py_then_resume(tmp_path):
 
 
 def test_progress_without_tqdm_prints_lines_with_eta(tmp_path, capsys):
-    bar = executors._PlainProgress(total=4, file=sys.stderr)
+    bar = progress._PlainProgress(total=4, file=sys.stderr)
     bar.t0 -= 10.0  # pretend 10 s have passed: 2 of 4 done -> 10 s left at the same rate
     bar.set_postfix(failed=0, retried=1)
     bar.update(2)
@@ -449,7 +449,7 @@ def test_worker_output_that_is_not_protocol_is_ignored(tmp_path):
     script.write_text('import sys\nprint("Blender 5.0.1 (hash 0123)")\nprint("1")\nprint("[]")\n'
                       'print(\'{"event": "ready", "pid": 1}\')\nsys.stdout.flush()\n')
     events_q = queue.Queue()
-    worker = executors._Worker(0, [PYTHON, str(script)], tmp_path / "w.log", events_q, threads=1)
+    worker = pool._Worker(0, [PYTHON, str(script)], tmp_path / "w.log", events_q, threads=1)
     got = [events_q.get(timeout=30), events_q.get(timeout=30)]
     assert [m for _, m in got] == [{"event": "ready", "pid": 1}, None]  # then EOF
     worker.proc.wait(timeout=30)
@@ -470,7 +470,7 @@ def test_worker_that_cannot_start_stops_the_run_with_its_error(tmp_path):
 
 
 def test_worker_cpus_are_disjoint_equal_shares_or_none():
-    from farm.executors import worker_cpus
+    from farm.pool import worker_cpus
 
     cores = {0, 1, 2, 3, 5, 7}
     shares = [worker_cpus(slot, 3, cores) for slot in range(3)]
@@ -484,7 +484,7 @@ def test_started_worker_runs_on_its_pinned_cores():
     import functools
     import subprocess
 
-    from farm.executors import _start_child
+    from farm.pool import _start_child
 
     core = min(os.sched_getaffinity(0))
     out = subprocess.run(
