@@ -157,14 +157,14 @@ def main(argv=None) -> int:
     import bpy
 
     import blender_addon
-    from blender_addon import bl_images, bl_ops, state
+    from blender_addon import bl_dials, bl_images, bl_ops, bl_saved, bl_session, state
 
     load_before = os.getloadavg()[0]
     tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))
     photo_path = tmp / "photo.jpg"
     (make_photo if args.synthetic else make_real_photo)(photo_path, height, width)
     blender_addon.register()
-    bl_ops._updates_immediately = lambda: False  # behave as with a UI: timers, previews, workers
+    bl_session.updates_immediately = lambda: False  # behave as with a UI: timers, previews, workers
     image = bpy.data.images.load(str(photo_path))
     image.pixels[0]  # the Image Editor showing the photo has loaded its pixels before Relight is pressed
     settings = bpy.context.scene.relight_photo
@@ -186,12 +186,12 @@ def main(argv=None) -> int:
     timer_event = types.SimpleNamespace(type="TIMER")
     result = {"PASS_THROUGH"}
     while result == {"PASS_THROUGH"}:
-        probe.idle(bl_ops.POLL_SECONDS)
+        probe.idle(bl_session.POLL_SECONDS)
         result = probe.call("modal tick (poll or one image write)", op.modal, context, timer_event)
     relit_shown = time.perf_counter() - t0
     assert result == {"FINISHED"}, result
     stages = op._job.progress.durations(op._job.finished_at)
-    run_timer(probe, bl_ops._poll_layers, "layers: poll / one image write")
+    run_timer(probe, bl_ops.poll_layers, "layers: poll / one image write")
     relight_wall = time.perf_counter() - t0
     rows.append(("Relight: press to the relit image shown (wall)", relit_shown, None))
     rows.append(("Relight: press to all outputs written (wall)", relight_wall, None))
@@ -211,12 +211,12 @@ def main(argv=None) -> int:
     for k in range(args.dials):
         settings.rotation = math.radians(20.0 * (k + 1))  # the property update arms the idle timer
         t = time.perf_counter()
-        run_timer(dial_probe, bl_ops._deferred_refresh, "dial: preview")
+        run_timer(dial_probe, bl_dials.deferred_refresh, "dial: preview")
         previews.append(time.perf_counter() - t)
-        dial_probe.idle(bl_ops.REST_SECONDS, "waiting for the dial to rest")
+        dial_probe.idle(bl_dials.REST_SECONDS, "waiting for the dial to rest")
         t = time.perf_counter()
-        run_timer(dial_probe, bl_ops._full_when_resting, "dial rests: full-size job started")
-        run_timer(dial_probe, bl_ops._poll_full_size, "full-size poll / write")
+        run_timer(dial_probe, bl_dials.full_when_resting, "dial rests: full-size job started")
+        run_timer(dial_probe, bl_dials.poll_full_size, "full-size poll / write")
         fulls.append(time.perf_counter() - t)
     assert tuple(bpy.data.images[f"{image.name}.relit"].size) == (width, height)
     rows.append(("Dial: preview shown (median)", float(np.median(previews)), 0.150))
@@ -231,9 +231,9 @@ def main(argv=None) -> int:
     again_probe.call("Relight pressed (plan)", lambda: op._start(context, layers_later=True))
     result = {"PASS_THROUGH"}
     while result == {"PASS_THROUGH"}:
-        again_probe.idle(bl_ops.POLL_SECONDS)
+        again_probe.idle(bl_session.POLL_SECONDS)
         result = again_probe.call("modal tick (poll or one image write)", op.modal, context, timer_event)
-    run_timer(again_probe, bl_ops._poll_layers, "layers: poll / one image write")
+    run_timer(again_probe, bl_ops.poll_layers, "layers: poll / one image write")
     rows.append(("Relight again (outputs exist): press to all written", time.perf_counter() - t0, None))
     rows.append(("Relight again: longest main-thread stretch", again_probe.worst, 0.100))
     rows.append(("  ... during", again_probe.worst_what, None))
@@ -244,7 +244,7 @@ def main(argv=None) -> int:
     probe_save = Probe()
     probe_save.call("save", lambda: bpy.ops.wm.save_as_mainfile(filepath=str(blend)))
     rows.append(("Save .blend (main thread)", time.perf_counter() - t, None))
-    while any(thread.is_alive() for thread, _s, _f in bl_ops._SAVING):
+    while any(thread.is_alive() for thread, _s, _f in bl_saved.SAVING):
         probe_save.idle(0.05, "decomposition file written by a thread")
     rows.append(("Save: decomposition file written (thread)", time.perf_counter() - t, None))
     rows.append(("Save: longest main-thread stretch", probe_save.worst, 0.100))
@@ -252,27 +252,27 @@ def main(argv=None) -> int:
     t = time.perf_counter()
     # the add-on's load_post handler is called by hand right after Blender's own loading,
     # as Blender would, so the two are timed apart
-    bpy.app.handlers.load_post.remove(bl_ops.on_load)
+    bpy.app.handlers.load_post.remove(bl_saved.on_load)
     reopen_probe.call("open the .blend (Blender's own loading)",
                       lambda: bpy.ops.wm.open_mainfile(filepath=str(blend)))
     blender_open = time.perf_counter() - t
-    bpy.app.handlers.load_post.append(bl_ops.on_load)
-    reopen_probe.call("the add-on's load handler (saved preview)", bl_ops.on_load)
+    bpy.app.handlers.load_post.append(bl_saved.on_load)
+    reopen_probe.call("the add-on's load handler (saved preview)", bl_saved.on_load)
     handler = time.perf_counter() - t - blender_open
     opened = time.perf_counter() - t  # the saved preview is shown: visible, dials live
     assert f"{photo_name}.preview" in bpy.data.images or not had_preview
     settings = bpy.context.scene.relight_photo
     settings.rotation = math.radians(15.0)
     td = time.perf_counter()
-    run_timer(reopen_probe, bl_ops._deferred_refresh, "dial on the saved preview")
+    run_timer(reopen_probe, bl_dials.deferred_refresh, "dial on the saved preview")
     dial_on_preview = time.perf_counter() - td
-    run_timer(reopen_probe, bl_ops._poll_restore, "restore: poll")
+    run_timer(reopen_probe, bl_saved.poll_restore, "restore: poll")
     photo_read = time.perf_counter() - t
-    run_timer(reopen_probe, bl_ops._poll_full_size, "restore: full-size layers write")
+    run_timer(reopen_probe, bl_dials.poll_full_size, "restore: full-size layers write")
     full_back = time.perf_counter() - t
     settings.rotation = math.radians(5.0)
     td = time.perf_counter()
-    run_timer(reopen_probe, bl_ops._deferred_refresh, "dial after reopen")
+    run_timer(reopen_probe, bl_dials.deferred_refresh, "dial after reopen")
     dial_after = time.perf_counter() - td
     rows.append(("Reopen: Blender's own open_mainfile", blender_open, None))
     rows.append(("Reopen: the add-on's load handler (main thread)", handler, 0.100))

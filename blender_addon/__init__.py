@@ -1,7 +1,7 @@
 """Relight Photo: relight a person in a photo from Blender's Image Editor.
 
 The Blender-facing modules (bl_*) are thin; the logic lives in plain-Python
-modules (pipeline, quality, jobs, state, engine, build, manifest) that import
+modules (pipeline, work, quality, jobs, state, engine, build, manifest) that import
 without bpy, so `python -m blender_addon.build` runs outside Blender.
 """
 

@@ -4,7 +4,7 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import pipeline, quality
+from . import bl_dials, pipeline, quality
 
 _preset_items_cache: list = []  # bpy needs the enum items kept alive by Python
 
@@ -36,10 +36,7 @@ def _person_items(self, _context):
 
 
 def _light_changed(_self, context):
-    # imported here: bl_ops imports this module
-    from . import bl_ops
-
-    bl_ops.schedule_refresh(context)
+    bl_dials.schedule_refresh(context)
 
 
 class RelightPhotoSettings(bpy.types.PropertyGroup):

@@ -46,6 +46,20 @@ class Progress:
         return [(stage, later - t) for (stage, t), (_, later) in zip(marks, marks[1:])]
 
 
+NETWORK_STAGE = "Running the network"
+
+
+def shown_fraction(progress: Progress, expected_seconds: float | None, network_share: float,
+                   now: float | None = None) -> float:
+    """The fraction the progress bar shows: the job's own, plus, inside the network
+    stage, `network_share` interpolated by the time the last run took (below 1)."""
+    fraction = progress.fraction
+    if progress.stage.startswith(NETWORK_STAGE) and expected_seconds:
+        now = time.monotonic() if now is None else now
+        fraction += min(1.0, (now - progress.stage_started) / expected_seconds) * network_share
+    return min(fraction, 0.99)
+
+
 class BackgroundJob:
     """Runs `fn()` once on a daemon thread; `poll()` reports its state without blocking."""
 

@@ -17,6 +17,7 @@ import numpy as np
 
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha", "preview", "matte")
+LAYER_ORDER = ("relit", "alpha", "albedo", "shading", "residual", "matte")  # relit first: what the user sees
 # preview: screen-sized relit; matte: the photo cut out by the person matte (to check it)
 EMPTY_MASK_LEVEL = 1e-3  # a mask whose largest value is below this selects nothing
 MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
@@ -424,6 +425,26 @@ def blend(relit: np.ndarray, photo: np.ndarray, strength: float) -> np.ndarray:
     out *= np.float32(s)
     out += photo
     return out
+
+
+def layers_in_order(buffers) -> list[str]:
+    """The layers of `buffers` in the order they are handed to Blender (LAYER_ORDER)."""
+    return [layer for layer in LAYER_ORDER if layer in buffers]
+
+
+def mask_channels(stored: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(rgb [H, W, 3], alpha [H, W] or None) of a mask image's stored pixels [H, W, C]:
+    one channel is repeated to three; alpha only when there are four."""
+    rgb = stored[..., :3] if stored.shape[2] >= 3 else np.repeat(stored[..., :1], 3, axis=2)
+    return rgb, stored[..., 3] if stored.shape[2] == 4 else None
+
+
+def saved_mask_inputs(mask_key) -> dict:
+    """The mask inputs of a saved decomposition's mask key (mode, name); an IMAGE mask's
+    pixels are filled in by the caller, which reads them from Blender."""
+    mode, name = mask_key
+    return dict(mode=mode, rgb=None, alpha=None, name=name, use_photo_alpha=mode == "IMAGE_ALPHA",
+                person=int(name) if mode == "AUTO" else 1)
 
 
 def env_flag(name: str) -> bool:

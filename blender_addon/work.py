@@ -2,8 +2,9 @@
 
 The Relight job (read and check the photo, person matte, network, relight,
 pack the outputs into Blender's layout), the restore job after a file is
-opened, and writing a saved decomposition. bl_ops gathers their inputs on
-Blender's main thread and hands their buffers to Blender.
+opened, and writing a saved decomposition. The bl_* modules (bl_ops, bl_dials,
+bl_saved) gather their inputs on Blender's main thread and hand their buffers
+to Blender.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
         progress.enter("Finding the people in the photo", 0.05)
     mask, people = make_mask(plan["mask"], pixels)
     token.check()
-    progress.enter("Running the network", 0.10)
+    progress.enter(jobs.NETWORK_STAGE, 0.10)
     network_start = time.monotonic()
     decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
     light_decomposition = None
@@ -120,6 +121,20 @@ def lights_to_save() -> list:
         coeffs = getattr(light, "light", light)  # a Decomposition's estimate, or restored coefficients
         out.append([pid, model_path, quality_key, np.asarray(coeffs, np.float64).tolist()])
     return out
+
+
+def restore_lights(saved: list) -> None:
+    """The light-transfer sources lights_to_save stored, back as coefficients
+    (a source already known is kept)."""
+    for pid, model_path, quality_key, coeffs in saved:
+        state.LIGHT_SOURCES.setdefault((pid, model_path, quality_key), np.asarray(coeffs, np.float64))
+
+
+def save_meta(session: state.PhotoSession) -> dict:
+    """What is stored beside a saved decomposition to bring the session back."""
+    return dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
+                quality=session.quality, mask_key=list(session.mask_key), source=session.source,
+                lights=lights_to_save())
 
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:

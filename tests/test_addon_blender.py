@@ -16,7 +16,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, bl_ops, bl_world, state
+from blender_addon import bl_dials, bl_images, bl_light, bl_ops, bl_session, bl_world, state
 from relight import presets, sh
 from relight.exr import read_exr, write_exr
 from relight.light import sh_light
@@ -128,10 +128,10 @@ def test_register_unregister_register_again(addon):
     blender_addon.unregister()
     assert not hasattr(bpy.types, "RELIGHT_PHOTO_PT_panel")
     assert not hasattr(bpy.types.Scene, "relight_photo")
-    assert bl_ops.on_depsgraph_update not in bpy.app.handlers.depsgraph_update_post
+    assert bl_dials.on_depsgraph_update not in bpy.app.handlers.depsgraph_update_post
     blender_addon.register()
     assert hasattr(bpy.types.Scene, "relight_photo")
-    assert bpy.app.handlers.depsgraph_update_post[:].count(bl_ops.on_depsgraph_update) == 1
+    assert bpy.app.handlers.depsgraph_update_post[:].count(bl_dials.on_depsgraph_update) == 1
     assert "relight_photo.relight" in {f"relight_photo.{n}" for n in dir(bpy.ops.relight_photo)}
 
 
@@ -199,20 +199,20 @@ def test_with_a_ui_dial_changes_are_coalesced_into_one_timer(addon, settings, mo
     name = addon["photo"]
     relight(name)
     before = pixels(f"{name}.relit").copy()
-    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
     settings.rotation = math.radians(10.0)
     settings.rotation = math.radians(20.0)
     settings.exposure = 0.5
     try:
         # nothing recomputed yet: one timer is waiting for the UI to be idle
-        assert bpy.app.timers.is_registered(bl_ops._deferred_refresh)
+        assert bpy.app.timers.is_registered(bl_dials.deferred_refresh)
         np.testing.assert_array_equal(pixels(f"{name}.relit"), before)
-        assert bl_ops._deferred_refresh() is None  # what Blender's timer calls, once
+        assert bl_dials.deferred_refresh() is None  # what Blender's timer calls, once
         expected = session(name).decomposition.relight(sh_light("studio", ORDER, rotation_deg=20.0), exposure_ev=0.5)
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=2 * TIGHT)
     finally:
-        if bpy.app.timers.is_registered(bl_ops._deferred_refresh):
-            bpy.app.timers.unregister(bl_ops._deferred_refresh)
+        if bpy.app.timers.is_registered(bl_dials.deferred_refresh):
+            bpy.app.timers.unregister(bl_dials.deferred_refresh)
 
 
 def test_output_image_in_the_editor_maps_back_to_its_photo(addon, settings):
@@ -338,7 +338,7 @@ def test_world_environment_texture_equals_relights_projection_of_the_file(addon,
     try:
         scene.world = world
         settings.light_kind = "WORLD"
-        world_light, rotation = bl_ops.target_light(bpy.context, ORDER, "")
+        world_light, rotation = bl_light.target_light(bpy.context, ORDER, "")
         assert rotation == pytest.approx(-90.0)  # Mapping rotates the lookup: the light turns back
         coeffs = world_light.at(0.0)
         expected = sh_light(str(path), ORDER)
@@ -367,7 +367,7 @@ def test_editing_the_world_relights_live(addon, settings):
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(sh_light(str(path), ORDER)), atol=TIGHT)
         # the user turns the Mapping node: Blender sends a depsgraph update
         world.node_tree.nodes["Mapping"].inputs["Rotation"].default_value[2] = math.radians(45.0)
-        bl_ops.on_depsgraph_update(scene, updated)
+        bl_dials.on_depsgraph_update(scene, updated)
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(sh_light(str(path), ORDER, rotation_deg=-45.0)),
                                    atol=TIGHT)
     finally:
@@ -690,7 +690,7 @@ def _count_bakes(monkeypatch) -> list:
 
     def counting(world, width):
         bakes.append(world.name)
-        bl_ops.on_depsgraph_update(bpy.context.scene, updated)  # sent while the bake renders
+        bl_dials.on_depsgraph_update(bpy.context.scene, updated)  # sent while the bake renders
         return real(world, width)
 
     monkeypatch.setattr(bl_world, "_bake", counting)
@@ -747,14 +747,14 @@ def test_one_bake_per_world_change_cached_by_its_node_state(addon, settings, mon
         assert len(bakes) == 1
         assert np.abs(pixels(f"{name}.relit") - first).max() > 1e-3
         background.inputs["Color"].default_value = (0.2, 0.4, 0.9, 1.0)  # an edit of the World: one bake
-        bl_ops.on_depsgraph_update(scene, updated)
+        bl_dials.on_depsgraph_update(scene, updated)
         assert len(bakes) == 2
-        bl_ops.on_depsgraph_update(scene, updated)  # more updates, same node state: none
+        bl_dials.on_depsgraph_update(scene, updated)  # more updates, same node state: none
         world.name = "relight_flat_world_renamed"   # the name is not part of the light
         settings.rotation = math.radians(10.0)
         assert len(bakes) == 2
         background.inputs["Color"].default_value = (0.8, 0.6, 0.4, 1.0)  # back to a state seen before
-        bl_ops.on_depsgraph_update(scene, updated)
+        bl_dials.on_depsgraph_update(scene, updated)
         assert len(bakes) == 2
     finally:
         scene.world = old
@@ -772,7 +772,7 @@ def test_a_renamed_photo_keeps_its_outputs_and_dials(addon, settings):
         import types
 
         # Blender's depsgraph update for the rename: the outputs follow at once
-        bl_ops.on_depsgraph_update(bpy.context.scene, types.SimpleNamespace(id_type_updated=lambda k: k == "IMAGE"))
+        bl_dials.on_depsgraph_update(bpy.context.scene, types.SimpleNamespace(id_type_updated=lambda k: k == "IMAGE"))
         assert {i.name for i in bpy.data.images if i.name.startswith("renamed.png.")} >= \
             {f"renamed.png.{layer}" for layer in ("albedo", "alpha", "relit", "residual", "shading")}
         assert not any(bl_images.owner_of(i) and i.name.startswith(f"{name}.") for i in bpy.data.images)
@@ -842,30 +842,30 @@ def test_a_large_photo_shows_a_preview_while_the_dial_moves_then_the_full_size(a
     run = session(name)
     run.preview = bl_ops.engine.preview_decomposition(run.decomposition, 24)
     assert run.preview is not None and run.preview.size == (24, 16)
-    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
     try:
         settings.rotation = math.radians(30.0)
-        assert bl_ops._deferred_refresh() is None   # what Blender's idle timer calls
+        assert bl_dials.deferred_refresh() is None   # what Blender's idle timer calls
         # the preview: the same relight, screen-sized, in its own image; the full-size one is not resized
         assert tuple(bpy.data.images[f"{name}.preview"].size) == (16, 24)
         assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
         small = run.preview.relight(sh_light("studio", ORDER, rotation_deg=30.0))
         np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3], small, atol=TIGHT)
-        assert bpy.app.timers.is_registered(bl_ops._full_when_resting)
-        bpy.app.timers.unregister(bl_ops._full_when_resting)
-        assert bl_ops._full_when_resting() is None  # the dial rests: the full size runs on a worker
+        assert bpy.app.timers.is_registered(bl_dials.full_when_resting)
+        bpy.app.timers.unregister(bl_dials.full_when_resting)
+        assert bl_dials.full_when_resting() is None  # the dial rests: the full size runs on a worker
         job = state.RUNNING["dial"]
         job.wait(60)
-        assert bl_ops._poll_full_size() is None
+        assert bl_dials.poll_full_size() is None
         assert tuple(bpy.data.images[f"{name}.relit"].size) == (W, H)
         full = run.decomposition.relight(sh_light("studio", ORDER, rotation_deg=30.0))
         np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], full, atol=TIGHT)
         # a full-size result that arrives after another dial move is dropped
-        bl_ops.start_full_size(run, bl_ops._dials(bpy.context, run)).wait(60)
+        bl_dials.start_full_size(run, bl_light.current_dials(bpy.context, run)).wait(60)
         settings.rotation = math.radians(50.0)
         before = pixels(f"{name}.relit").copy()
-        bl_ops._deferred_refresh()
-        assert bl_ops._poll_full_size() is None
+        bl_dials.deferred_refresh()
+        assert bl_dials.poll_full_size() is None
         np.testing.assert_array_equal(pixels(f"{name}.relit"), before)  # the late result was not written
     finally:
         for timer in bl_ops._TIMERS:
@@ -878,13 +878,13 @@ def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, 
     import types
 
     name = addon["photo"]
-    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)
+    monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
     relight(name)
     run = session(name)
     run.preview = bl_ops.engine.preview_decomposition(run.decomposition, 24)
     try:
         settings.rotation = math.radians(15.0)
-        bl_ops._deferred_refresh()
+        bl_dials.deferred_refresh()
     finally:
         for timer in bl_ops._TIMERS:
             if bpy.app.timers.is_registered(timer):
@@ -899,11 +899,11 @@ def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, 
                                          image=bpy.data.images[name], zoom=(1.0, 1.0))))
     view3d = types.SimpleNamespace(type="VIEW_3D", regions=[], spaces=types.SimpleNamespace(active=None))
     window = types.SimpleNamespace(screen=types.SimpleNamespace(areas=[on_result, on_photo, view3d]))
-    assert bl_ops.show_in_editors(run, "preview", [window]) == 1
+    assert bl_dials.show_in_editors(run, "preview", [window]) == 1
     assert on_result.spaces.active.image == preview and on_photo.spaces.active.image == bpy.data.images[name]
-    assert bl_ops.show_in_editors(run, "relit", [window]) == 1
+    assert bl_dials.show_in_editors(run, "relit", [window]) == 1
     assert on_result.spaces.active.image == relit
-    assert bl_ops.show_in_editors(run, "relit", [window]) == 0  # already there
+    assert bl_dials.show_in_editors(run, "relit", [window]) == 0  # already there
 
 
 # ------------------------------------------------------------------ the person matte (Mask: Automatic)
@@ -1003,7 +1003,7 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
     try:
         state.RUNNING["layers"].wait(60)
         writes = 0
-        while bl_ops._poll_layers() is not None:  # one image per timer call
+        while bl_ops.poll_layers() is not None:  # one image per timer call
             writes += 1
         assert writes == 3 and "layers" not in state.RUNNING
         run = session(name)
@@ -1012,6 +1012,6 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
             np.testing.assert_allclose(pixels(f"{name}.{layer}")[..., :3], want[layer], atol=TIGHT)
         np.testing.assert_allclose(pixels(f"{name}.alpha")[..., 0], want["alpha"], atol=TIGHT)
     finally:
-        if bpy.app.timers.is_registered(bl_ops._poll_layers):
-            bpy.app.timers.unregister(bl_ops._poll_layers)
+        if bpy.app.timers.is_registered(bl_ops.poll_layers):
+            bpy.app.timers.unregister(bl_ops.poll_layers)
         state.RUNNING.pop("layers", None)

@@ -363,6 +363,70 @@ def test_cancelled_job_drops_its_result_and_failed_job_keeps_its_error():
     assert isinstance(failed.error, ValueError)
 
 
+# ------------------------------------------------------------------ what the Blender layer hands over
+
+def test_layers_are_handed_to_blender_relit_first_in_a_fixed_order():
+    buffers = {"matte": 1, "shading": 2, "relit": 3, "alpha": 4, "unknown": 5}
+    assert pipeline.layers_in_order(buffers) == ["relit", "alpha", "shading", "matte"]
+    assert pipeline.layers_in_order({}) == []
+
+
+def test_mask_channels_of_stored_mask_pixels():
+    grey = np.arange(4, dtype=np.float32).reshape(2, 2, 1)
+    rgb, alpha = pipeline.mask_channels(grey)
+    assert rgb.shape == (2, 2, 3) and alpha is None
+    assert np.array_equal(rgb[..., 2], grey[..., 0]) and np.array_equal(rgb[..., 0], rgb[..., 1])
+    rgba = np.arange(16, dtype=np.float32).reshape(2, 2, 4)
+    rgb, alpha = pipeline.mask_channels(rgba)
+    assert np.array_equal(rgb, rgba[..., :3]) and np.array_equal(alpha, [[3.0, 7.0], [11.0, 15.0]])
+    assert pipeline.mask_channels(rgba[..., :3])[1] is None
+
+
+def test_saved_mask_key_gives_the_mask_inputs_it_was_run_with():
+    auto = pipeline.saved_mask_inputs(("AUTO", "3"))
+    assert (auto["mode"], auto["person"], auto["use_photo_alpha"], auto["rgb"]) == ("AUTO", 3, False, None)
+    alpha = pipeline.saved_mask_inputs(["IMAGE_ALPHA", ""])
+    assert (alpha["person"], alpha["use_photo_alpha"]) == (1, True)
+    image = pipeline.saved_mask_inputs(("IMAGE", "mask.png"))
+    assert (image["name"], image["person"], image["alpha"]) == ("mask.png", 1, None)
+
+
+def test_progress_bar_interpolates_inside_the_network_stage_only():
+    progress = jobs.Progress()
+    progress.stage, progress.fraction, progress.stage_started = jobs.NETWORK_STAGE, 0.10, 100.0
+    assert jobs.shown_fraction(progress, 4.0, 0.45, now=102.0) == pytest.approx(0.10 + 0.5 * 0.45)
+    assert jobs.shown_fraction(progress, 4.0, 0.30, now=110.0) == pytest.approx(0.40)  # capped at the share
+    assert jobs.shown_fraction(progress, None, 0.45, now=102.0) == pytest.approx(0.10)  # no earlier run
+    progress.stage = "Reading the photo"
+    assert jobs.shown_fraction(progress, 4.0, 0.45, now=102.0) == pytest.approx(0.10)
+    progress.fraction = 1.0
+    assert jobs.shown_fraction(progress, None, 0.45) == pytest.approx(0.99)  # never full before the end
+
+
+def test_saved_lights_come_back_as_the_same_coefficients():
+    from blender_addon import state
+
+    coeffs = np.arange(27, dtype=np.float64).reshape(9, 3) / 7.0
+    state.LIGHT_SOURCES.clear()
+    try:
+        state.LIGHT_SOURCES[("p1", "m.onnx", "BEST")] = coeffs
+        session = state.PhotoSession(photo_id="p2", source="photo.png", photo=np.zeros((1, 1, 3)),
+                                     decomposition=None, model_path="m.onnx", quality="BEST",
+                                     mask_key=("AUTO", "1"), digest="abc")
+        meta = work.save_meta(session)
+        assert json.loads(json.dumps(meta))["mask_key"] == ["AUTO", "1"]  # plain JSON
+        state.LIGHT_SOURCES.clear()
+        work.restore_lights(meta["lights"])
+        assert list(state.LIGHT_SOURCES) == [("p1", "m.onnx", "BEST")]
+        assert np.array_equal(state.LIGHT_SOURCES[("p1", "m.onnx", "BEST")], coeffs)
+        kept = np.ones((9, 3))
+        state.LIGHT_SOURCES[("p1", "m.onnx", "BEST")] = kept
+        work.restore_lights(meta["lights"])  # a source already known is kept
+        assert state.LIGHT_SOURCES[("p1", "m.onnx", "BEST")] is kept
+    finally:
+        state.LIGHT_SOURCES.clear()
+
+
 # ------------------------------------------------------------------ manifest
 
 def test_source_manifest_follows_the_extension_rules():

@@ -14,7 +14,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, bl_ops, pipeline, state
+from blender_addon import bl_dials, bl_images, bl_ops, bl_saved, bl_session, pipeline, state
 from relight.light import sh_light
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
@@ -106,12 +106,12 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
     before = state.SESSIONS[pid].preview.relight(sh_light("studio", state.SESSIONS[pid].decomposition.sh_order))
     blend = addon / "shot.blend"
-    monkeypatch.setattr(bl_ops, "_updates_immediately", lambda: False)  # as with a UI: threads, timers
+    monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)  # as with a UI: threads, timers
     try:
         bpy.ops.wm.save_as_mainfile(filepath=str(blend))  # the decomposition file: written by a thread
-        assert len(bl_ops._SAVING) == 1
+        assert len(bl_saved.SAVING) == 1
         bpy.ops.wm.open_mainfile(filepath=str(blend))    # which opening waits for
-        assert bl_ops._SAVING == []
+        assert bl_saved.SAVING == []
         # no timer has run yet: the preview is back from the saved file, on a provisional session
         session = state.SESSIONS[pid]
         assert session.provisional and session.photo.shape[:2] == (24, 16)
@@ -120,19 +120,19 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
             bpy.ops.relight_photo.save_layers(filepath=str(addon / "x.exr"), image_name=name)
         settings = bpy.context.scene.relight_photo
         settings.rotation = math.radians(50.0)
-        assert bl_ops._deferred_refresh() is None  # the dial already works, on the preview
+        assert bl_dials.deferred_refresh() is None  # the dial already works, on the preview
         np.testing.assert_allclose(pixels(f"{name}.preview")[..., :3],
                                    session.preview.relight(sh_light("studio", session.preview.sh_order, rotation_deg=50.0)), atol=1e-5)
-        assert bl_ops._full_when_resting() is not None  # the full size waits for the photo
+        assert bl_dials.full_when_resting() is not None  # the full size waits for the photo
         # the first timer tick starts the worker; once it has read the photo the
         # full-size layers follow the dial as it is now
-        assert bl_ops._poll_restore() is not None
+        assert bl_saved.poll_restore() is not None
         state.RUNNING["restore"].wait(60)
-        assert bl_ops._poll_restore() is None
+        assert bl_saved.poll_restore() is None
         restored = state.SESSIONS[pid]
         assert not restored.provisional and restored.photo.shape[:2] == (72, 48)
         state.RUNNING["dial"].wait(60)
-        while bl_ops._poll_full_size() is not None:
+        while bl_dials.poll_full_size() is not None:
             pass
         full = restored.decomposition.relight(sh_light("studio", restored.decomposition.sh_order,
                                                                        rotation_deg=50.0))

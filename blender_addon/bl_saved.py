@@ -1,0 +1,207 @@
+"""Save and reopen: each photo's decomposition is kept next to the .blend on save and
+brought back (its screen-sized preview first) when the file is opened."""
+
+import os
+import threading
+
+import bpy
+
+from . import bl_dials, bl_images, bl_session, engine, jobs, pipeline, state, work
+from .bl_dials import show_in_editors, start_full_size
+from .bl_light import current_dials, dials_for
+from .bl_session import POLL_SECONDS, addon_settings, set_status, write_output
+
+SAVING: list = []  # [(thread, session, failures)] writing decomposition files after a save
+
+
+def wait_for_saves(context=None) -> None:
+    """Let the decomposition files being written finish (before a file is opened), and
+    show a failure in the panel."""
+    while SAVING:
+        thread, _session, failures = SAVING.pop(0)
+        thread.join()
+        if failures and context is not None:
+            set_status(context, failures[0], is_error=True)
+
+
+def poll_saves():
+    if any(thread.is_alive() for thread, _s, _f in SAVING):
+        return 0.2
+    wait_for_saves(bpy.context)
+    return None
+
+
+@bpy.app.handlers.persistent
+def on_save_post(*_args) -> None:
+    """Keep each decomposition next to the .blend (`<name>_relight/<photo id>.npz`), so
+    reopening the file restores the results without a network run.
+
+    With a UI the files are written by threads (compressing takes ~0.4 s at 24 MP);
+    they are not daemons, so quitting Blender waits for them, and opening a file
+    waits for them first."""
+    blend = bpy.data.filepath
+    if not blend:
+        return
+    for session in list(state.SESSIONS.values()):
+        if bl_images.photo_by_id(session.photo_id) is None:
+            continue
+        path = pipeline.saved_relight_path(blend, session.photo_id)
+        if session.provisional or (session.saved_to == path and os.path.isfile(path)):
+            continue  # a provisional session's file is the one it came from
+        meta = work.save_meta(session)
+        session.saved_to = path
+        failures: list = []
+        if bl_session.updates_immediately():
+            work.save_one(session, path, meta, failures)
+            if failures:
+                set_status(bpy.context, failures[0], is_error=True)
+            continue
+        thread = threading.Thread(target=work.save_one, args=(session, path, meta, failures),
+                                  name="relight-save", daemon=False)
+        thread.start()
+        SAVING.append((thread, session, failures))
+        if not bpy.app.timers.is_registered(poll_saves):
+            bpy.app.timers.register(poll_saves, first_interval=0.2)
+
+
+def _restore_plan(context, image, path: str) -> dict:
+    arrays, meta = engine.load_decomposition_arrays(path)
+    reader = bl_images.photo_reader(image)
+    inputs = pipeline.saved_mask_inputs(meta["mask_key"])
+    if inputs["mode"] == "IMAGE":
+        mask_name = inputs["name"]
+        mask_image = bpy.data.images.get(mask_name)
+        if mask_image is None:
+            raise ValueError(f"The mask image '{mask_name}' of '{image.name}' is gone: press Relight.")
+        inputs["rgb"], inputs["alpha"] = pipeline.mask_channels(bl_images.rgba_pixels(mask_image))
+    work.restore_lights(meta.get("lights", []))
+    dials = dials_for(context, int(meta["sh_order"]), meta["model_path"])
+    return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path,
+                dials=dials)
+
+
+def restore_saved(context) -> int:
+    """Bring back every photo's saved decomposition and its outputs; returns how many.
+
+    Without a UI this runs here; with one, the photos are re-read on a worker
+    and the outputs written when it is done (a large photo's preview first).
+    """
+    blend = bpy.data.filepath
+    if not blend:
+        return 0
+    plans = []
+    for image in bpy.data.images:
+        pid = bl_images.photo_id(image)
+        if not pid or bl_images.owner_of(image):
+            continue
+        path = pipeline.saved_relight_path(blend, pid)
+        if not os.path.isfile(path):
+            continue
+        try:
+            plans.append(_restore_plan(context, image, path))
+        except ValueError as exc:
+            set_status(context, str(exc), is_error=True)
+    if not plans:
+        return 0
+    immediately = bl_session.updates_immediately()
+    for plan in plans:
+        plan["preview_first"] = not immediately
+        if not immediately:
+            _show_saved_preview(context, plan)
+    if immediately:
+        job = _start_restore(plans)
+        job.wait()
+        _finish_restore(context, job)
+    else:
+        # the worker starts on the first timer tick: starting a thread can wait for the
+        # scheduler, a stretch better not added to this one
+        state.RUNNING["restore_plans"] = plans
+        bpy.app.timers.register(poll_restore, first_interval=0.0)
+    return len(plans)
+
+
+def _start_restore(plans: list):
+    job = jobs.BackgroundJob(lambda: [work.restore_work(p) for p in plans], label="restore")
+    job.plans = plans
+    state.RUNNING["restore"] = job
+    return job
+
+
+def _show_saved_preview(context, plan: dict) -> None:
+    """Right after opening: the saved screen-sized photo relit into '<photo>.preview'
+    and a provisional session on it, so the result shows and the dials work while
+    the worker re-reads the full photo."""
+    meta = plan["meta"]
+    preview = engine.saved_preview(plan["arrays"], meta)
+    if preview is None:
+        return
+    session = state.PhotoSession(
+        photo_id=meta["photo_id"], source=plan["source"], photo=preview.photo, decomposition=preview,
+        model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
+        digest=meta["digest"], preview=preview, saved_to=plan["path"], provisional=True)
+    state.SESSIONS[session.photo_id] = session
+    write_output(session, "preview", engine.relit_rgba(preview, *plan["dials"]), preview.size)
+    show_in_editors(session, "preview")
+    settings = addon_settings(context)
+    if settings.last_photo_id not in state.SESSIONS:
+        settings.last_photo_id = session.photo_id
+
+
+def poll_restore():
+    plans = state.RUNNING.pop("restore_plans", None)
+    if plans is not None:
+        _start_restore(plans)
+        return POLL_SECONDS
+    job = state.RUNNING.get("restore")
+    if job is None:
+        return None
+    if job.poll() is jobs.JobState.RUNNING:
+        return POLL_SECONDS
+    _finish_restore(bpy.context, job)
+    return None
+
+
+def _finish_restore(context, job) -> None:
+    state.RUNNING.pop("restore", None)
+    if job.poll() is jobs.JobState.FAILED:
+        set_status(context, str(engine.user_error(job.error)), is_error=True)
+        return
+    if job.poll() is not jobs.JobState.DONE:
+        return
+    settings = addon_settings(context)
+    for (session, buffers), plan in zip(job.result, job.plans):
+        provisional = state.SESSIONS.get(session.photo_id)
+        state.SESSIONS[session.photo_id] = session
+        if "albedo" in buffers:
+            for layer in pipeline.layers_in_order(buffers):
+                write_output(session, layer, buffers[layer], session.photo.shape[:2])
+            continue
+        dials = plan["dials"]
+        if provisional is not None and provisional.provisional:
+            # the dials may have moved on the provisional preview: carry on from there
+            # (the full-size layers below use the dials as they are now: no rest timer needed)
+            session.dial_generation = provisional.dial_generation
+            if bpy.app.timers.is_registered(bl_dials.full_when_resting):
+                bpy.app.timers.unregister(bl_dials.full_when_resting)
+            try:
+                dials = current_dials(context, session)
+            except ValueError as exc:
+                set_status(context, str(exc), is_error=True)
+                continue
+        else:  # no saved preview: show the one just made, then every layer at full size
+            write_output(session, "preview", buffers["relit"], session.preview.size)
+            show_in_editors(session, "preview")
+        start_full_size(session, dials, with_layers=True)
+    if settings.last_photo_id not in state.SESSIONS and job.result:
+        settings.last_photo_id = job.result[0][0].photo_id
+
+
+@bpy.app.handlers.persistent
+def on_load(*_args) -> None:
+    """A new .blend: forget the old file's photos, bring back this file's saved relights."""
+    wait_for_saves(bpy.context)
+    state.clear()
+    try:
+        restore_saved(bpy.context)
+    except Exception as exc:  # a handler must never raise into Blender's file loading
+        set_status(bpy.context, f"Saved relights could not be restored ({exc}): press Relight.", is_error=True)

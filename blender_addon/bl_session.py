@@ -1,0 +1,90 @@
+"""What every part of the add-on asks of Blender's context: the settings, the status
+line, the photo in the editor and its session, and handing an output buffer to Blender."""
+
+import bpy
+import numpy as np
+
+from . import bl_images, pipeline, state
+
+SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, scripts)
+POLL_SECONDS = 0.05               # how often the main thread looks at a running job
+
+
+def addon_settings(context):
+    return context.scene.relight_photo
+
+
+def status_of(context):
+    return context.window_manager.relight_photo_status
+
+
+def set_status(context, message: str, is_error: bool = False) -> None:
+    status = status_of(context)
+    status.message, status.is_error = message, is_error
+
+
+def editor_image(context):
+    space = getattr(context, "space_data", None)
+    if space is not None and space.type == "IMAGE_EDITOR":
+        return space.image
+    return None
+
+
+def source_image(context, image_name: str = ""):
+    """The photo to relight: `image_name`, else the editor's image (an output maps back to its photo)."""
+    if image_name:
+        image = bpy.data.images.get(image_name)
+        if image is None:
+            raise ValueError(f"There is no image called '{image_name}'.")
+    else:
+        image = editor_image(context)
+        if image is None:
+            raise ValueError("Open a photo in the Image Editor first.")
+    owner = bl_images.owner_of(image)
+    if owner:
+        photo = bl_images.photo_by_id(owner)
+        if photo is None:
+            raise ValueError(f"'{image.name}' is a relit output whose photo was deleted: open the photo itself.")
+        return photo
+    name = pipeline.source_of(image.name, set(bpy.data.images.keys()))
+    return bpy.data.images[name]
+
+
+def current_session(context):
+    """The session the dials drive (its photo still exists), or None."""
+    session = state.SESSIONS.get(addon_settings(context).last_photo_id)
+    if session is None:
+        return None
+    photo = bl_images.photo_by_id(session.photo_id)
+    if photo is None:
+        return None
+    session.source = photo.name  # follows a rename
+    return session
+
+
+def session_of(image):
+    """The session of a photo datablock, or None."""
+    pid = bl_images.photo_id(image)
+    return state.SESSIONS.get(pid) if pid else None
+
+
+def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size: tuple[int, int]):
+    """Hand a prepared buffer to Blender; the buffer goes back to the pool (nobody reads it after)."""
+    colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
+    height, width = size
+    try:
+        return bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
+                                    colorspace=colorspace, owner=session.photo_id, layer=layer)
+    finally:
+        pipeline.BUFFERS.give(rgba)
+
+
+def updates_immediately() -> bool:
+    # without a UI (tests, scripts) timers never fire: relight at once
+    return bpy.app.background or pipeline.env_flag(SYNC_ENV)
+
+
+def release_job(job, slot: str = "job") -> None:
+    """Forget the running job, if it is still this one."""
+    if job is not None and state.RUNNING.get(slot) is job:
+        del state.RUNNING[slot]
