@@ -28,6 +28,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from relight.fileio import atomic_path
+
 from . import manifest as manifest_rules
 
 ADDON_DIR = Path(__file__).resolve().parent
@@ -284,24 +286,16 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
         suffix = "" if platforms == tuple(manifest_rules.PLATFORMS) else \
             "-" + "-".join(p.replace("-", "_") for p in platforms)
         zip_path = out_dir / f"{manifest['id']}-{manifest['version']}{suffix}.zip"
-        fd, tmp_zip = tempfile.mkstemp(prefix=f".{zip_path.name}.", suffix=".tmp", dir=out_dir)
-        os.close(fd)
-        try:
-            with zipfile.ZipFile(tmp_zip, "w") as zf:
-                _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
-                for f in addon_files():
-                    _zip_write(zf, f.name, f.read_bytes())
-                for w in wheels:
-                    info = zipfile.ZipInfo(f"wheels/{w.name}", ZIP_DATE)
-                    info.compress_type = zipfile.ZIP_STORED  # wheels are zips already
-                    info.external_attr = 0o644 << 16
-                    with open(stage / "wheels" / w.name, "rb") as src:
-                        zf.writestr(info, src.read())
-            os.replace(tmp_zip, zip_path)
-        except BaseException:
-            if os.path.exists(tmp_zip):
-                os.unlink(tmp_zip)
-            raise
+        with atomic_path(zip_path) as tmp_zip, zipfile.ZipFile(tmp_zip, "w") as zf:
+            _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
+            for f in addon_files():
+                _zip_write(zf, f.name, f.read_bytes())
+            for w in wheels:
+                info = zipfile.ZipInfo(f"wheels/{w.name}", ZIP_DATE)
+                info.compress_type = zipfile.ZIP_STORED  # wheels are zips already
+                info.external_attr = 0o644 << 16
+                with open(stage / "wheels" / w.name, "rb") as src:
+                    zf.writestr(info, src.read())
     return zip_path
 
 

@@ -12,33 +12,18 @@ from __future__ import annotations
 import collections
 import datetime
 import json
-import os
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from farm.outputs import SceneCheck
 from farm.progress import progress_bar
 from farm.run_config import RunConfig
+from relight.fileio import atomic_write_json
 
 RUN_LOG_NAME = "farm_runlog.json"
 RUN_LOG_FORMAT = "relight-farm-runlog/1"
 LOG_WRITE_INTERVAL = 5.0
-
-
-def atomic_write_json(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
 
 
 @dataclass
@@ -224,7 +209,8 @@ class RunBook:
             "scenes": [r.__dict__ for _, r in sorted(self.records.items())],
         }
         try:
-            atomic_write_json(self.log_path, {"format": RUN_LOG_FORMAT, "runs": self._previous_runs + [run]})
+            atomic_write_json(self.log_path, {"format": RUN_LOG_FORMAT, "runs": self._previous_runs + [run]},
+                              indent=1)
         except OSError as exc:
             # Scenes are the product; a log that cannot be written stops the run cleanly.
             self.stop(f"cannot write run log {self.log_path}: {exc.strerror or exc}")

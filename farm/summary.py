@@ -18,25 +18,22 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.colour import luminance, srgb_encode
+
 TEXTURE_THRESHOLD = 0.04
 TEXTURE_WINDOW = 5
 HAIR_VOLUMES = ("none", "shell", "short", "medium", "long", "updo", "big")
 OLD_HAIR = {"bald": "none", "short": "shell", "medium": "shell", "long": "shell"}  # thin caps before issue 20
 
 
-def _srgb(linear) -> np.ndarray:
-    c = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
-
-
 def is_dark(rgb) -> bool:
     """Linear albedo whose luminance is below 0.02 (sRGB value about 0.15 or less)."""
-    return float(np.dot(rgb, [0.2126, 0.7152, 0.0722])) < 0.02
+    return float(luminance(np.asarray(rgb, dtype=np.float64))) < 0.02
 
 
 def is_saturated(rgb) -> bool:
     """sRGB saturation above 0.7 at a value of at least 0.25."""
-    _, s, v = colorsys.rgb_to_hsv(*_srgb(rgb))
+    _, s, v = colorsys.rgb_to_hsv(*srgb_encode(np.asarray(rgb, dtype=np.float64)))
     return s > 0.7 and v >= 0.25
 
 

@@ -25,9 +25,7 @@ import numpy as np
 import torch
 
 from relight import sh as sh_np
-
-# sRGB transfer (IEC 61966-2-1), as relight.colour
-_ENCODED_KNEE = 0.04045
+from relight.colour import SRGB_ENCODED_KNEE, SRGB_GAMMA, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
 
 
 def sh_basis(dirs: torch.Tensor, order: int, dim: int = 1, scale=None) -> torch.Tensor:
@@ -92,8 +90,8 @@ def visibility_from_transport(transport: torch.Tensor) -> torch.Tensor:
 def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
     """sRGB-encoded [0, 1] -> linear (relight.colour.srgb_decode), clipped to [0, 1] first."""
     x = encoded.clamp(0.0, 1.0)
-    high = torch.pow((x.clamp(min=_ENCODED_KNEE) + 0.055) / 1.055, 2.4)
-    return torch.where(x <= _ENCODED_KNEE, x / 12.92, high)
+    high = torch.pow((x.clamp(min=SRGB_ENCODED_KNEE) + SRGB_OFFSET) / SRGB_SCALE, SRGB_GAMMA)
+    return torch.where(x <= SRGB_ENCODED_KNEE, x / SRGB_SLOPE, high)
 
 
 def linear_from_network_input(image: torch.Tensor) -> torch.Tensor:

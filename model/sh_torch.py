@@ -10,10 +10,7 @@ import numpy as np
 import torch
 
 from relight import sh as sh_np
-from relight.colour import LUMINANCE_WEIGHTS
-
-# sRGB transfer constants (IEC 61966-2-1), as in relight.colour
-_LINEAR_KNEE = 0.0031308
+from relight.colour import LUMINANCE_WEIGHTS, SRGB_GAMMA, SRGB_LINEAR_KNEE, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
 
 
 def shading(transport: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
@@ -56,8 +53,8 @@ def rotate_light(light: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
 def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
     """Linear -> sRGB-encoded, clipped to [0, 1] first (as relight.colour.srgb_encode)."""
     x = linear.clamp(0.0, 1.0)
-    high = 1.055 * torch.pow(x.clamp(min=_LINEAR_KNEE), 1.0 / 2.4) - 0.055
-    return torch.where(x <= _LINEAR_KNEE, x * 12.92, high)
+    high = SRGB_SCALE * torch.pow(x.clamp(min=SRGB_LINEAR_KNEE), 1.0 / SRGB_GAMMA) - SRGB_OFFSET
+    return torch.where(x <= SRGB_LINEAR_KNEE, x * SRGB_SLOPE, high)
 
 
 def to_network_input(linear: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:

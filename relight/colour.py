@@ -8,9 +8,15 @@ import numpy as np
 LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
 LUMINANCE_WEIGHTS.flags.writeable = False
 
-# the piecewise sRGB curve: linear segment below these points, power 1/2.4 above
-_LINEAR_KNEE = 0.0031308
-_ENCODED_KNEE = 0.04045
+# The piecewise sRGB curve, the one definition (model/ has its torch twins): a linear
+# segment of slope SRGB_SLOPE below the knees, encoded = SRGB_SCALE * linear^(1/SRGB_GAMMA)
+# - SRGB_OFFSET above.
+SRGB_LINEAR_KNEE = 0.0031308
+SRGB_ENCODED_KNEE = 0.04045
+SRGB_SLOPE = 12.92
+SRGB_GAMMA = 2.4
+SRGB_OFFSET = 0.055
+SRGB_SCALE = 1.0 + SRGB_OFFSET
 
 
 def _as_float(x, name: str) -> np.ndarray:
@@ -26,18 +32,18 @@ def srgb_encode(linear) -> np.ndarray:
     """Linear [0, 1] -> sRGB-encoded [0, 1]; values are clipped to [0, 1] first."""
     a = _as_float(linear, "linear image")
     x = np.clip(a, 0.0, 1.0).astype(a.dtype, copy=False)
-    low = x * 12.92
-    high = 1.055 * np.power(np.maximum(x, _LINEAR_KNEE), 1.0 / 2.4) - 0.055
-    return np.where(x <= _LINEAR_KNEE, low, high).astype(x.dtype, copy=False)
+    low = x * SRGB_SLOPE
+    high = SRGB_SCALE * np.power(np.maximum(x, SRGB_LINEAR_KNEE), 1.0 / SRGB_GAMMA) - SRGB_OFFSET
+    return np.where(x <= SRGB_LINEAR_KNEE, low, high).astype(x.dtype, copy=False)
 
 
 def srgb_decode(encoded) -> np.ndarray:
     """sRGB-encoded [0, 1] -> linear [0, 1]; values are clipped to [0, 1] first."""
     a = _as_float(encoded, "sRGB image")
     x = np.clip(a, 0.0, 1.0).astype(a.dtype, copy=False)
-    low = x / 12.92
-    high = np.power((np.maximum(x, _ENCODED_KNEE) + 0.055) / 1.055, 2.4)
-    return np.where(x <= _ENCODED_KNEE, low, high).astype(x.dtype, copy=False)
+    low = x / SRGB_SLOPE
+    high = np.power((np.maximum(x, SRGB_ENCODED_KNEE) + SRGB_OFFSET) / SRGB_SCALE, SRGB_GAMMA)
+    return np.where(x <= SRGB_ENCODED_KNEE, low, high).astype(x.dtype, copy=False)
 
 
 def luminance(rgb) -> np.ndarray:
