@@ -111,12 +111,9 @@ def full_when_resting():
 def poll_full_size():
     """Timer: wait for the full-size job, then write its images one per call (each
     foreach_set of a large image is a stretch of its own, so the UI draws between)."""
-    job = state.RUNNING.get("dial")
+    job, wait = jobs.finished_job(state.RUNNING, "dial", POLL_SECONDS)
     if job is None:
-        return None
-    job_state = job.poll()
-    if job_state is jobs.JobState.RUNNING:
-        return POLL_SECONDS
+        return wait
     if finish_full_size(bpy.context, job, one_layer=True):
         return 0.0  # more layers to write
     release_job(job, "dial")

@@ -55,13 +55,10 @@ def start_layers(session: state.PhotoSession, dials):
 
 
 def poll_layers():
-    job = state.RUNNING.get("layers")
+    job, wait = jobs.finished_job(state.RUNNING, "layers", POLL_SECONDS)
     if job is None:
-        return None
-    job_state = job.poll()
-    if job_state is jobs.JobState.RUNNING:
-        return POLL_SECONDS
-    session = job.session
+        return wait
+    job_state, session = job.poll(), job.session
     if job_state is jobs.JobState.FAILED:
         set_status(bpy.context, str(engine.user_error(job.error)), is_error=True)
     elif job_state is jobs.JobState.DONE and state.SESSIONS.get(session.photo_id) is session \

@@ -152,11 +152,9 @@ def poll_restore():
     if plans is not None:
         _start_restore(plans)
         return POLL_SECONDS
-    job = state.RUNNING.get("restore")
+    job, wait = jobs.finished_job(state.RUNNING, "restore", POLL_SECONDS)
     if job is None:
-        return None
-    if job.poll() is jobs.JobState.RUNNING:
-        return POLL_SECONDS
+        return wait
     _finish_restore(bpy.context, job)
     return None
 

@@ -60,6 +60,17 @@ def shown_fraction(progress: Progress, expected_seconds: float | None, network_s
     return min(fraction, 0.99)
 
 
+def finished_job(running: dict, slot: str, interval: float):
+    """(job, None) once the job in running[slot] is no longer running; else (None, what a
+    polling timer returns): `interval` while it runs, None when there is no job."""
+    job = running.get(slot)
+    if job is None:
+        return None, None
+    if job.poll() is JobState.RUNNING:
+        return None, interval
+    return job, None
+
+
 class BackgroundJob:
     """Runs `fn()` once on a daemon thread; `poll()` reports its state without blocking."""
 

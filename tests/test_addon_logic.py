@@ -403,6 +403,17 @@ def test_progress_bar_interpolates_inside_the_network_stage_only():
     assert jobs.shown_fraction(progress, None, 0.45) == pytest.approx(0.99)  # never full before the end
 
 
+def test_a_polling_timer_waits_for_its_job_then_gets_it_once():
+    release = threading.Event()
+    job = jobs.BackgroundJob(lambda: release.wait(10) and 7, label="t")
+    running = {"dial": job}
+    assert jobs.finished_job(running, "layers", 0.05) == (None, None)  # no job: the timer stops
+    assert jobs.finished_job(running, "dial", 0.05) == (None, 0.05)    # running: poll again
+    release.set()
+    assert job.wait(10) is jobs.JobState.DONE
+    assert jobs.finished_job(running, "dial", 0.05) == (job, None) and job.result == 7
+
+
 def test_saved_lights_come_back_as_the_same_coefficients():
     from blender_addon import state
 
