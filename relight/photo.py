@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -207,36 +208,44 @@ def _check_png_chunks(path: Path) -> None:
             pos = f.seek(pos + 12 + length)
 
 
+@contextmanager
+def _decoder_errors(path: Path, what: str):
+    """Whatever a decoder raises (truncated data, bad EXIF, library errors) becomes
+    ValueError("PATH: WHAT (Type: message)"); our own ValueErrors, already worded,
+    and MemoryError pass unchanged."""
+    try:
+        yield
+    except (ValueError, MemoryError):
+        raise
+    except Exception as exc:
+        raise ValueError(f"{path}: {what} ({type(exc).__name__}: {exc})") from None
+
+
 def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    from PIL import Image, ImageOps
+    from PIL import ImageOps
 
     im = _open_pillow(path)
     try:
-        width, height = im.size
-        _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
-        if im.format == "PNG":
-            _check_png_chunks(path)
-        if getattr(im, "n_frames", 1) > 1:
-            im.seek(0)  # animated/multi-page files: the first frame is the photo
-        rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
-        if isinstance(rawmode, tuple):
-            rawmode = rawmode[0]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
-                # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
-                decoded = _read_png16(path, max_pixels)
-                if decoded is not None:
-                    return _decode_16bit(*decoded)
-            im.load()
-            im = ImageOps.exif_transpose(im)
-            return _pillow_to_linear(im, path)
-    except ValueError:
-        raise
-    except Exception as exc:  # truncated data, bad EXIF, decoder errors
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: corrupt or truncated image ({type(exc).__name__}: {exc})") from None
+        with _decoder_errors(path, "corrupt or truncated image"):
+            width, height = im.size
+            _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
+            if im.format == "PNG":
+                _check_png_chunks(path)
+            if getattr(im, "n_frames", 1) > 1:
+                im.seek(0)  # animated/multi-page files: the first frame is the photo
+            rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
+            if isinstance(rawmode, tuple):
+                rawmode = rawmode[0]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
+                    # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
+                    decoded = _read_png16(path, max_pixels)
+                    if decoded is not None:
+                        return _decode_16bit(*decoded)
+                im.load()
+                im = ImageOps.exif_transpose(im)
+                return _pillow_to_linear(im, path)
     finally:
         im.close()
 
@@ -394,16 +403,11 @@ def _read_exr_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarr
     width, height = exr_size(path)
     # an EXR's header can declare what its (zip-compressed) data cannot hold: same weighing as PNG
     _check_size(width, height, path, max_pixels, path.stat().st_size, "EXR")
-    try:
-        channels = read_exr(path)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: file not found") from None
-    except ValueError:
-        raise
-    except Exception as exc:
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: corrupt EXR ({type(exc).__name__}: {exc})") from None
+    with _decoder_errors(path, "corrupt EXR"):
+        try:
+            channels = read_exr(path)
+        except FileNotFoundError:
+            raise ValueError(f"{path}: file not found") from None
     rgb, alpha = _pick_rgb(channels, path)
     shapes = {c.shape for c in rgb} | ({alpha.shape} if alpha is not None else set())
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
@@ -458,30 +462,25 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
 
 
 def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
-    from PIL import Image, ImageOps
+    from PIL import ImageOps
 
     im = _open_pillow(path)
     try:
-        _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
-        if im.format == "PNG":
-            _check_png_chunks(path)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            im.load()
-            im = ImageOps.exif_transpose(im)
-            if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
-                return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
-            if im.mode == "F":
-                return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
-            if "A" in im.mode or "transparency" in im.info:
-                return np.asarray(im.convert("RGBA"))[..., 3].astype(np.float32) / 255.0
-            return np.asarray(im.convert("L"), dtype=np.float32) / 255.0
-    except ValueError:
-        raise
-    except Exception as exc:
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: corrupt or truncated mask image ({type(exc).__name__}: {exc})") from None
+        with _decoder_errors(path, "corrupt or truncated mask image"):
+            _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
+            if im.format == "PNG":
+                _check_png_chunks(path)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                im.load()
+                im = ImageOps.exif_transpose(im)
+                if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
+                    return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
+                if im.mode == "F":
+                    return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
+                if "A" in im.mode or "transparency" in im.info:
+                    return np.asarray(im.convert("RGBA"))[..., 3].astype(np.float32) / 255.0
+                return np.asarray(im.convert("L"), dtype=np.float32) / 255.0
     finally:
         im.close()
 
