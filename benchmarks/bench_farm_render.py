@@ -11,8 +11,9 @@ every variant sees the same machine state:
 
 - "automatic map": the World left on Cycles' automatic importance map (what the
   farm did before; Blender 5.0 builds 4096 x 2048 for a map without a sun);
+- "zip-compressed EXR": the scratch EXR compressed (what the farm did before);
 - "farm" (the current setting): a fresh World per light, map at the HDR map's
-  own resolution;
+  own resolution, uncompressed scratch EXR;
 - "no denoiser": OIDN off (its share of a call);
 - "no EXR file": the render kept in memory, not written (Blender cannot hand a
   render result to Python in background mode; this bounds what reading from
@@ -40,19 +41,18 @@ from pathlib import Path
 import numpy as np
 
 
-def _build(index: int, seed: int, options):
+def _build(index: int, seed: int, options, work: Path):
     """A farm scene in Blender: reset, sample, bake, build, geometry pass (farm.scene's steps)."""
     from farm import lights, passes
     from farm.scene import bake_scene, build_blender_scene, render_buffers, sample_scene
 
     scene = passes.reset_scene()
-    work = Path(tempfile.mkdtemp(prefix="bench_farm_render_"))
     sample = sample_scene(index, seed, options,
                           render_sky=lambda p: passes.render_sky_equirect(p, lights.SKY_SIZE, work))
     baked = bake_scene(sample, passes.thread_count())
     spec = build_blender_scene(scene, sample, baked)
     channels = render_buffers(scene, sample, spec, baked, work, {})
-    return scene, sample, channels, work
+    return scene, sample, channels
 
 
 def _set_light(scene, light, name: str, automatic_map: bool) -> None:
@@ -96,7 +96,7 @@ def _timed_call(scene, work: Path, samples: int, denoise: bool, prefilter: str,
     return total - sum(read_seconds), sum(read_seconds)
 
 
-VARIANTS = ("automatic map", "farm", "no denoiser", "no EXR file", "same World")
+VARIANTS = ("automatic map", "zip-compressed EXR", "farm", "no denoiser", "no EXR file", "same World")
 
 
 def bench_calls(args) -> None:
@@ -106,10 +106,12 @@ def bench_calls(args) -> None:
     options = SceneOptions(resolution=args.res, lights=2, samples=args.samples)
     rows = {v: [] for v in VARIANTS}
     for index in range(args.first, args.first + args.scenes):
-        scene, sample, _, work = _build(index, args.seed, options)
+        work = Path(tempfile.mkdtemp(prefix="bench_farm_render_"))
+        scene, sample, _ = _build(index, args.seed, options, work)
         for round_ in range(args.rounds):
             for variant in VARIANTS:
                 light = sample.lights[round_ % len(sample.lights)]
+                scene.render.image_settings.exr_codec = "ZIP" if variant == "zip-compressed EXR" else "NONE"
                 if variant != "same World":
                     _set_light(scene, light, f"{variant}{round_}", automatic_map=variant == "automatic map")
                 call, read = _timed_call(scene, work, args.samples, variant != "no denoiser", "fast",
@@ -141,34 +143,44 @@ def bench_spp(args) -> None:
     from farm.options import SceneOptions
 
     counts = [int(c) for c in args.counts.split(",")]
-    maps = ("native", "automatic") if args.maps == "both" else (args.maps,)
+    maps = args.maps.split(",")  # "automatic" or an oversampling factor of the map's own width
     results = {(m, spp, dn): [] for m in maps for spp in counts for dn in (False, True)}
     options = SceneOptions(resolution=args.res, lights=1, samples=1, denoise=False)
     for index in range(args.first, args.first + args.scenes):
-        scene, sample, channels, work = _build(index, args.seed, options)
+        work = Path(tempfile.mkdtemp(prefix="bench_farm_render_"))
+        scene, sample, channels = _build(index, args.seed, options, work)
         person = channels["alpha"] > 0.999
         reference = passes.render_path_traced(scene, work, "ref", args.reference, False).image
         for m in maps:
+            if m != "automatic":
+                passes.IMPORTANCE_MAP_OVERSAMPLING = int(m)
             _set_light(scene, sample.lights[0], f"spp_{m}", automatic_map=m == "automatic")
+            t0 = time.perf_counter()
+            passes.render_path_traced(scene, work, "first", counts[0], False)
+            first_call = time.perf_counter() - t0
             for spp in counts:
                 for denoise in (False, True):
                     t0 = time.perf_counter()
                     image = passes.render_path_traced(scene, work, "s", spp, denoise, prefilter="fast").image
-                    results[(m, spp, denoise)].append((psnr(image, reference, person), time.perf_counter() - t0))
+                    results[(m, spp, denoise)].append(
+                        (psnr(image, reference, person), time.perf_counter() - t0, first_call))
     print(f"# {args.res}x{args.res}, {args.scenes} scenes, PSNR on the person's pixels against "
           f"{args.reference} spp without denoising (peak: the reference's 99th percentile); mean over scenes; "
-          "importance map: native = the HDR map's own resolution (the farm), automatic = Cycles' default")
-    print("| map | spp | denoiser | PSNR dB | seconds per call (no light change) |")
-    print("|---|---|---|---|---|")
+          "importance map: N = N x the HDR map's own width, automatic = Cycles' default (4096 wide)")
+    print(f"| map | spp | denoiser | PSNR dB | seconds per call (no light change) "
+          f"| first {counts[0]}-spp call after the light change |")
+    print("|---|---|---|---|---|---|")
     for m in maps:
         for spp in counts:
             for denoise in (False, True):
                 values = results[(m, spp, denoise)]
-                print(f"| {m} | {spp} | {'OIDN' if denoise else 'off'} | {statistics.fmean(v for v, _ in values):.2f} "
-                      f"| {statistics.fmean(s for _, s in values):.3f} |")
+                print(f"| {m} | {spp} | {'OIDN' if denoise else 'off'} | {statistics.fmean(v[0] for v in values):.2f} "
+                      f"| {statistics.fmean(v[1] for v in values):.3f} | {statistics.fmean(v[2] for v in values):.3f} |")
 
 
 def main() -> None:
+    import shutil
+
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=["calls", "spp"])
     parser.add_argument("--res", type=int, default=128)
@@ -179,9 +191,16 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--counts", default="4,8,16,32,64,128")
     parser.add_argument("--reference", type=int, default=1024)
-    parser.add_argument("--maps", choices=["native", "automatic", "both"], default="both")
+    parser.add_argument("--maps", default="1,2,4,automatic",
+                        help="comma list: importance-map oversampling factors and/or 'automatic'")
     args = parser.parse_args()
-    bench_calls(args) if args.what == "calls" else bench_spp(args)
+    scratch = tempfile.mkdtemp(prefix="bench_farm_render_")
+    tempfile.tempdir = scratch  # every scene's scratch folder lands here and goes with it
+    try:
+        bench_calls(args) if args.what == "calls" else bench_spp(args)
+    finally:
+        tempfile.tempdir = None
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 if __name__ == "__main__":

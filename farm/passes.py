@@ -152,7 +152,10 @@ def configure_film(scene: bpy.types.Scene, resolution: tuple[int, int]) -> None:
     scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
     scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
     scene.render.image_settings.color_depth = "32"
-    scene.render.image_settings.exr_codec = "ZIP"
+    # Scratch files, read back at once and deleted: compressing them cost ~10% of a
+    # 128 px render call (docs/benchmarks/farm_render.md); the dataset's own EXR is
+    # written by relight.dataset.
+    scene.render.image_settings.exr_codec = "NONE"
     scene.view_settings.view_transform = "Standard"
     scene.view_settings.look = "None"
     scene.view_settings.exposure = 0.0
@@ -315,14 +318,19 @@ def set_environment_world(
     links.new(background.outputs["Background"], output.inputs["Surface"])
 
 
-def importance_map_resolution(map_width: int) -> int:
-    """Width of the World importance map for an equirect map `map_width` texels wide.
+# Importance-map texels per map texel along each axis. The map is looked up with
+# bilinear interpolation, so a one-texel sun spreads over its neighbours; a map
+# only as fine as the texels gives those neighbours too little probability (2.4 dB
+# more noise at 16 spp + OIDN than Cycles' 4096-wide map), see
+# docs/benchmarks/farm_render.md for the measured choice.
+IMPORTANCE_MAP_OVERSAMPLING = 2
 
-    One importance texel per map texel: finer resolves nothing more, coarser
-    spreads a small sun over neighbours (more noise). Kept within Cycles'
-    own bounds for the setting.
-    """
-    return int(min(max(int(map_width), 64), 8192))
+
+def importance_map_resolution(map_width: int, oversampling: int | None = None) -> int:
+    """Width of the World importance map for an equirect map `map_width` texels wide,
+    within Cycles' own bounds for the setting."""
+    factor = IMPORTANCE_MAP_OVERSAMPLING if oversampling is None else oversampling
+    return int(min(max(int(map_width) * factor, 64), 8192))
 
 
 def _load_image(path: Path | None, pixels: np.ndarray | None, name: str):

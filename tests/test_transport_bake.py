@@ -403,7 +403,7 @@ def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
     assert np.all(np.isfinite(pt.image)) and pt.image.max() > 0
 
 
-def test_each_light_gets_a_fresh_world_with_an_importance_map_at_its_own_resolution(tmp_path):
+def test_each_light_gets_a_fresh_world_with_an_importance_map_scaled_to_its_resolution(tmp_path):
     """Cycles reads the map settings only when it first syncs a World, so each light
     needs its own World; the old one is freed (no pile-up over a worker's scenes)."""
     from farm import passes
@@ -418,6 +418,6 @@ def test_each_light_gets_a_fresh_world_with_an_importance_map_at_its_own_resolut
         world = scene.world
         assert world.name.startswith(f"light{width}")
         assert world.cycles.sampling_method == "MANUAL"
-        assert world.cycles.sample_map_resolution == max(width, 64)
+        assert world.cycles.sample_map_resolution == max(width * passes.IMPORTANCE_MAP_OVERSAMPLING, 64)
     assert len(bpy.data.worlds) <= before + 1
     assert passes.importance_map_resolution(20000) == 8192  # Cycles' upper bound for the setting
