@@ -10,8 +10,8 @@ py=${PY:-.venv/bin/python}
 SCENES=${SCENES:-400}; STEPS=${STEPS:-1000}; BATCH=${BATCH:-8}
 mkdir -p "$out"
 
-# data: 128 px training scenes (2 lights, 16 spp), 256 px held-out scenes (held-out maps only)
-"$py" -m farm --out "$out/train128" --scenes "$SCENES" --seed 1 --res 128 --lights 2 --samples 16 \
+# data: 128 px training scenes (2 lights, 32 spp: docs/benchmarks/farm_render.md), 256 px held-out scenes (held-out maps only)
+"$py" -m farm --out "$out/train128" --scenes "$SCENES" --seed 1 --res 128 --lights 2 --samples 32 \
     --workers 2 --resume --no-progress
 "$py" -m farm --out "$out/heldout256" --scenes 24 --seed 777001 --res 256 --lights 4 --samples 32 \
     --workers 1 --light-pool heldout --resume --no-progress
@@ -29,4 +29,4 @@ while [[ ! -f "$out/pack.npz" ]]; do sleep 10; done
 wait
 
 "$py" -m export "$out/geometry/model.safetensors" --out relight/models/geometry.onnx --register geometry \
-    --default --training-data "relight farm, $(ls "$out"/train128/scene_*.json | wc -l) scenes at 128 px (2 lights, 16 spp), seed 1; GeometryNet geo-default, $STEPS steps of batch $BATCH on 128 px crops, CPU (tools/release_geometry.sh)"
+    --default --training-data "relight farm, $(ls "$out"/train128/scene_*.json | wc -l) scenes at 128 px (2 lights, 32 spp), seed 1; GeometryNet geo-default, $STEPS steps of batch $BATCH on 128 px crops, CPU (tools/release_geometry.sh)"
