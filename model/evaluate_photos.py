@@ -55,6 +55,7 @@ class PhotoResult:
     coverage: float                    # mean matte over the crop the network saw
     light_luminance: float             # mean luminance of the predicted light
     light_motion: float                # metrics.spatial_change of the person, directional light 0 vs 180 deg
+    colour_cast: float                 # metrics.colour_cast_deg: relit under white lights against the photo
     reconstruction: dict[str, float] | None  # l1, l2, psnr; None when the matte is empty
     tiles: list[np.ndarray]            # linear [H, W, 3] images for the contact sheet
 
@@ -100,6 +101,8 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         tiles.append(dec.relight(light))
         working[azimuth] = dec.relight_working(light)
     motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
+    cast = (float(np.mean([metrics.colour_cast_deg(working[a], dec.photo_working, dec.alpha) for a in working]))
+            if dec.alpha.any() else float("nan"))
     for name in SHEET_PRESETS:
         for rotation in SHEET_ROTATIONS:
             tiles.append(dec.relight(sh_light(name, dec.sh_order, rotation_deg=rotation)))
@@ -107,7 +110,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         name=path.name, size=image.shape[:2], working_size=dec.working_size,
         matte=source,
         coverage=float(dec.alpha.mean()), light_luminance=float(sh.mean_luminance(dec.light)),
-        light_motion=motion,
+        light_motion=motion, colour_cast=cast,
         reconstruction=recon, tiles=tiles)
 
 
@@ -125,24 +128,30 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
             "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
             "this measures self-consistency, not relighting accuracy.")
     lines = [f"# Real photos (`{model}`)", "", note, "",
-             "| photo | size | matte | matte coverage | light mean luminance | light motion | L1 | L2 | PSNR |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| photo | size | matte | matte coverage | light mean luminance | light motion | colour cast deg "
+             "| L1 | L2 | PSNR |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         m = r.reconstruction
         cells = ["-", "-", "- (empty matte)"] if m is None else \
             [f"{100 * m['l1']:.2f}", f"{100 * m['l2']:.3f}", f"{m['psnr']:.2f}"]
         lines.append(f"| {r.name} | {r.size[1]}x{r.size[0]} | {r.matte} | {100 * r.coverage:.0f}% | "
-                     f"{r.light_luminance:.3f} | {r.light_motion:.3f} | " + " | ".join(cells) + " |")
+                     f"{r.light_luminance:.3f} | {r.light_motion:.3f} | {r.colour_cast:.1f} | "
+                     + " | ".join(cells) + " |")
     measured = [r.reconstruction for r in results if r.reconstruction is not None]
     if len(measured) > 1:
         means = {k: float(np.mean([m[k] for m in measured])) for k in ("l1", "l2", "psnr")}
         motion = float(np.mean([r.light_motion for r in results]))
-        lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {100 * means['l1']:.2f} | "
+        cast = float(np.nanmean([r.colour_cast for r in results]))
+        lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {cast:.1f} | {100 * means['l1']:.2f} | "
                      f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
     lines += ["", "Light motion: model.metrics.spatial_change of the relit person (working resolution, "
               "weighted by the matte) between a directional light at 0 and at 180 degrees "
               "(relight.sh.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
               "same number for ground-truth renders of held-out scenes.", "",
+              "Colour cast: model.metrics.colour_cast_deg, the angle between the person's mean colour "
+              "relit under the four white directional lights and in the photo (0: colours kept up to "
+              "exposure).", "",
               "Contact sheet columns: " + ", ".join(column_labels()) +
               " (the directional light is white, 30 degrees up, with 20% ambient; presets are bundled "
               "training maps; all lights scaled to mean luminance 0.8; rotations turn the light about the "
@@ -169,7 +178,7 @@ def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced",
               "presets": list(SHEET_PRESETS), "rotations_deg": list(SHEET_ROTATIONS),
               "photos": [{"name": r.name, "size": list(r.size), "working_size": list(r.working_size),
                           "matte": r.matte, "coverage": r.coverage, "light_mean_luminance": r.light_luminance,
-                          "light_motion": r.light_motion,
+                          "light_motion": r.light_motion, "colour_cast_deg": r.colour_cast,
                           "reconstruction": r.reconstruction} for r in results]}
     atomic_write_text(out / "photos.json", json.dumps(record, indent=1) + "\n")
     return results

@@ -55,6 +55,26 @@ PSNR_PEAK = 1.0
 MSE_FLOOR = 1e-10  # PSNR cap: 10 log10(1 / 1e-10) = 100 dB
 
 
+def colour_cast_deg(image, reference, mask=None) -> float:
+    """Angle (degrees) between the mask-weighted mean RGB of `image` and of `reference`.
+
+    0 when the image is the reference up to exposure; a person relit under a
+    white light who turns grey-green against the photo reads tens of degrees.
+    A photo taken under coloured light also differs by that light's colour.
+    """
+    image = np.asarray(image, dtype=np.float64).reshape(-1, 3)
+    reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    w = np.ones(len(image)) if mask is None else np.asarray(mask, dtype=np.float64).reshape(-1)
+    if w.sum() <= 0:
+        raise ValueError("colour_cast_deg needs a non-empty mask")
+    a = (image * w[:, None]).sum(0)
+    b = (reference * w[:, None]).sum(0)
+    norms = np.linalg.norm(a) * np.linalg.norm(b)
+    if norms <= 0:
+        return 90.0  # a black image has no colour to compare
+    return float(np.degrees(np.arccos(np.clip(a @ b / norms, -1.0, 1.0))))
+
+
 def _prepare(pred, target, mask):
     p = np.asarray(pred, dtype=np.float64)
     t = np.asarray(target, dtype=np.float64)

@@ -68,3 +68,27 @@ def test_spatial_change_ignores_colour_and_exposure_but_sees_moving_light():
     left = np.zeros((16, 16, 3)); left[:, :8] = 1.0
     right = np.zeros((16, 16, 3)); right[:, 8:] = 1.0
     assert metrics.spatial_change(left, right) == pytest.approx(1.0)
+
+
+def test_colour_cast_is_zero_up_to_exposure_and_the_angle_between_mean_colours():
+    rng = np.random.default_rng(0)
+    photo = rng.uniform(0.1, 1.0, (16, 16, 3))
+    mask = np.zeros((16, 16))
+    mask[4:12, 4:12] = 1.0
+    assert metrics.colour_cast_deg(3.7 * photo, photo, mask) < 1e-6
+    # a pure-red image against a pure-green one: orthogonal mean colours
+    red = np.zeros((4, 4, 3))
+    red[..., 0] = 1.0
+    green = np.roll(red, 1, axis=-1)
+    assert abs(metrics.colour_cast_deg(red, green) - 90.0) < 1e-9
+    # grey against (1, 1, 0): arccos(2 / (sqrt(3) sqrt(2)))
+    grey = np.ones((4, 4, 3))
+    yellow = grey * np.array([1.0, 1.0, 0.0])
+    expected = np.degrees(np.arccos(2.0 / np.sqrt(6.0)))
+    assert abs(metrics.colour_cast_deg(yellow, grey) - expected) < 1e-9
+    # only the masked pixels count
+    outside = photo.copy()
+    outside[mask == 0] = [1.0, 0.0, 0.0]
+    assert metrics.colour_cast_deg(outside, photo, mask) < 1e-6
+    with pytest.raises(ValueError):
+        metrics.colour_cast_deg(photo, photo, np.zeros((16, 16)))
