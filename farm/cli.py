@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = p.add_argument_group("runner")
     r.add_argument("--workers", type=_int_in("--workers", 1, 256), default=1,
                    help="worker processes (local executor)")
-    r.add_argument("--recycle", type=_int_in("--recycle", 1, 100000), default=20,
+    r.add_argument("--recycle", type=_int_in("--recycle", 1, 100000), default=100,
                    help="restart a worker after this many scenes")
     r.add_argument("--timeout", type=_seconds, default=1800.0, help="seconds per scene before kill")
     r.add_argument("--retries", type=_int_in("--retries", 0, 100), default=3,
