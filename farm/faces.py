@@ -7,7 +7,7 @@ rest space above each eye. Each region becomes a part with its own flat
 albedo (so the albedo AOV stays exact per pixel: it is that part's base
 colour), cut from the body like the eyes already are, sharing the body's
 vertex normals so there is no shading seam. The irises are a procedural
-pattern on the eye part (farm.appearance.build_material, pattern "iris").
+pattern on the eye part (farm.materials.build_material, pattern "iris").
 """
 
 from __future__ import annotations

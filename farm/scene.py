@@ -261,7 +261,7 @@ def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
 def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
     """Meshes with per-vertex normal, depth and transport attributes routed to AOVs, their
     materials, the camera and the first light's World; returns the AovSpec."""
-    from farm import appearance, camera, passes
+    from farm import camera, materials, passes
 
     options = sample.options
     cam = sample.camera
@@ -287,7 +287,7 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
             for k, block in enumerate(passes.pack_vectors(baked.transport[lo:hi])):
                 attrs[f"t{k}"] = block
         obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
-        mat, base_socket, params_socket = appearance.build_material(part.name, part.material)
+        mat, base_socket, params_socket = materials.build_material(part.name, part.material)
         passes.add_attribute_aovs(mat, attribute_names)
         passes.add_socket_aov(mat, "albedo", base_socket)
         passes.add_socket_aov(mat, "material", params_socket)
