@@ -235,9 +235,9 @@ def parse_args(argv=None):
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
                    help="scale the input light and image by 2^N(0, SIGMA^2), albedo target unchanged "
                         "(exposure augmentation, exact; 0: off)")
-    p.add_argument("--capture", action=argparse.BooleanOptionalAction, default=True,
+    p.add_argument("--capture", action=argparse.BooleanOptionalAction, default=False,
                    help="photo-like capture of the input (model/capture.py: real backgrounds, white balance, "
-                        "exposure, blur, noise, JPEG)")
+                        "exposure, blur, noise, JPEG); off by default, measured in docs/EVALUATION.md")
     p.add_argument("--no-presets", action="store_true", help="extra lights from scene lights only")
     p.add_argument("--loss-weight", action="append", metavar="NAME=VALUE")
     p.add_argument("--no-residual", action="store_true", help="ablation: without E")

@@ -191,8 +191,8 @@ def test_preset_layout_and_init_from_weights(dataset, tmp_path, capsys):
     assert len(err) == 1 and "differs" in err[0]
 
 
-def test_photo_like_capture_is_on_by_default_and_can_be_turned_off(monkeypatch, tmp_path):
-    """--capture reaches TrainingScenes (model/capture.py); --no-capture trains on the rendered input."""
+def test_photo_like_capture_is_off_by_default_and_can_be_turned_on(monkeypatch, tmp_path):
+    """--capture reaches TrainingScenes (model/capture.py); the default trains on the rendered input."""
     seen = {}
 
     class Stop(Exception):
@@ -205,7 +205,7 @@ def test_photo_like_capture_is_on_by_default_and_can_be_turned_off(monkeypatch, 
     monkeypatch.setattr(train, "TrainingScenes", fake_scenes)
     monkeypatch.setattr(train, "first_scenes", lambda folders, limit=None: ["a.json", "b.json", "c.json"])
     monkeypatch.setattr(train, "split_by_body", lambda scenes, fraction, seed: (scenes[:2], scenes[2:]))
-    for flags, expected in (([], True), (["--no-capture"], False)):
+    for flags, expected in (([], False), (["--capture"], True), (["--no-capture"], False)):
         args = train.parse_args(["--data", "d", "--out", str(tmp_path), "--preset", "geo-small", "--size", "32",
                                  "--threads", "1", *flags])
         with pytest.raises(Stop):
