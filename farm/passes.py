@@ -320,7 +320,7 @@ def set_environment_world(
 
 # Importance-map texels per map texel along each axis. The map is looked up with
 # bilinear interpolation, so a one-texel sun spreads over its neighbours; a map
-# only as fine as the texels gives those neighbours too little probability (2.4 dB
+# only as fine as the texels gives those neighbours too little probability (2.7 dB
 # more noise at 16 spp + OIDN than Cycles' 4096-wide map), see
 # docs/benchmarks/farm_render.md for the measured choice.
 IMPORTANCE_MAP_OVERSAMPLING = 2
