@@ -16,6 +16,7 @@ Blender when no procedural sky is drawn (or a sky renderer is given).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.metadata
 import math
@@ -103,11 +104,25 @@ class SceneSample:
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(vertices, faces, normals) of all parts concatenated, in world space."""
+        return self._world_mesh
+
+    def camera_mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices, normals) of the concatenated mesh in the camera frame (bake and AOVs)."""
+        return self._camera_mesh
+
+    # Computed once: the bake, the Blender build and the record all need them.
+    @functools.cached_property
+    def _world_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         offsets = self.offsets
         vertices = np.concatenate([p.vertices for p in self.parts])
         faces = np.concatenate([p.faces + offsets[i] for i, p in enumerate(self.parts)])
         normals = np.concatenate([p.normals for p in self.parts])
         return vertices, faces, normals
+
+    @functools.cached_property
+    def _camera_mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        vertices, _, normals = self._world_mesh
+        return self.camera.to_camera(vertices), normals @ self.camera.world_to_camera.T
 
     def geometry_record(self) -> dict:
         vertices, faces, _ = self.mesh()
@@ -226,10 +241,8 @@ def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
     if "prt" not in options.passes:
         return SceneBake(None, record)
     t0 = time.perf_counter()
-    vertices, faces, normals = sample.mesh()
-    cam = sample.camera
-    cam_vertices = cam.to_camera(vertices)
-    cam_normals = normals @ cam.world_to_camera.T
+    _, faces, _ = sample.mesh()
+    cam_vertices, cam_normals = sample.camera_mesh()
     parts = sample.parts
     specular_needed = not all(appearance.is_diffuse(p.material) for p in parts)
     use_specular = options.specular == "on" or (options.specular == "auto" and specular_needed)
@@ -265,9 +278,7 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
 
     options = sample.options
     cam = sample.camera
-    vertices, _, normals = sample.mesh()
-    cam_vertices = cam.to_camera(vertices)
-    cam_normals = normals @ cam.world_to_camera.T
+    cam_vertices, cam_normals = sample.camera_mesh()
     offsets = sample.offsets
     passes.configure_film(scene, (options.resolution, options.resolution))
     passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
