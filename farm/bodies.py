@@ -36,7 +36,9 @@ def body_model():
 
         # The cores this process may use (a farm worker is pinned to its share):
         # idle OpenMP threads on other cores spin and steal them from the other workers.
-        torch.set_num_threads(max(1, min(2, len(os.sched_getaffinity(0)))))
+        from relight.cli_args import cores_available
+
+        torch.set_num_threads(min(2, cores_available()))
         _MODEL = anny.Anny()
     return _MODEL
 

@@ -35,6 +35,7 @@ import time
 from farm.outputs import WORKER_LOG_DIR, check_scene, disk_room, plan_run, remove_partial_files
 from farm.pool import _Worker, worker_command, worker_cpus
 from farm.run_config import FarmError, RunConfig
+from relight.cli_args import cores_available
 from farm.runbook import RunBook, Summary
 
 MAX_START_FAILURES = 3
@@ -51,7 +52,9 @@ class LocalExecutor:
         self.slots: list[_Worker | None] = [None] * config.workers
         self.retiring: list[_Worker] = []
         self.command = worker_command(config)
-        self.threads = max(1, len(os.sched_getaffinity(0)) // config.workers)
+        # the cores this run may use; pinning needs the affinity API (Linux)
+        self.cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+        self.threads = max(1, cores_available() // config.workers)
         self.log_dir = config.out / WORKER_LOG_DIR
         self.log_dir.mkdir(exist_ok=True)
         self.start_failures = 0
@@ -62,7 +65,7 @@ class LocalExecutor:
     def _spawn(self, slot: int) -> None:
         self.book.workers_started += 1
         log = self.log_dir / f"worker{slot}.log"
-        cpus = worker_cpus(slot, self.config.workers, os.sched_getaffinity(0)) if self.config.pin else None
+        cpus = worker_cpus(slot, self.config.workers, self.cores) if self.config.pin and self.cores else None
         self.slots[slot] = _Worker(slot, self.command, log, self.events, self.threads, cpus)
 
     def _drop(self, worker: _Worker, kill: bool) -> None:
