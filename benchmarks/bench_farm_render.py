@@ -131,11 +131,11 @@ def bench_calls(args) -> None:
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """PSNR (dB) over the masked pixels, peak = the reference's 99th percentile there (HDR-safe)."""
-    ref = reference[mask]
-    peak = float(np.percentile(ref, 99.0))
-    mse = float(np.mean((image[mask] - ref) ** 2))
-    return 10.0 * np.log10(peak * peak / max(mse, 1e-20))
+    """model.metrics.psnr over the masked pixels, peak = the reference's 99th percentile there (HDR-safe)."""
+    from model import metrics
+
+    peak = float(np.percentile(reference[mask], 99.0))
+    return metrics.psnr(image, reference, mask.astype(np.float64), peak=peak)
 
 
 REFERENCE_SEED = 7919

@@ -291,8 +291,8 @@ def set_environment_world(
     # A fresh World per light: Cycles reads the importance-map settings only
     # when it first syncs a World, and the automatic setting of Blender 5.0
     # builds a 4096 x 2048 map for any map without a sun (1.2-1.5 s per
-    # light change on one core, docs/benchmarks/farm_render.md). The map's
-    # own resolution is what its texels can resolve.
+    # light change on one core, docs/benchmarks/farm_render.md); ours is sized
+    # from the map (importance_map_resolution).
     previous = scene.world
     world = bpy.data.worlds.new(name)
     world.cycles.sampling_method = "MANUAL"
@@ -326,11 +326,10 @@ def set_environment_world(
 IMPORTANCE_MAP_OVERSAMPLING = 2
 
 
-def importance_map_resolution(map_width: int, oversampling: int | None = None) -> int:
+def importance_map_resolution(map_width: int) -> int:
     """Width of the World importance map for an equirect map `map_width` texels wide,
     within Cycles' own bounds for the setting."""
-    factor = IMPORTANCE_MAP_OVERSAMPLING if oversampling is None else oversampling
-    return int(min(max(int(map_width) * factor, 64), 8192))
+    return int(min(max(int(map_width) * IMPORTANCE_MAP_OVERSAMPLING, 64), 8192))
 
 
 def _load_image(path: Path | None, pixels: np.ndarray | None, name: str):
