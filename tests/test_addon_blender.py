@@ -636,18 +636,24 @@ class _CheckingLayout:
         self.log.append(("operator", idname))
 
 
-@pytest.mark.parametrize("kind, shown", [("WORLD", "label"), ("HDR", "hdr_path"), ("PRESET", "preset"),
-                                         ("IMAGE", "light_image")])
-def test_panel_draws_every_light_kind(addon, settings, kind, shown):
+def _draw_panel(photo_name: str) -> list:
+    """Draw the N-panel for the image `photo_name` into a _CheckingLayout; returns its log."""
     import types
 
-    settings.light_kind = kind
     log = []
     panel = types.SimpleNamespace(layout=_CheckingLayout(log))
-    space = types.SimpleNamespace(image=bpy.data.images[addon["photo"]])
+    space = types.SimpleNamespace(image=bpy.data.images[photo_name])
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=bpy.context.window_manager,
                                     space_data=space)
     bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
+    return log
+
+
+@pytest.mark.parametrize("kind, shown", [("WORLD", "label"), ("HDR", "hdr_path"), ("PRESET", "preset"),
+                                         ("IMAGE", "light_image")])
+def test_panel_draws_every_light_kind(addon, settings, kind, shown):
+    settings.light_kind = kind
+    log = _draw_panel(addon["photo"])
     names = [entry[1] for entry in log]
     assert ("operator", "relight_photo.relight") in log and ("operator", "relight_photo.save_layers") in log
     assert {"rotation", "exposure", "strength", "quality", "mask_mode"} <= set(names)
@@ -957,19 +963,12 @@ def test_automatic_mask_with_nobody_in_the_photo_says_so(addon, settings, tmp_pa
 
 
 def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, settings):
-    import types
-
     settings.mask_mode = "AUTO"
     settings.people_found = 2
     status = bpy.context.window_manager.relight_photo_status
     status.running, status.stage, status.progress, status.elapsed = True, "Running the network", 0.42, 3.25
     try:
-        log = []
-        panel = types.SimpleNamespace(layout=_CheckingLayout(log))
-        space = types.SimpleNamespace(image=bpy.data.images[addon["photo"]])
-        context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=bpy.context.window_manager,
-                                        space_data=space)
-        bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
+        log = _draw_panel(addon["photo"])
         labels = [text for kind, text in log if kind == "label"]
         assert ("prop", "person") in log
         from blender_addon import bl_props
