@@ -1,15 +1,22 @@
 """Build the extension zip that Blender's "Install from Disk" takes.
 
-    python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline] [--split-platforms]
+    python -m blender_addon.build [--out dist/] [--wheel-cache DIR] [--offline]
+                                  [--platform P ...] [--split-platforms] [--split-pythons]
                                   [--docs docs/addon.md]
 
 Bundles the add-on, this project's torch-free core `relight/` (as a wheel,
 with the HDR presets and the ONNX models the quality presets use), and the
 onnxruntime, OpenEXR and Pillow wheels for linux-x64, windows-x64, macos-arm64 and
-macos-x64 at the versions installed here (onnxruntime 1.23.2 on macos-x64, its
-last Intel Mac wheel). `--docs docs/addon.md` writes the measured sizes there. Wheels are downloaded once with pip into a cache
-outside the repository; numpy is Blender's own. The zip is written
-atomically and its manifest validated.
+macos-x64, each for every Python the supported Blender releases embed (3.11 for
+Blender 4.2-5.0, 3.13 for 5.1-5.3; Intel Macs run only 4.2-4.5), at the versions
+installed here (onnxruntime 1.23.2 on macos-x64, its last Intel Mac wheel).
+Blender installs only the wheels of its own platform and Python. The manifest's
+blender_version_min / _max are rewritten to the releases whose Python the zip has
+wheels for. `--split-platforms` adds one zip per platform, `--split-pythons` one
+per platform and Python (the smallest downloads). `--docs docs/addon.md` writes the
+measured sizes there. Wheels are downloaded once with pip into a cache outside the
+repository; numpy is Blender's own. The zip is written atomically and its manifest
+validated.
 """
 
 from __future__ import annotations
@@ -36,8 +43,7 @@ ADDON_DIR = Path(__file__).resolve().parent
 REPO_ROOT = ADDON_DIR.parent
 CORE_DIR = REPO_ROOT / "relight"
 CORE_DIST = "fullbody_relight_core"
-PYTHON_TAG = "cp311"          # Blender 4.2 - 5.0 embed Python 3.11
-PYTHON_VERSION = "3.11"
+PYTHON_BLENDERS, PLATFORM_PYTHONS = manifest_rules.PYTHON_BLENDERS, manifest_rules.PLATFORM_PYTHONS
 # (distribution on PyPI, file-name prefix) of the binary wheels bundled per platform
 BINARY_DEPS = (("onnxruntime", "onnxruntime"), ("OpenEXR", "openexr"), ("Pillow", "pillow"))
 # pip --platform tag per Blender platform; pip also accepts older compatible tags
@@ -51,7 +57,7 @@ PLATFORM_TAGS = {
 # version: onnxruntime's last macOS x86-64 wheels are 1.23.2 (the shipped models give
 # bit-identical results with 1.23.2 and the installed version on Linux).
 VERSION_OVERRIDES = {("onnxruntime", "macos-x64"): "1.23.2"}
-DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --split-platforms --docs docs/addon.md`: begin -->"
+DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --split-platforms --split-pythons --docs docs/addon.md`: begin -->"
 DOCS_END = "<!-- sizes: end -->"
 ADDON_EXCLUDE = {"build.py", "__main__.py"}
 CORE_DATA_SUFFIXES = {".py", ".exr", ".md", ".json", ".onnx", ".sha256"}
@@ -74,12 +80,17 @@ def installed_version(dist: str) -> str:
         raise BuildError(f"{dist} is not installed here; the add-on bundles the installed version") from None
 
 
-def _wheel_matches(name: str, prefix: str, version: str, platform_tag: str) -> bool:
+def python_tag(python: str) -> str:
+    """"3.13" -> "cp313"."""
+    return "cp" + python.replace(".", "")
+
+
+def _wheel_matches(name: str, prefix: str, version: str, platform_tag: str, python: str) -> bool:
     parts = name[:-4].split("-")
     if len(parts) not in (5, 6) or parts[0].lower() != prefix or parts[1] != version:
         return False
-    python_tag, platform = parts[-3], parts[-1]
-    if python_tag != PYTHON_TAG:
+    wheel_python, platform = parts[-3], parts[-1]
+    if wheel_python != python_tag(python):
         return False
     if platform_tag.startswith("manylinux"):
         return "x86_64" in platform and "linux" in platform
@@ -89,31 +100,33 @@ def _wheel_matches(name: str, prefix: str, version: str, platform_tag: str) -> b
     return platform == platform_tag
 
 
-def find_cached_wheel(cache: Path, prefix: str, version: str, platform_tag: str) -> Path | None:
+def find_cached_wheel(cache: Path, prefix: str, version: str, platform_tag: str,
+                      python: str) -> Path | None:
     for p in sorted(cache.glob("*.whl")):
-        if _wheel_matches(p.name, prefix, version, platform_tag):
+        if _wheel_matches(p.name, prefix, version, platform_tag, python):
             return p
     return None
 
 
 def fetch_wheel(cache: Path, dist: str, prefix: str, version: str, platform_tag: str,
-                offline: bool) -> Path:
-    """The cached wheel, downloading it with pip first when needed."""
-    found = find_cached_wheel(cache, prefix, version, platform_tag)
+                offline: bool, python: str) -> Path:
+    """The cached wheel for `python` ("3.11"), downloading it with pip first when needed."""
+    found = find_cached_wheel(cache, prefix, version, platform_tag, python)
     if found is not None:
         return found
+    where = f"{platform_tag}, Python {python}"
     if offline:
-        raise BuildError(f"{dist}=={version} for {platform_tag} is not in the wheel cache {cache} "
+        raise BuildError(f"{dist}=={version} for {where} is not in the wheel cache {cache} "
                          "and --offline forbids downloading it")
     cache.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "pip", "download", "--only-binary=:all:", "--no-deps",
-           "--python-version", PYTHON_VERSION, "--platform", platform_tag,
+           "--python-version", python, "--platform", platform_tag,
            "--disable-pip-version-check", "-q", f"{dist}=={version}", "-d", str(cache)]
     done = subprocess.run(cmd, capture_output=True, text=True)
-    found = find_cached_wheel(cache, prefix, version, platform_tag)
+    found = find_cached_wheel(cache, prefix, version, platform_tag, python)
     if done.returncode != 0 or found is None:
         reason = (done.stderr.strip().splitlines() or ["no wheel for this platform"])[-1]
-        raise BuildError(f"cannot download {dist}=={version} for {platform_tag} (offline? {reason}); "
+        raise BuildError(f"cannot download {dist}=={version} for {where} (offline? {reason}); "
                          f"put the wheel into {cache} and run the build again")
     return found
 
@@ -238,19 +251,58 @@ def _rewrite_platforms(manifest_text: str, platforms: tuple[str, ...]) -> str:
     return text
 
 
-def build_split(out_dir: Path, cache: Path | None = None, offline: bool = False) -> list[Path]:
-    """One zip per platform (`<id>-<version>-<platform>.zip`, Blender's naming for
-    split extensions): each holds only its own platform's wheels."""
-    return [build(out_dir, cache, offline, (platform,)) for platform in manifest_rules.PLATFORMS]
+def _rewrite_version_range(manifest_text: str, low: str, high: str) -> str:
+    """blender_version_min = low and blender_version_max = high (added after min if absent)."""
+    text, count = re.subn(r'^blender_version_min\s*=\s*".*?"\s*$', f'blender_version_min = "{low}"',
+                          manifest_text, count=1, flags=re.M)
+    if count != 1:
+        raise BuildError("blender_manifest.toml has no one-line 'blender_version_min = \"...\"' to rewrite")
+    text, count = re.subn(r'^blender_version_max\s*=\s*".*?"\s*$', f'blender_version_max = "{high}"',
+                          text, count=1, flags=re.M)
+    if count == 0:
+        text = re.sub(r'^(blender_version_min\s*=.*)$', lambda m: f'{m.group(1)}\nblender_version_max = "{high}"',
+                      text, count=1, flags=re.M)
+    return text
+
+
+def blender_range(pythons) -> tuple[str, str]:
+    """[first, last) Blender version whose embedded Python is one of `pythons`; they must be
+    adjacent in PYTHON_BLENDERS (a gap would claim releases the zip has no wheels for)."""
+    ranges = sorted((PYTHON_BLENDERS[p] for p in pythons), key=lambda r: manifest_rules.version_key(r[0]))
+    for (_, end), (start, _) in zip(ranges, ranges[1:]):
+        if end != start:
+            raise BuildError(f"Pythons {sorted(pythons)} leave Blender {end} - {start} without wheels")
+    return ranges[0][0], ranges[-1][1]
+
+
+def build_split(out_dir: Path, cache: Path | None = None, offline: bool = False,
+                by_python: bool = False) -> list[Path]:
+    """One zip per platform (`<id>-<version>-<platform>.zip`, Blender's naming for split
+    extensions), each with only its own platform's wheels; with `by_python`, one per
+    platform and Python (`...-<platform>-py313.zip`)."""
+    if not by_python:
+        return [build(out_dir, cache, offline, (platform,)) for platform in manifest_rules.PLATFORMS]
+    return [build(out_dir, cache, offline, (platform,), (python,))
+            for platform in manifest_rules.PLATFORMS for python in PLATFORM_PYTHONS[platform]]
 
 
 def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
-          platforms: tuple[str, ...] | None = None) -> Path:
-    """Build and validate the extension zip for `platforms` (default: all); returns its path."""
+          platforms: tuple[str, ...] | None = None, pythons: tuple[str, ...] | None = None) -> Path:
+    """Build and validate the extension zip for `platforms` (default: all) and `pythons`
+    (default: every Python of PYTHON_BLENDERS); returns its path."""
     platforms = tuple(manifest_rules.PLATFORMS if platforms is None else platforms)
     unknown = set(platforms) - set(manifest_rules.PLATFORMS)
     if unknown or not platforms:
         raise BuildError(f"unknown platforms {sorted(unknown)}; expected some of {list(manifest_rules.PLATFORMS)}")
+    pythons = tuple(PYTHON_BLENDERS if pythons is None else pythons)
+    unknown = set(pythons) - set(PYTHON_BLENDERS)
+    if unknown or not pythons:
+        raise BuildError(f"unknown Pythons {sorted(unknown)}; expected some of {list(PYTHON_BLENDERS)}")
+    targets = [(platform, python) for platform in platforms for python in pythons
+               if python in PLATFORM_PYTHONS[platform]]
+    if not targets:
+        raise BuildError(f"no Blender runs Python {', '.join(pythons)} on {', '.join(platforms)}")
+    low, high = blender_range({python for _, python in targets})
     cache = Path(cache) if cache else default_cache()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -262,10 +314,10 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
     platform_wheels = []
     for dist, prefix in BINARY_DEPS:
         installed = installed_version(dist)
-        for blender_platform in platforms:
+        for blender_platform, python in targets:
             version = VERSION_OVERRIDES.get((dist.lower(), blender_platform), installed)
             platform_wheels.append(fetch_wheel(cache, dist, prefix, version,
-                                               PLATFORM_TAGS[blender_platform], offline))
+                                               PLATFORM_TAGS[blender_platform], offline, python))
     with tempfile.TemporaryDirectory(prefix="relight_addon_build_") as tmp:
         stage = Path(tmp)
         (stage / "wheels").mkdir()
@@ -275,6 +327,7 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
         for w in platform_wheels:
             (stage / "wheels" / w.name).write_bytes(w.read_bytes())
         manifest_text = _rewrite_wheels(manifest_text, listed)
+        manifest_text = _rewrite_version_range(manifest_text, low, high)
         if platforms != tuple(manifest_rules.PLATFORMS):
             manifest_text = _rewrite_platforms(manifest_text, platforms)
         (stage / "blender_manifest.toml").write_text(manifest_text, encoding="utf-8")
@@ -285,6 +338,8 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
             raise BuildError(str(exc)) from None
         suffix = "" if platforms == tuple(manifest_rules.PLATFORMS) else \
             "-" + "-".join(p.replace("-", "_") for p in platforms)
+        if pythons != tuple(PYTHON_BLENDERS):
+            suffix += "-" + "-".join(python_tag(p).replace("cp", "py") for p in pythons)
         zip_path = out_dir / f"{manifest['id']}-{manifest['version']}{suffix}.zip"
         with atomic_path(zip_path) as tmp_zip, zipfile.ZipFile(tmp_zip, "w") as zf:
             _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
@@ -348,14 +403,21 @@ def main(argv=None) -> int:
     parser.add_argument("--offline", action="store_true", help="never download: use the cache only")
     parser.add_argument("--docs", default=None,
                         help="Markdown file whose size block is rewritten with the measured sizes")
+    parser.add_argument("--platform", action="append", choices=manifest_rules.PLATFORMS,
+                        help="build the main zip for this platform only (repeatable; default: all)")
     parser.add_argument("--split-platforms", action="store_true",
                         help="also one zip per platform, each with only its own wheels")
+    parser.add_argument("--split-pythons", action="store_true",
+                        help="also one zip per platform and Python (Blender 4.2-5.0: 3.11, 5.1+: 3.13)")
     args = parser.parse_args(argv)
     cache = Path(args.wheel_cache) if args.wheel_cache else None
     try:
-        paths = [build(Path(args.out), cache, args.offline)]
+        platforms = tuple(dict.fromkeys(args.platform)) if args.platform else None
+        paths = [build(Path(args.out), cache, args.offline, platforms)]
         if args.split_platforms:
             paths += build_split(Path(args.out), cache, args.offline)
+        if args.split_pythons:
+            paths += build_split(Path(args.out), cache, args.offline, by_python=True)
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -14,6 +14,13 @@ from pathlib import Path, PurePosixPath
 REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
             "blender_version_min", "license")
 PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64", "macos-x64")
+# The Python each Blender release embeds, as [first, last) Blender version: 4.2 - 5.0 run
+# 3.11, 5.1 - 5.3 run 3.13. The last bound is the newest release known to keep 3.13
+# (Blender's blender_version_max is exclusive).
+PYTHON_BLENDERS = {"3.11": ("4.2.0", "5.1.0"), "3.13": ("5.1.0", "5.4.0")}
+# Blender 5.0 dropped Intel Macs: macos-x64 runs 4.2 - 4.5, Python 3.11 only
+PLATFORM_PYTHONS = {"linux-x64": ("3.11", "3.13"), "windows-x64": ("3.11", "3.13"),
+                    "macos-arm64": ("3.11", "3.13"), "macos-x64": ("3.11",)}
 ALLOWED_PERMISSIONS = {"files"}
 _VERSION = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
 _ID = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -37,7 +44,7 @@ def problems(manifest: dict, package_root: str | Path | None = None,
     for key in REQUIRED:
         if key not in manifest:
             errors.append(f"missing required key '{key}'")
-    for key in ("schema_version", "version", "blender_version_min"):
+    for key in ("schema_version", "version", "blender_version_min", "blender_version_max"):
         value = manifest.get(key)
         if value is not None and not (isinstance(value, str) and _VERSION.match(value)):
             errors.append(f"'{key}' must be a version string like 1.2.3, got {value!r}")
@@ -55,6 +62,11 @@ def problems(manifest: dict, package_root: str | Path | None = None,
     if isinstance(version_min, str) and _VERSION.match(version_min) and \
             tuple(map(int, version_min.split("."))) < (4, 2, 0):
         errors.append("'blender_version_min' must be 4.2.0 or later (extensions need it)")
+    version_max = manifest.get("blender_version_max")
+    if isinstance(version_min, str) and isinstance(version_max, str) and \
+            _VERSION.match(version_min) and _VERSION.match(version_max) and \
+            version_key(version_max) <= version_key(version_min):
+        errors.append("'blender_version_max' (exclusive) must be above 'blender_version_min'")
     licenses = manifest.get("license")
     if licenses is not None and not (isinstance(licenses, list) and licenses and
                                      all(isinstance(x, str) and x.startswith("SPDX:") for x in licenses)):
@@ -87,6 +99,39 @@ def problems(manifest: dict, package_root: str | Path | None = None,
             errors.append(f"wheel file name {p.name!r} does not follow NAME-VERSION-PY-ABI-PLATFORM.whl")
         if package_root is not None and not (Path(package_root) / p).is_file():
             errors.append(f"wheel {wheel!r} is listed but not in the package")
+    errors += _python_coverage(manifest, wheels)
+    return errors
+
+
+def version_key(version: str) -> tuple[int, ...]:
+    return tuple(int(x) for x in version.split("."))
+
+
+def pythons_in_range(version_min: str, version_max: str | None) -> list[str]:
+    """The Pythons (PYTHON_BLENDERS) of the Blender releases in [version_min, version_max)."""
+    low, high = version_key(version_min), version_key(version_max) if version_max else (10 ** 6,)
+    return [py for py, (first, last) in PYTHON_BLENDERS.items() if version_key(first) < high and low < version_key(last)]
+
+
+def _python_coverage(manifest: dict, wheels: list) -> list[str]:
+    """Every binary wheel's distribution must have a wheel for each Python of the Blender
+    releases the manifest claims: otherwise those releases install an add-on that cannot
+    import it (Blender 5.1+ refused the 3.11-only zip; a range wider than the wheels is a lie)."""
+    version_min, version_max = manifest.get("blender_version_min"), manifest.get("blender_version_max")
+    if not (isinstance(version_min, str) and _VERSION.match(version_min)) or \
+            (version_max is not None and not (isinstance(version_max, str) and _VERSION.match(version_max))):
+        return []
+    have: dict[str, set[str]] = {}
+    for wheel in wheels:
+        parts = PurePosixPath(str(wheel)).name[:-4].split("-")
+        if len(parts) in (5, 6) and parts[-3].startswith("cp"):
+            have.setdefault(parts[0].lower(), set()).add(parts[-3][2] + "." + parts[-3][3:])
+    errors = []
+    for dist, pythons in sorted(have.items()):
+        missing = [py for py in pythons_in_range(version_min, version_max) if py not in pythons]
+        if missing:
+            errors.append(f"Blender {version_min} - {version_max or 'any'} embeds Python {', '.join(missing)}, "
+                          f"but no {dist} wheel is for it (set blender_version_min/_max to what the wheels cover)")
     return errors
 
 

@@ -11,3 +11,42 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+def pytest_report_header(config):
+    """CPU and kernel-library facts at the top of the log, so that a run that is red on
+    another machine says which instruction sets and versions it ran with."""
+    import platform
+
+    lines = [f"python {platform.python_version()} on {platform.machine()}"]
+    cpu, flags = "unknown", set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and cpu == "unknown":
+                    cpu = value.strip()
+                elif key.strip() == "flags" and not flags:
+                    flags = set(value.split())
+    except OSError:
+        cpu = platform.processor() or "unknown"
+    simd = [f for f in ("sse4_2", "avx", "fma", "avx2", "avx512f", "avx512bw", "avx512vl", "avx512_vnni",
+                        "avx512_bf16", "avx512_fp16", "amx_tile") if f in flags]
+    lines.append(f"cpu: {cpu}; flags: {' '.join(simd) or 'n/a'}")
+    try:
+        import numpy as np
+        try:
+            from numpy._core import _multiarray_umath as umath
+        except ImportError:  # numpy 1.x
+            from numpy.core import _multiarray_umath as umath
+        dispatched = [f for f in umath.__cpu_dispatch__ if umath.__cpu_features__.get(f)]
+        lines.append(f"numpy {np.__version__}: baseline {' '.join(umath.__cpu_baseline__)}; "
+                     f"dispatch {' '.join(dispatched)}")
+    except ImportError:
+        pass
+    try:
+        import onnxruntime as ort
+        lines.append(f"onnxruntime {ort.__version__} ({', '.join(ort.get_available_providers())})")
+    except ImportError:
+        pass
+    return lines

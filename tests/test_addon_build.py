@@ -39,12 +39,24 @@ def _version(dist: str, platform: str) -> str:
     return build.VERSION_OVERRIDES.get((dist.lower(), platform), importlib.metadata.version(dist))
 
 
-def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str) -> Path:
+def _tag(python: str) -> str:
+    return build.python_tag(python)
+
+
+def _targets():
+    """(Blender platform, index in manifest.PLATFORMS, Python) of every wheel the full zip holds."""
+    return [(platform, i, python) for i, platform in enumerate(manifest.PLATFORMS)
+            for python in manifest.PLATFORM_PYTHONS[platform]]
+
+
+def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str, python: str) -> Path:
     """A metadata-only wheel named like the real one (installs nothing importable)."""
-    name = f"{prefix}-{version}-cp311-cp311-{platform}.whl"
+    tag = _tag(python)
+    name = f"{prefix}-{version}-{tag}-{tag}-{platform}.whl"
     dist_info = f"{prefix}-{version}.dist-info"
-    files = {f"{dist_info}/METADATA": f"Metadata-Version: 2.1\nName: {prefix}\nVersion: {version}\n",
-             f"{dist_info}/WHEEL": f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: cp311-cp311-{platform}\n"}
+    files = {f"{dist_info}/METADATA": f"Metadata-Version: 2.1\nName: {prefix}\nVersion: {version}\n"
+                                      f"Summary: stand-in for {tag}\n",
+             f"{dist_info}/WHEEL": f"Wheel-Version: 1.0\nRoot-Is-Purelib: false\nTag: {tag}-{tag}-{platform}\n"}
     with zipfile.ZipFile(folder / name, "w") as zf:
         for arc, text in files.items():
             zf.writestr(arc, text)
@@ -56,8 +68,8 @@ def _stand_in_wheel(folder: Path, prefix: str, version: str, platform: str) -> P
 def wheel_cache(tmp_path_factory):
     cache = tmp_path_factory.mktemp("wheel_cache")
     for dist, prefix in build.BINARY_DEPS:
-        for blender_platform, platform in zip(manifest.PLATFORMS, PLATFORM_FILE_TAGS[prefix]):
-            _stand_in_wheel(cache, prefix, _version(dist, blender_platform), platform)
+        for blender_platform, index, python in _targets():
+            _stand_in_wheel(cache, prefix, _version(dist, blender_platform), PLATFORM_FILE_TAGS[prefix][index], python)
     return cache
 
 
@@ -84,13 +96,18 @@ def test_zip_layout_and_manifest(built_zip, tmp_path):
     assert manifest.problems(data, tmp_path) == []
     listed = {w.removeprefix("./") for w in data["wheels"]}
     assert listed == {n for n in names if n.startswith("wheels/")}
-    # every binary dependency for each of the four platforms, plus the core
-    assert len(listed) == 1 + 4 * len(build.BINARY_DEPS)
+    # every binary dependency for each platform and each Python its Blender releases embed
+    # (3.11 and 3.13; Intel Macs 3.11 only: 7 targets), plus the core
+    assert len(_targets()) == 7 and len(listed) == 1 + 7 * len(build.BINARY_DEPS)
     for dist, prefix in build.BINARY_DEPS:
-        for blender_platform, platform in zip(manifest.PLATFORMS, PLATFORM_FILE_TAGS[prefix]):
-            assert f"wheels/{prefix}-{_version(dist, blender_platform)}-cp311-cp311-{platform}.whl" in listed
+        for blender_platform, index, python in _targets():
+            tag = _tag(python)
+            name = f"{prefix}-{_version(dist, blender_platform)}-{tag}-{tag}-{PLATFORM_FILE_TAGS[prefix][index]}.whl"
+            assert f"wheels/{name}" in listed
     # Intel Macs get onnxruntime 1.23.2: the newest with macOS x86-64 wheels on PyPI
     assert any(w.endswith("onnxruntime-1.23.2-cp311-cp311-macosx_13_0_x86_64.whl") for w in listed)
+    # the range is what the wheels cover: Blender 4.2 (Python 3.11) up to, not including, 5.4
+    assert (data["blender_version_min"], data["blender_version_max"]) == ("4.2.0", "5.4.0")
 
 
 def test_blenders_own_validator_accepts_the_zip(built_zip):
@@ -165,8 +182,8 @@ def test_split_platform_zips_hold_only_their_own_wheels(wheel_cache, tmp_path):
         data = manifest.load(folder / "blender_manifest.toml")
         assert data["platforms"] == [platform]
         assert manifest.problems(data, folder, (platform,)) == []
-        wanted = {f"wheels/{prefix}-{_version(dist, platform)}-cp311-cp311-{PLATFORM_FILE_TAGS[prefix][index]}.whl"
-                  for dist, prefix in build.BINARY_DEPS}
+        wanted = {f"wheels/{prefix}-{_version(dist, platform)}-{_tag(py)}-{_tag(py)}-{PLATFORM_FILE_TAGS[prefix][index]}.whl"
+                  for dist, prefix in build.BINARY_DEPS for py in manifest.PLATFORM_PYTHONS[platform]}
         wheels = {n for n in names if n.startswith("wheels/")}
         assert wheels - wanted == {n for n in wheels if "fullbody_relight_core" in n} and wanted <= wheels
     done = subprocess.run([sys.executable, str(_blender_ext_cli()), "validate", str(paths[0])],
@@ -174,6 +191,45 @@ def test_split_platform_zips_hold_only_their_own_wheels(wheel_cache, tmp_path):
     assert done.returncode == 0 and "Success" in done.stdout, done.stdout + done.stderr
     report = build.size_report(paths)
     assert all(f"Zip `{p.name}`: **{p.stat().st_size / 1e6:.1f} MB**" in report for p in paths)
+
+
+def test_per_python_zips_claim_only_the_blenders_of_their_python(wheel_cache, tmp_path):
+    paths = build.build_split(tmp_path / "split", wheel_cache, offline=True, by_python=True)
+    expect = [(platform, py) for platform in manifest.PLATFORMS for py in manifest.PLATFORM_PYTHONS[platform]]
+    assert [p.name for p in paths] == [f"relight_photo-0.1.0-{platform.replace('-', '_')}-{_tag(py).replace('cp', 'py')}.zip"
+                                       for platform, py in expect]
+    for path, (platform, py) in zip(paths, expect):
+        folder = tmp_path / path.stem
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(folder)
+            wheels = [n for n in zf.namelist() if n.startswith("wheels/") and "fullbody_relight_core" not in n]
+        data = manifest.load(folder / "blender_manifest.toml")
+        assert manifest.problems(data, folder, (platform,)) == []
+        assert (data["blender_version_min"], data["blender_version_max"]) == manifest.PYTHON_BLENDERS[py]
+        assert len(wheels) == len(build.BINARY_DEPS) and all(f"-{_tag(py)}-" in w for w in wheels)
+    # a 3.13 zip is smaller than the two-Python platform zip (the point of splitting)
+    both = build.build(tmp_path / "both", wheel_cache, offline=True, platforms=("linux-x64",))
+    py313 = next(p for p in paths if p.name.endswith("linux_x64-py313.zip"))
+    assert py313.stat().st_size < both.stat().st_size
+    done = subprocess.run([sys.executable, str(_blender_ext_cli()), "validate", str(py313)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Success" in done.stdout, done.stdout + done.stderr
+
+
+def test_manifest_range_wider_than_the_wheels_is_refused():
+    """The zip Blender 5.2 refused: cp311 wheels only, yet no blender_version_max."""
+    only_311 = {"schema_version": "1.0.0", "id": "x", "version": "1.0.0", "name": "X", "tagline": "x",
+                "maintainer": "x", "type": "add-on", "blender_version_min": "4.2.0", "license": ["SPDX:MIT"],
+                "wheels": ["./wheels/onnxruntime-1.32.0-cp311-cp311-win_amd64.whl"]}
+    assert any("embeds Python 3.13" in e and "onnxruntime" in e for e in manifest.problems(only_311))
+    assert manifest.problems(dict(only_311, blender_version_max="5.1.0")) == []
+    assert any("above" in e for e in manifest.problems(dict(only_311, blender_version_max="4.2.0")))
+    assert manifest.pythons_in_range("4.2.0", "5.4.0") == ["3.11", "3.13"]
+    assert manifest.pythons_in_range("5.1.0", None) == ["3.13"]
+    with pytest.raises(build.BuildError, match="unknown Pythons"):
+        build.build(Path("unused"), None, True, ("linux-x64",), ("3.12",))
+    with pytest.raises(build.BuildError, match="no Blender runs Python 3.13 on macos-x64"):
+        build.build(Path("unused"), None, True, ("macos-x64",), ("3.13",))
 
 
 def test_build_is_reproducible(built_zip, wheel_cache, tmp_path):
