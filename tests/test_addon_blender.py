@@ -66,6 +66,14 @@ def write_person_png(path: Path, with_alpha: bool = False) -> None:
         Image.fromarray(rgb, "RGB").save(path)
 
 
+def new_node_world(name: str):
+    """A World with a node tree on every Blender: 5.0+ always has one, 4.2 - 4.5 only with use_nodes."""
+    world = bpy.data.worlds.new(name)
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    return world
+
+
 def pixels(name: str) -> np.ndarray:
     """Float RGBA [H, W, 4] of an image datablock, top row first."""
     image = bpy.data.images[name]
@@ -316,7 +324,7 @@ def test_save_layers_writes_a_multilayer_exr(addon, settings, tmp_path):
 # ------------------------------------------------------------------ World light
 
 def _env_world(path: Path, mapping_rotation=(0.0, 0.0, 0.0), vector_type="POINT"):
-    world = bpy.data.worlds.new("relight_test_world")
+    world = new_node_world("relight_test_world")
     tree = world.node_tree
     if tree is None:  # Blender < 5 needs nodes switched on
         world.use_nodes = True
@@ -428,7 +436,7 @@ def test_mapping_without_generated_coordinates_is_baked(addon, settings):
 
 
 def test_procedural_world_is_baked_and_tracked(addon, settings):
-    world = bpy.data.worlds.new("relight_sky")
+    world = new_node_world("relight_sky")
     tree = world.node_tree
     background = next(n for n in tree.nodes if n.type == "BACKGROUND")
     sky = tree.nodes.new("ShaderNodeTexSky")
@@ -737,7 +745,7 @@ def test_one_bake_per_world_change_cached_by_its_node_state(addon, settings, mon
 
     bakes = _count_bakes(monkeypatch)
     state.WORLDS.clear()
-    world = bpy.data.worlds.new("relight_flat_world")  # the default World: a Background colour, baked
+    world = new_node_world("relight_flat_world")  # the default World: a Background colour, baked
     background = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
     background.inputs["Color"].default_value = (0.8, 0.6, 0.4, 1.0)
     scene = bpy.context.scene

@@ -20,6 +20,7 @@ import textwrap
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from blender_addon import build, manifest
@@ -295,3 +296,69 @@ def test_blender_installs_the_zip_headlessly_and_it_relights(built_zip, tmp_path
     # the core came from the bundled wheel, not from this checkout
     assert out["relight_from"].startswith(str(tmp_path / "blender_user" / "extensions"))
     assert out["size"] == [48, 72] and out["finite"]
+
+
+_REAL_INSTALL = """
+import json, os, sys
+import bpy
+import numpy  # Blender's own numpy stays; everything else must come from the extension
+# hide this test environment's packages (onnxruntime, OpenEXR, Pillow, the checkout's relight):
+# what the add-on imports from now on can only be what the zip's wheels installed
+user = os.environ["BLENDER_USER_RESOURCES"]
+sys.path[:] = [p for p in sys.path if p.startswith(user) or ("site-packages" not in p and os.path.abspath(p) != {repo!r})]
+for name in [m for m in sys.modules if m.split(".")[0] in ("onnxruntime", "OpenEXR", "PIL", "relight")]:
+    del sys.modules[name]
+step, zip_path, photo, blend = sys.argv[1:5]
+if step == "install":
+    done = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+    bpy.ops.wm.save_userpref()
+else:
+    done = bpy.ops.preferences.addon_enable(module="bl_ext.user_default.relight_photo")
+import onnxruntime, PIL, OpenEXR, relight
+where = {{m.__name__: m.__file__ for m in (onnxruntime, PIL, OpenEXR, relight)}}
+settings = bpy.context.scene.relight_photo
+if step == "install":
+    image = bpy.data.images.load(photo)
+    settings.quality, settings.mask_mode = "DRAFT", "NETWORK"
+    settings.light_kind, settings.preset = "PRESET", "sunset"
+    ran = bpy.ops.relight_photo.relight(image_name=image.name, synchronous=True)
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+else:
+    ran = bpy.ops.wm.open_mainfile(filepath=blend)
+relit = bpy.data.images[os.path.basename(photo) + ".relit"]
+px = numpy.empty(relit.size[0] * relit.size[1] * 4, numpy.float32)
+relit.pixels.foreach_get(px)
+print(json.dumps({{"done": sorted(done), "ran": sorted(ran), "where": where, "python": sys.version[:4],
+                   "size": list(relit.size), "pixels": px[::7].tolist()}}))
+"""
+
+
+def test_real_wheels_install_relight_save_and_reopen_on_this_blender(tmp_path):
+    """The zip with PyPI's real wheels for this platform and this Blender's Python (3.11 under
+    bpy 4.2-5.0, 3.13 under 5.1+), installed by Blender's own installer with the test
+    environment's onnxruntime, OpenEXR and Pillow out of reach: it relights with the bundled
+    model, saves, and a fresh Blender reopens the result."""
+    python = f"{sys.version_info.major}.{sys.version_info.minor}"
+    zip_path = build.build(tmp_path / "dist", None, False, ("linux-x64",), (python,))
+    photo, blend = tmp_path / "person.png", tmp_path / "shot.blend"
+    write_person_png(photo)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["BLENDER_USER_RESOURCES"] = str(tmp_path / "blender_user")  # never the real user's Blender
+    outs = []
+    for step in ("install", "reopen"):
+        done = subprocess.run([sys.executable, "-c", _REAL_INSTALL.format(repo=str(REPO)), step, str(zip_path),
+                               str(photo), str(blend)], capture_output=True, text=True, cwd=tmp_path, env=env,
+                              timeout=300)
+        assert done.returncode == 0, done.stderr[-3000:]
+        outs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    installed, reopened = outs
+    assert installed["done"] == ["FINISHED"] and installed["ran"] == ["FINISHED"] and reopened["ran"] == ["FINISHED"]
+    extensions = str(tmp_path / "blender_user" / "extensions")
+    for out in outs:
+        assert out["python"] == python
+        assert all(path.startswith(extensions) for path in out["where"].values()), out["where"]
+    assert installed["size"] == reopened["size"] == [48, 72]
+    px = np.array(installed["pixels"])
+    assert np.all(np.isfinite(px)) and px.max() > 0.05  # a relit person, not a black image
+    # the reopened result is the saved one (float16 decomposition: relative 2^-11 per value)
+    np.testing.assert_allclose(reopened["pixels"], px, rtol=4e-3, atol=4e-3)
