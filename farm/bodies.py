@@ -36,7 +36,7 @@ def body_model():
 
         # The cores this process may use (a farm worker is pinned to its share):
         # idle OpenMP threads on other cores spin and steal them from the other workers.
-        from relight.cli_args import cores_available
+        from relight.session import cores_available
 
         torch.set_num_threads(min(2, cores_available()))
         _MODEL = anny.Anny()

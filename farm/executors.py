@@ -35,7 +35,7 @@ import time
 from farm.outputs import WORKER_LOG_DIR, check_scene, disk_room, plan_run, remove_partial_files
 from farm.pool import _Worker, worker_command, worker_cpus
 from farm.run_config import FarmError, RunConfig
-from relight.cli_args import cores_available
+from relight.session import cores_available
 from farm.runbook import RunBook, Summary
 
 MAX_START_FAILURES = 3

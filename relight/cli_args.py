@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import re
 
 EXIT_BAD_INPUT = 2
@@ -56,11 +55,3 @@ def bounded_int(low: int, high: int, why: str = ""):
         return value
 
     return parse
-
-
-def cores_available() -> int:
-    """CPU cores this process may run on (its affinity mask, not the host's count)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)

@@ -34,7 +34,8 @@ EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (ru
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
     from relight import quality
-    from relight.cli_args import ROTATE_LIMIT, bounded_int, cores_available, finite_float
+    from relight.cli_args import ROTATE_LIMIT, bounded_int, finite_float
+    from relight.session import cores_available
     from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
     from relight.runtime import MATTE_SOURCES
 

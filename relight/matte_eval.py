@@ -1,6 +1,6 @@
 """Person mattes against reference mattes on real photos: `python -m relight.matte_eval`.
 
-    python -m relight.matte_eval [--photos DIR] [--matte person|raw|selfie|pose|network]
+    python -m relight.matte_eval [--photos DIR] [--matte person|raw|selfie|pose|network|decompose]
                                  [--threads N] [--repeat N] [--json OUT.json]
 
 For every photo of DIR (default: the bundled set relight/data/matte_eval,
@@ -15,7 +15,8 @@ relight.matte.person_matte as shipped (the selfie and pose segmentations
 combined, guided edge), `raw` the same without the guided edge, `selfie` and
 `pose` one network each (with the guided edge), `network` the relighting
 network's alpha head (Relighter.decompose(matte="network"), the matte
-`relight image --matte network` uses).
+`relight image --matte network` uses), `decompose` what the library's default
+`Relighter().decompose(photo)` mattes with (the person matte).
 
 Boundary F-score: the boundary of a mask is its pixels with a 4-neighbour
 outside it; precision is the share of predicted boundary pixels within
@@ -38,7 +39,7 @@ EVAL_DIR = Path(__file__).resolve().parent / "data" / "matte_eval"
 REFERENCE_SUBDIR = "reference"
 BOUNDARY_TOLERANCE = 0.008   # of the image diagonal
 THRESHOLD = 0.5
-MATTES = ("person", "raw", "selfie", "pose", "network")
+MATTES = ("person", "raw", "selfie", "pose", "network", "decompose")
 
 
 def iou(alpha: np.ndarray, reference: np.ndarray) -> float:
@@ -122,6 +123,11 @@ def _matte_function(kind: str, threads: int | None):
 
         relighter = Relighter(quality.model_path(quality.DEFAULT), threads=threads)
         return lambda photo: relighter.decompose(photo, matte="network").full_alpha()
+    if kind == "decompose":  # the library's default, as a Python user calls it
+        from relight.runtime import Relighter
+
+        default = Relighter(threads=threads)
+        return lambda photo: default.decompose(photo).full_alpha()
     from relight.matte import person_matte
 
     method = {"person": "ensemble", "raw": "ensemble"}.get(kind, kind)

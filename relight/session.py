@@ -18,7 +18,15 @@ import numpy as np
 
 from relight.models import CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES, REGISTRY_PATH, expected_digest
 
-__all__ = ["ModelSession", "open_session"]
+__all__ = ["ModelSession", "open_session", "cores_available"]
+
+
+def cores_available() -> int:
+    """CPU cores this process may run on (its affinity mask, not the host's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def open_session(path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
@@ -35,8 +43,10 @@ def open_session(path: str | os.PathLike, threads: int | None = None, providers:
     if got != want:
         raise ValueError(f"{path}: SHA-256 mismatch (file {got[:16]}..., expected {want[:16]}...): "
                          "the model file is corrupt or was modified; refusing to load it")
-    if threads is not None and (not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
+    cores = cores_available()  # more intra-op threads than cores only slows onnxruntime down
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= cores):
+        raise ValueError(f"threads must be an integer in [1, {cores}] (the CPU cores available) or None, "
+                         f"got {threads!r}")
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads or 0
     opts.inter_op_num_threads = 1

@@ -164,7 +164,7 @@ def test_relight_image_output_is_non_negative(tmp_path, capsys):
     rng = np.random.default_rng(5)
     Image.fromarray(rng.integers(20, 235, (60, 50, 3), dtype=np.uint8)).save(tmp_path / "p.png")
     # through the API at the draft size, as the command below: this network and light do ring below 0
-    d = Relighter(model, working_size="draft").decompose(read_photo(tmp_path / "p.png")[0])
+    d = Relighter(model, working_size="draft").decompose(read_photo(tmp_path / "p.png")[0], matte="network")
     d.relight(sh_light(str(tmp_path / "sun.exr"), d.sh_order))
     assert d.last_stats.clamped > 0
     for out, extra in (("o.exr", []), ("l.exr", ["--layers"])):
@@ -201,8 +201,8 @@ def test_black_and_saturated_photos(relighter, kind):
     photo = np.full((40, 30, 3), value, np.float32)
     mask = np.zeros((40, 30), np.float32)
     mask[5:35, 5:25] = 1.0
-    for m in (mask, None):
-        d = relighter.decompose(photo, m)
+    for m in (mask, None):  # unmasked: the network's alpha (a flat image has no person to segment)
+        d = relighter.decompose(photo, m, matte="network")
         out = d.relight(sh_light("venice", d.sh_order))
         assert out.shape == photo.shape and np.all(np.isfinite(out))
         y0, y1, x0, x1 = d.box
@@ -299,7 +299,7 @@ r = Relighter(sys.argv[1], threads=1, working_size=64)
 side = 8000
 photo = np.empty((side, side, 3), np.float32)
 photo[...] = np.linspace(0.05, 0.9, side, dtype=np.float32)[:, None, None]
-d = r.decompose(photo)
+d = r.decompose(photo, matte="network")
 out = d.relight(sh_light("venice", d.sh_order))
 ok = out.shape == photo.shape and all(np.isfinite(out[i:i + 500]).all() for i in range(0, side, 500))
 kib = int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1])

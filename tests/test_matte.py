@@ -261,11 +261,32 @@ def test_decompose_takes_the_person_matte_as_its_mask():
     x0, y0, x1, y1 = expected.box
     by, by1, bx, bx1 = d.box  # the crop holds the person (plus the runtime's margin)
     assert by <= y0 and bx <= x0 and by1 >= y1 and bx1 >= x1
-    assert relighter.decompose(photo).person_matte is None  # the API's default stays the network's alpha
+    assert relighter.decompose(photo, matte="network").person_matte is None  # the alpha head stays selectable
     with pytest.raises(ValueError, match="matte must be one of"):
         relighter.decompose(photo, matte="auto")
     with pytest.raises(matte.NoPersonError):
         relighter.decompose(np.full((200, 300, 3), 0.3, np.float32), matte="person")
+
+
+def test_the_librarys_default_decompose_uses_the_person_matte():
+    """`Relighter().decompose(photo)` as its docstring shows it (default model, threads and
+    matte) mattes real photos like the command and the add-on: the person segmenter's IoU,
+    not the alpha head's (0.49 on these photos)."""
+    import inspect
+
+    from relight.matte_eval import eval_photos, iou, read_reference
+    from relight.runtime import Relighter
+
+    assert inspect.signature(Relighter.decompose).parameters["matte"].default == "person"
+    relighter = Relighter()
+    scores = {}
+    for name, photo_path, ref_path in eval_photos():
+        photo, _ = read_photo(photo_path)
+        d = relighter.decompose(photo)
+        assert d.person_matte is not None and d.person_matte.index == 1
+        scores[name] = iou(d.full_alpha(), read_reference(ref_path, photo.shape[:2]))
+        assert scores[name] >= MEASURED_IOU[name] - IOU_MARGIN, (name, scores[name])
+    assert np.mean(list(scores.values())) >= 0.90  # issue 24's goal; measured 0.968
 
 
 def test_24_megapixel_photo_with_the_person_matte_stays_under_2_gb(tmp_path):

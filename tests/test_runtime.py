@@ -91,7 +91,7 @@ def test_outside_matte_pixels_are_untouched_bit_for_bit(relighter):
     np.testing.assert_array_equal(out[outside], photo[outside])
     assert not np.allclose(out[~outside], photo[~outside])
     # and without a mask: pixels the predicted matte leaves out, and everything outside the crop
-    d2 = relighter.decompose(photo)
+    d2 = relighter.decompose(photo, matte="network")
     out2 = d2.relight(sh_light("studio", ORDER))
     alpha = d2.full_alpha()
     np.testing.assert_array_equal(out2[alpha == 0], photo[alpha == 0])
@@ -233,7 +233,7 @@ def test_large_photo_keeps_fine_detail_and_compositing_is_consistent(relighter):
 
 def test_decompose_without_mask_finds_a_box_and_is_deterministic(relighter):
     photo = _photo(96, 128, seed=13)
-    a, b = relighter.decompose(photo), relighter.decompose(photo)
+    a, b = relighter.decompose(photo, matte="network"), relighter.decompose(photo, matte="network")
     y0, y1, x0, x1 = a.box
     assert 0 <= y0 < y1 <= 96 and 0 <= x0 < x1 <= 128
     assert a.box == b.box and max(a.working_size) == 64
@@ -313,8 +313,13 @@ def test_bad_light_source(kwargs, message):
 
 
 def test_bad_session_options(model_path):
-    with pytest.raises(ValueError, match="threads"):
-        Relighter(model_path, threads=0)
+    from relight.session import cores_available
+
+    cores = cores_available()
+    for threads in (0, -1, cores + 1, 1.5, True, "2"):  # bounded like `relight image --threads`
+        with pytest.raises(ValueError, match=rf"threads must be an integer in \[1, {cores}\]"):
+            Relighter(model_path, threads=threads)
+    assert Relighter(model_path, threads=cores).session is not None
     with pytest.raises(ValueError, match="quality"):
         Relighter(model_path, working_size="ultra")
     with pytest.raises(ValueError, match="working size"):
@@ -362,7 +367,7 @@ def test_tiled_threaded_compositing_equals_the_whole_frame_formula(relighter, mo
     if masked:
         mask = np.zeros((H, W), np.float32)
         mask[20:140, 30:170] = np.linspace(0, 1, 140)[None, :]  # soft edge
-    d = relighter.decompose(photo, mask)
+    d = relighter.decompose(photo, mask, matte="network")  # unmasked: the network's alpha (a random image)
     assert d.working_size != (d.box[1] - d.box[0], d.box[3] - d.box[2])  # resampled
     L = np.random.default_rng(16).normal(0, 0.3, (N, 3))
     L[0] = 2.0
