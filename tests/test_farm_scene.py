@@ -43,6 +43,7 @@ def _without_timings(meta):
     return meta
 
 
+@pytest.mark.anny
 def test_scene_files_hold_every_channel_with_sane_values(scene_pair):
     s = dataset.read_scene(scene_pair[0])
     n = sh.num_coeffs(4)
@@ -87,12 +88,14 @@ def test_scene_files_hold_every_channel_with_sane_values(scene_pair):
         assert sh.mean_luminance(np.array(light["sh"])) == pytest.approx(light["reference_luminance"], rel=1e-6)
 
 
+@pytest.mark.anny
 def test_same_seed_gives_identical_geometry_and_sidecar(scene_pair):
     a, b = (json.loads(p.read_text()) for p in scene_pair)
     assert a["geometry"]["hash"] == b["geometry"]["hash"]
     assert _without_timings(a) == _without_timings(b)
 
 
+@pytest.mark.anny
 def test_different_index_gives_different_scene_and_specular_off_is_recorded(model, tmp_path, scene_pair):
     other = render_scene(4, 11, SceneOptions(**dict(SMALL, lights=1, specular="off")), tmp_path)
     a = json.loads(scene_pair[0].read_text())
@@ -101,6 +104,7 @@ def test_different_index_gives_different_scene_and_specular_off_is_recorded(mode
     assert b["bake"]["specular"] == "off"
 
 
+@pytest.mark.anny
 def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
     from farm import appearance
 
@@ -119,6 +123,7 @@ def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
     assert 0 < hidden.sum() < len(hidden)
 
 
+@pytest.mark.anny
 def test_only_asked_passes_are_rendered(model, tmp_path):
     prt_only = render_scene(5, 1, SceneOptions(**dict(SMALL, lights=1, passes=frozenset({"prt"}))), tmp_path)
     s = dataset.read_scene(prt_only)
@@ -166,6 +171,7 @@ def test_bad_options_raise_value_error(tmp_path, change, message):
     assert not list(tmp_path.glob("scene_*"))
 
 
+@pytest.mark.anny
 def test_pose_sampler_respects_limits_and_rejects_intersections(model):
     rest = bodies.build_body(bodies.BodyParams(0.5, 0.8, 0.5, 0.5, 0.5, 0.5), None)
     axes = poses.RestAxes.from_joints(rest.joints, rest.bone_labels)
@@ -225,6 +231,7 @@ def test_bad_thread_count_in_environment_is_a_clear_error(tmp_path, monkeypatch)
         render_scene(0, 0, SceneOptions(**SMALL), tmp_path)
 
 
+@pytest.mark.anny
 def test_diffuse_scene_image_matches_albedo_times_shading_end_to_end(model, tmp_path, monkeypatch):
     """All frames line up: Cycles' image vs albedo * (T . L) from the stored T and camera-frame L.
 
