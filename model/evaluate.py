@@ -350,8 +350,8 @@ def markdown_table(results: dict[str, dict], n_pairs: int, data: str, mask: str 
             cells = []
             for m in MAPS:
                 v = table.get(f"{setting}/{m}")
-                cells += (["-"] * 3 if v is None else
-                          [f"{100 * v['l1']:.2f}", f"{100 * v['l2']:.3f}", f"{v['psnr']:.2f}"])
+                cells += (["-"] * 4 if v is None else
+                          [f"{100 * v['l1']:.2f}", f"{100 * v['l2']:.3f}", f"{v['psnr']:.2f}", f"{v['si_psnr']:.2f}"])
             lines.append(f"| {method} | {setting} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -133,6 +133,15 @@ def psnr(pred, target, mask=None, peak: float = PSNR_PEAK) -> float:
     return 20.0 * math.log10(peak) - 10.0 * log_mse
 
 
+def scale_invariant_psnr(pred, target, mask=None, peak: float = PSNR_PEAK) -> float:
+    """PSNR after per-channel least-squares gains fitted to the target (fit_channel_gains):
+    colour and level are ambiguous from one photo, so this scores the shading pattern
+    itself (the usual practice for intrinsic images and relighting)."""
+    p = np.asarray(pred, dtype=np.float64)
+    return psnr(p * fit_channel_gains(p, target, mask), target, mask, peak)
+
+
 def all_metrics(pred, target, mask=None) -> dict[str, float]:
-    """{"l1", "l2", "psnr"} for one image."""
-    return {"l1": l1(pred, target, mask), "l2": l2(pred, target, mask), "psnr": psnr(pred, target, mask)}
+    """{"l1", "l2", "psnr", "si_psnr"} for one image."""
+    return {"l1": l1(pred, target, mask), "l2": l2(pred, target, mask), "psnr": psnr(pred, target, mask),
+            "si_psnr": scale_invariant_psnr(pred, target, mask)}

@@ -75,10 +75,10 @@ def test_gain_fitted_diagnostic_removes_exactly_a_colour_cast():
 
 
 def test_table_and_contact_sheet_layout():
-    results = {"ours": {"reconstruction/image": {"l1": 0.01234, "l2": 0.0005, "psnr": 33.0}}}
+    results = {"ours": {"reconstruction/image": {"l1": 0.01234, "l2": 0.0005, "psnr": 33.0, "si_psnr": 35.5}}}
     md = evaluate.markdown_table(results, 3, "d")
-    # L1 x100 with 2 decimals, L2 x100 with 3, missing maps as "-"
-    assert "| ours | reconstruction | - | - | - | - | - | - | 1.23 | 0.050 | 33.00 |" in md
+    # L1 x100 with 2 decimals, L2 x100 with 3, PSNR and scale-invariant PSNR, missing maps as "-"
+    assert "| ours | reconstruction | - | - | - | - | - | - | - | - | 1.23 | 0.050 | 33.00 | 35.50 |" in md
     sheet = evaluate.contact_sheet([[np.zeros((4, 6, 3)), np.ones((4, 6, 3))]] * 2)
     assert sheet.shape == (2 * 6, 2 * 8, 3) and sheet.dtype == np.uint8
     assert sheet[0, 0].tolist() == [0, 0, 0] and sheet[0, 8].tolist() == [255, 255, 255]

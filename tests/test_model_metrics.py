@@ -92,3 +92,20 @@ def test_colour_cast_is_zero_up_to_exposure_and_the_angle_between_mean_colours()
     assert metrics.colour_cast_deg(outside, photo, mask) < 1e-6
     with pytest.raises(ValueError):
         metrics.colour_cast_deg(photo, photo, np.zeros((16, 16)))
+
+
+def test_scale_invariant_psnr_ignores_colour_and_level_only():
+    rng = np.random.default_rng(3)
+    target = rng.uniform(0.05, 1.0, (16, 12, 3))
+    mask = (rng.uniform(size=(16, 12)) > 0.3).astype(np.float32)
+    recoloured = target * np.array([2.0, 0.5, 1.3])
+    assert metrics.psnr(recoloured, target, mask) < 15
+    assert metrics.scale_invariant_psnr(recoloured, target, mask) == pytest.approx(100.0)  # MSE floor
+    # a pattern error is not forgiven: the gains are the least-squares ones, so the score is
+    # the PSNR of k * pred with k_c = sum(w p t) / sum(w p^2), computed here by hand
+    wrong = target[::-1] * 0.7
+    k = (mask[..., None] * wrong * target).sum((0, 1)) / (mask[..., None] * wrong * wrong).sum((0, 1))
+    mse = (mask[..., None] * (k * wrong - target) ** 2).sum() / (3 * mask.sum())
+    assert metrics.scale_invariant_psnr(wrong, target, mask) == pytest.approx(10 * math.log10(1 / mse), rel=1e-9)
+    assert metrics.scale_invariant_psnr(wrong, target, mask) >= metrics.psnr(wrong, target, mask)
+    assert set(metrics.all_metrics(wrong, target, mask)) == {"l1", "l2", "psnr", "si_psnr"}
