@@ -1,4 +1,4 @@
-"""The `relight` command: `relight sh`, `relight presets`, `relight image`."""
+"""The `relight` command: `relight sh`, `relight presets`, `relight image`, `relight light`."""
 
 from __future__ import annotations
 
@@ -65,9 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blender", action="store_true", help="also list Blender's maps (needs bpy)")
     p.set_defaults(func=_cmd_presets)
 
-    from relight.cli_image import register
+    from relight import cli_image, cli_light
 
-    register(sub)
+    cli_image.register(sub)
+    cli_light.register(sub)
     return parser
 
 

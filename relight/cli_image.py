@@ -33,11 +33,7 @@ EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (ru
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
-    from relight import quality
-    from relight.cli_args import ROTATE_LIMIT, bounded_int, finite_float
-    from relight.session import cores_available
-    from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
-    from relight.runtime import MATTE_SOURCES
+    from relight.cli_args import ROTATE_LIMIT, finite_float
 
     p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
                               description=__doc__.split("\n\n")[0])
@@ -52,20 +48,34 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--exposure", type=finite_float(-EXPOSURE_LIMIT, EXPOSURE_LIMIT, what="exposure (EV)"),
                    default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
+    add_photo_options(p)
+    p.add_argument("--no-normalize", dest="normalize", action="store_false",
+                   help="use the map's radiance as is (default: scale to mean luminance 0.8)")
+    p.add_argument("--out", default=None,
+                   help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
+                        "(default: PHOTO_relit.png beside the photo)")
+    p.add_argument("--layers", action="store_true",
+                   help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
+    p.set_defaults(func=run_image)
+    return p
+
+
+def add_photo_options(p) -> None:
+    """The options of a sub-command that decomposes one photo (`image`, `light`): mask,
+    matte, person, model, quality, threads, largest photo."""
+    from relight import quality
+    from relight.cli_args import bounded_int
+    from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
+    from relight.runtime import MATTE_SOURCES
+    from relight.session import cores_available
+
     p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
     p.add_argument("--matte", choices=MATTE_SOURCES, default="person",
                    help="where the matte comes from without a mask: the person segmenter (default) or "
                         "the relighting network's own alpha head (for comparison)")
     p.add_argument("--person", type=bounded_int(1, 1000), default=None, metavar="N",
                    help="which person when the photo shows several: 1 = the largest (default), 2 = the next, ...")
-    p.add_argument("--no-normalize", dest="normalize", action="store_false",
-                   help="use the map's radiance as is (default: scale to mean luminance 0.8)")
     p.add_argument("--model", default=None, help="ONNX model (default: the quality preset's installed model)")
-    p.add_argument("--out", default=None,
-                   help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
-                        "(default: PHOTO_relit.png beside the photo)")
-    p.add_argument("--layers", action="store_true",
-                   help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
     p.add_argument("--quality", choices=[q.key for q in quality.PRESETS], default=quality.DEFAULT,
                    help="preset of relight/quality.py: model and working resolution ("
                         + ", ".join(f"{q.key} {q.working_size}" for q in quality.PRESETS) + " px)")
@@ -75,8 +85,28 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--max-pixels", type=bounded_int(1, MAX_PIXELS), default=None, metavar="N",
                    help=f"largest photo to decode, in pixels (default {DEFAULT_MAX_PIXELS:,}; also allows a "
                         f"header that claims more than its file can hold; at most {MAX_PIXELS:,})")
-    p.set_defaults(func=run_image)
-    return p
+
+
+def open_relighter(args):
+    """The Relighter of the parsed options --model / --quality / --threads."""
+    from relight import quality
+    from relight.runtime import Relighter
+
+    model = args.model if args.model is not None else quality.model_path(args.quality)
+    return Relighter(model, threads=args.threads, working_size=args.quality)
+
+
+def read_photo_and_mask(photo_path, mask_path, max_pixels):
+    """(linear photo [H, W, 3], mask [H, W] or None): the --mask file, else the photo's own
+    alpha when it varies (it marks the person), else None (the matte finds the person)."""
+    from relight.photo import read_mask, read_photo
+
+    image, alpha = read_photo(photo_path, max_pixels)
+    if mask_path is not None:
+        return image, read_mask(mask_path, image.shape[:2], max_pixels)
+    if alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0:
+        return image, alpha
+    return image, None
 
 
 def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
@@ -95,15 +125,9 @@ def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
 
 def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None, light) -> Path:
     """Read, decompose, relight and write one photo; nothing is written on failure."""
-    from relight.photo import read_mask, read_photo, write_image, write_layers_exr
+    from relight.photo import write_image, write_layers_exr
 
-    image, alpha = read_photo(photo_path, args.max_pixels)
-    if mask_path is not None:
-        mask = read_mask(mask_path, image.shape[:2], args.max_pixels)
-    elif alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0:
-        mask = alpha  # the file's own alpha marks the person
-    else:
-        mask = None
+    image, mask = read_photo_and_mask(photo_path, mask_path, args.max_pixels)
     d = relighter.decompose(image, mask, matte=args.matte, person=args.person)
     relit = d.relight(light, args.exposure)
     stats = d.last_stats
@@ -137,8 +161,6 @@ def _light(source, args, relighter) -> np.ndarray:
 
 def run_image(args) -> int:
     """Entry point of `relight image` (argparse namespace from register())."""
-    from relight.runtime import Relighter
-
     source = Path(args.photo)
     if not source.exists():
         raise ValueError(f"{source}: no such file or folder")
@@ -155,10 +177,7 @@ def run_image(args) -> int:
             raise ValueError("--out must differ from the input folder")
     else:
         out_path = _output_for(source, args.out, args.layers)
-    from relight import quality
-
-    model = args.model if args.model is not None else quality.model_path(args.quality)
-    relighter = Relighter(model, threads=args.threads, working_size=args.quality)
+    relighter = open_relighter(args)
     light_source = args.light
     if args.light_from is not None:
         from relight.photo import read_photo

@@ -1,0 +1,212 @@
+"""The photo's light as a non-negative equirect map (relight.light_map) and `relight light`."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from relight import sh
+from relight.exr import read_exr
+from relight.light_map import (REGULARISATION, _fitted_bands, check_width, irradiance_error, light_map)
+
+ORDER = 4
+A = sh.clamped_cosine_coeffs(ORDER)
+BAND = np.repeat(np.arange(ORDER + 1), 2 * np.arange(ORDER + 1) + 1)
+
+
+def delta(direction, rgb=(1.0, 1.0, 1.0)):
+    """SH of all the energy in one direction: Y_k(d) per unit of integral."""
+    return np.outer(sh.sh_basis(np.asarray(direction, float), ORDER), rgb)
+
+
+def camera_left_light():
+    """A white light from camera-left (-X), 20 degrees up, a fifth of the irradiance ambient."""
+    return sh.directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
+
+
+def texel_of(pixels, direction):
+    """(row, col) of the texel whose centre is nearest `direction` in Blender's mapping."""
+    dirs, _ = sh.equirect_directions(*pixels.shape[:2])
+    return np.unravel_index(np.argmax(dirs @ np.asarray(direction, float)), pixels.shape[:2])
+
+
+def test_a_light_that_is_non_negative_is_its_own_sh():
+    L = np.zeros((25, 3))
+    L[0] = [2.0, 1.5, 1.0]        # a constant ...
+    L[1:4] = [[0.2, 0.1, 0.0]] * 3  # ... with a gentle gradient: >= 0 everywhere
+    m = light_map(L, 64)
+    assert not m.fitted and m.pixels.shape == (32, 64, 3) and m.pixels.dtype == np.float32
+    dirs, _ = sh.equirect_directions(32, 64)
+    np.testing.assert_allclose(m.pixels, sh.sh_basis(dirs, ORDER) @ L, rtol=1e-6)
+    # what is left is the midpoint rule's error on 32 rows: h^2 / 24 * l(l+1) <= 8e-4 for band 1,
+    # h = pi / 32
+    assert irradiance_error(L, m.pixels) < 1e-3
+
+
+@pytest.mark.parametrize("name, light, bound", [
+    # measured 0.0069 (docs/conventions.md); the bound leaves room for other BLAS kernels
+    ("camera-left + ambient", camera_left_light(), 0.012),
+    # all energy in one direction: no non-negative map has the order-4 SH irradiance
+    # of a delta exactly (the SH irradiance itself dips to -3.2 % of its peak); measured 0.034
+    ("delta", delta([0.3, -0.5, 0.8]), 0.045),
+    ("red delta", delta([0.0, 0.0, 1.0], (1.0, 0.0, 0.0)), 0.045),
+    ("very bright", 1e30 * camera_left_light(), 0.012),
+])
+def test_extreme_lights_give_a_finite_non_negative_map_close_in_irradiance(name, light, bound):
+    m = light_map(light)
+    assert m.fitted  # each of these rings below 0 as plain SH
+    assert np.all(np.isfinite(m.pixels)) and m.pixels.min() >= 0.0
+    assert irradiance_error(light, m.pixels) < bound
+    dirs, _ = sh.equirect_directions(*m.pixels.shape[:2])
+    assert (sh.sh_basis(dirs, ORDER) @ light).min() < 0  # so windowing was needed
+
+
+def test_black_light_gives_a_black_map():
+    m = light_map(np.zeros((25, 3)))
+    assert not m.fitted and not m.pixels.any()
+    assert irradiance_error(np.zeros((25, 3)), m.pixels) == 0.0
+
+
+def test_the_fit_matches_the_irradiance_coefficients_up_to_the_regularisation():
+    # stationarity of the convex problem: A_l^2 (L_lm - f_lm) = lambda c_lm on the fitted bands,
+    # f the map's own SH; the residual is the Newton tolerance plus float32 texels (~1e-7)
+    L = camera_left_light()
+    m = light_map(L)
+    f = sh.project_equirect(m.pixels, ORDER, precision="float64")
+    keep, _ = _fitted_bands(ORDER)
+    assert list(keep) == [k for k in range(25) if BAND[k] != 3]  # band 3: A_3 = 0, not fitted
+    lhs = (A[BAND] ** 2)[:, None] * (L - f)
+    scale = A[0] ** 2 * np.abs(L[0]).max()
+    np.testing.assert_allclose(lhs[keep], REGULARISATION * m.map_coeffs[keep], atol=1e-6 * scale)
+    assert not m.map_coeffs[BAND == 3].any()
+
+
+def test_scaling_the_light_scales_the_map():
+    # the problem is homogeneous of degree 2 in (c, L): the map of s L is s times the map of L
+    L = camera_left_light()
+    np.testing.assert_allclose(light_map(1e6 * L).pixels, 1e6 * light_map(L).pixels, rtol=1e-5,
+                               atol=1e-5 * 1e6 * light_map(L).pixels.max())
+
+
+@pytest.mark.parametrize("direction, where", [
+    ((1.0, 0.0, 0.0), "centre"), ((0.0, 1.0, 0.0), "quarter"), ((0.0, -1.0, 0.0), "three quarters"),
+    ((0.0, 0.0, 1.0), "top"),
+])
+def test_the_map_is_in_blenders_world_mapping(direction, where):
+    # docs/conventions.md: the centre column looks along +X, a quarter from the left along +Y
+    # (the photo camera's view), three quarters along -Y (behind the camera), row 0 is +Z
+    light = np.zeros((25, 3))
+    light[0] = 0.5
+    light += 0.4 * delta(direction)
+    m = light_map(light, 64)
+    row, col = np.unravel_index(np.argmax(m.pixels[..., 1]), m.pixels.shape[:2])
+    expected_col = {"centre": 32, "quarter": 16, "three quarters": 48}.get(where)
+    if where == "top":
+        assert row == 0
+    else:
+        assert abs(row - 15.5) <= 0.5 and abs(col - (expected_col - 0.5)) <= 0.5
+
+
+def test_irradiance_error_sees_a_turned_map():
+    L = camera_left_light()
+    m = light_map(L, 128)
+    turned = np.roll(m.pixels, 32, axis=1)  # 90 degrees about Z
+    assert irradiance_error(L, turned) > 0.3 > 10 * irradiance_error(L, m.pixels)
+
+
+@pytest.mark.parametrize("coeffs, width, match", [
+    (np.zeros((24, 3)), 512, "not \\(order\\+1\\)\\^2"),
+    (np.full((25, 3), np.nan), 512, "NaN"),
+    (np.zeros((25, 3)), 511, "even"),
+    (np.zeros((25, 3)), 4, "8..4096"),
+    (np.zeros((25, 3)), 8192, "8..4096"),
+    (np.zeros((25, 3)), 512.0, "integer"),
+    (1e38 * camera_left_light(), 64, "too bright"),  # its hot spot is ~12x the mean
+])
+def test_bad_input_is_refused(coeffs, width, match):
+    with pytest.raises(ValueError, match=match):
+        light_map(coeffs, width)
+
+
+def test_check_width():
+    assert check_width(np.int64(16)) == 16
+    with pytest.raises(ValueError):
+        check_width(True)
+
+
+# ------------------------------------------------------------------ relight light
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    from export.random_model import export_random_model
+
+    path, _, _ = export_random_model(tmp_path_factory.mktemp("cli_light") / "tiny.onnx", seed=11,
+                                     sh_order=ORDER, width=4, depth=2)
+    return str(path)
+
+
+def _photo(path, h=40, w=30, seed=0):
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    Image.fromarray(rng.integers(30, 220, (h, w, 3), dtype=np.uint8)).save(path)
+    return path
+
+
+def _run(capsys, *argv):
+    from relight.cli import main
+
+    code = main(["light", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, capsys):
+    from relight.photo import read_photo
+    from relight.runtime import Relighter
+
+    photo = _photo(tmp_path / "p.png")
+    out = tmp_path / "light.exr"
+    code, stdout, err = _run(capsys, photo, "--out", out, "--width", 64, "--json", "--model", model,
+                             "--quality", "draft", "--matte", "network", "--threads", 1)
+    assert code == 0, err
+    data = json.loads(stdout)
+    image, _ = read_photo(photo)
+    d = Relighter(model, working_size="draft").decompose(image, matte="network")
+    np.testing.assert_allclose(data["coeffs"], d.light, atol=5e-9)  # printed with 9 decimals
+    expected = light_map(d.light, 64)
+    planes = read_exr(out)
+    pixels = np.stack([planes[c] for c in "RGB"], axis=-1)
+    np.testing.assert_array_equal(pixels, expected.pixels)  # same float32 values, lossless EXR
+    assert data["map"]["width"] == 64 and data["map"]["height"] == 32
+    assert data["map"]["fitted"] == expected.fitted
+    np.testing.assert_allclose(data["map"]["coeffs"], expected.map_coeffs, atol=5e-9)
+    assert math.isclose(data["map"]["irradiance_error"], irradiance_error(d.light, pixels), abs_tol=1e-6)
+
+    code, stdout, _ = _run(capsys, photo, "--out", out, "--width", 64, "--model", model, "--quality", "draft",
+                           "--matte", "network")
+    assert code == 0 and stdout.startswith(f"wrote {out} (its irradiance is within ")
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["{photo}", "--out", "{tmp}/l.png"], "--out must end in .exr"),
+    (["{tmp}/missing.jpg", "--out", "{tmp}/l.exr"], "no such file"),
+    (["{photo}", "--out", "{tmp}/no/such/folder/l.exr"], "output folder does not exist"),
+    (["{photo}", "--out", "{tmp}/l.exr", "--width", "513"], "even"),
+    (["{photo}", "--out", "{tmp}/l.exr", "--width", "wide"], "invalid int"),
+    (["{photo}", "--out", "{tmp}/l.exr", "--mask", "{tmp}/missing_mask.png"], "missing_mask"),
+    (["{photo}"], "required"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(model, tmp_path, capsys, argv, match):
+    photo = _photo(tmp_path / "p.png")
+    existing = tmp_path / "l.exr"
+    existing.write_bytes(b"keep me")  # a failed run leaves a previous output as it was
+    argv = [a.format(photo=photo, tmp=tmp_path) for a in argv] + ["--model", model, "--matte", "network"]
+    code, out, err = _run(capsys, *argv)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and match in err, err
+    assert existing.read_bytes() == b"keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["l.exr", "p.png"]
