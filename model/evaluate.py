@@ -340,9 +340,10 @@ def markdown_table(results: dict[str, dict], n_pairs: int, data: str, mask: str 
     where = (f"fully covered pixels, GT alpha > {INTERIOR_ALPHA}" if mask == "interior" else "GT alpha-weighted")
     lines = [f"# Evaluation ({n_pairs} image pairs from `{data}`)", "",
              f"Over the person's pixels ({where}), linear values; L1 and L2 x100, "
-             "PSNR in dB with peak 1.0 (model/metrics.py).", ""]
-    header = "| method | setting | " + " | ".join(f"{m} L1 | {m} L2 | {m} PSNR" for m in MAPS) + " |"
-    lines += [header, "|" + "---|" * (2 + 3 * len(MAPS))]
+             "PSNR in dB with peak 1.0; SI PSNR after per-channel gains fitted to the truth "
+             "(scale-invariant: the pattern, not the colour and level; model/metrics.py).", ""]
+    header = "| method | setting | " + " | ".join(f"{m} L1 | {m} L2 | {m} PSNR | {m} SI PSNR" for m in MAPS) + " |"
+    lines += [header, "|" + "---|" * (2 + 4 * len(MAPS))]
     for method, table in results.items():
         for setting in ("reconstruction", "relighting"):
             if not any(k.startswith(setting) for k in table):

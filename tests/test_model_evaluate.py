@@ -79,6 +79,8 @@ def test_table_and_contact_sheet_layout():
     md = evaluate.markdown_table(results, 3, "d")
     # L1 x100 with 2 decimals, L2 x100 with 3, PSNR and scale-invariant PSNR, missing maps as "-"
     assert "| ours | reconstruction | - | - | - | - | - | - | - | - | 1.23 | 0.050 | 33.00 | 35.50 |" in md
+    header = next(line for line in md.splitlines() if line.startswith("| method"))
+    assert header.count("|") - 1 == 2 + 4 * len(evaluate.MAPS) and "image SI PSNR" in header
     sheet = evaluate.contact_sheet([[np.zeros((4, 6, 3)), np.ones((4, 6, 3))]] * 2)
     assert sheet.shape == (2 * 6, 2 * 8, 3) and sheet.dtype == np.uint8
     assert sheet[0, 0].tolist() == [0, 0, 0] and sheet[0, 8].tolist() == [255, 255, 255]
