@@ -111,7 +111,9 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
         cancel.check()
         relighter.run = _cancellable_run(relighter, cancel)
     try:
-        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size)
+        # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
+        # NETWORK (and another photo's light) passes None for the network's own alpha
+        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network")
     except Exception:
         if cancel is not None and cancel.cancelled:
             cancel.stopped_inference = True  # onnxruntime gave up the run it was in
