@@ -159,6 +159,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         if photo is None:
             raise ValueError(f"The photo '{session.source}' was deleted while it was being relit.")
         session.source = photo.name
+        session.extras["stamp"] = bl_images.photo_stamp(photo)  # Photo Light -> World checks it (bl_photo_world)
         state.SESSIONS[session.photo_id] = session
         settings = addon_settings(context)
         settings.last_photo_id = session.photo_id

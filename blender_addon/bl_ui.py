@@ -63,6 +63,10 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
         row = layout.row()
         row.enabled = settings.last_photo_id in state.SESSIONS
         row.operator("relight_photo.save_layers", icon="FILE_IMAGE")
+        # enabled without a relit photo: pressing then says why it cannot (bl_photo_world)
+        row = layout.row(align=True)
+        row.operator("relight_photo.light_to_world", icon="WORLD")
+        row.operator("relight_photo.compositing_setup", icon="NODE_COMPOSITING")
 
         if status.running:
             layout.label(text=f"{status.stage}: {100 * status.progress:.0f}% ({status.elapsed:.1f} s)",

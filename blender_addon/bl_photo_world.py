@@ -1,0 +1,164 @@
+"""Photo Light -> World: the light the network estimated in the photo as the scene's World.
+
+The map (photo_light.write_light_map: relight.light_map, >= 0, Blender's
+equirect mapping) is written as a float32 EXR, loaded and packed into the
+.blend, so it survives save and reopen with no file beside it, and feeds an
+Environment Texture (default mapping: the photo camera's frame) into a
+Background of strength 1. The World and its map are tagged with the photo's id
+like the add-on's outputs (bl_images.OUTPUT_OF), so pressing again after a new
+Relight updates them in place and a renamed photo keeps them. Nothing here
+reads the photo's pixels: the light is already in the session.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+import bpy
+from bpy.props import StringProperty
+
+from . import bl_images, photo_light, state
+from .bl_session import set_status, source_image
+
+WORLD = "light"   # the World's and its map image's tag (bl_images.OUTPUT_LAYER)
+
+
+def photo_and_session(context, image_name: str = ""):
+    """(photo, session) whose light the World takes; ValueError in the artist's words when the
+    photo was not relit, is still being restored, or changed since it was relit."""
+    photo = source_image(context, image_name)
+    session = state.SESSIONS.get(bl_images.photo_id(photo))
+    if session is None:
+        raise ValueError(f"Relight '{photo.name}' first: its light is estimated when it is relit.")
+    if session.provisional:
+        raise ValueError(f"'{photo.name}' is still being read after opening the file: try again in a moment.")
+    now = bl_images.photo_stamp(photo)
+    # a session restored from a saved file had its pixels checked by the restore: its stamp starts now
+    relit = session.extras.setdefault("stamp", now)
+    height, width = session.photo.shape[:2]
+    if now != relit or (photo.has_data and tuple(photo.size) != (width, height)):
+        raise ValueError(f"The photo '{photo.name}' changed since it was relit: press Relight.")
+    return photo, session
+
+
+def tagged(collection, photo_id: str, what: str):
+    """The datablock of `collection` made for photo `photo_id` as `what`, or None."""
+    for block in collection:
+        if block.get(bl_images.OUTPUT_OF) == photo_id and block.get(bl_images.OUTPUT_LAYER) == what:
+            return block
+    return None
+
+
+def tag(block, collection, photo, what: str) -> None:
+    """Mark `block` as photo's `what` and give it the name '<photo>.<what>' when that is free."""
+    block[bl_images.OUTPUT_OF] = bl_images.photo_id(photo)
+    block[bl_images.OUTPUT_LAYER] = what
+    name = photo_light.datablock_name(photo.name, what)
+    if block.name != name and collection.get(name) is None:
+        block.name = name
+
+
+def _map_image(photo, session):
+    """The light map as a packed float image (replacing the one made before for this photo)."""
+    old = bl_images.output_by_tag(session.photo_id, WORLD)
+    with tempfile.TemporaryDirectory(prefix="relight_light_") as folder:
+        path = os.path.join(folder, "light.exr")
+        photo_light.write_light_map(session.decomposition.light, path)
+        image = bpy.data.images.load(path, check_existing=False)
+        image.pack()  # the EXR's bytes go into the .blend: lossless float32
+    if old is not None:
+        bpy.data.images.remove(old)
+    tag(image, bpy.data.images, photo, WORLD)
+    # where Image > Unpack writes it: beside the .blend, named after the photo
+    image.filepath_raw = "//" + bpy.path.clean_name(image.name) + ".exr"
+    image.colorspace_settings.name = bl_images.LINEAR
+    return image
+
+
+def make_world(scene, photo, session):
+    """Create or update the photo's World (its light map, strength 1) and make it the scene's."""
+    image = _map_image(photo, session)
+    world = tagged(bpy.data.worlds, session.photo_id, WORLD)
+    if world is None:
+        world = bpy.data.worlds.new(photo_light.datablock_name(photo.name, WORLD))
+    tag(world, bpy.data.worlds, photo, WORLD)
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True  # always on from 5.0 (and deprecated there)
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    nodes.clear()
+    texture = nodes.new("ShaderNodeTexEnvironment")  # default mapping: no Vector input
+    texture.image = image
+    texture.interpolation = "Linear"  # between texels >= 0: still >= 0
+    texture.projection = "EQUIRECTANGULAR"
+    texture.location = (-300.0, 0.0)
+    background = nodes.new("ShaderNodeBackground")
+    background.inputs["Strength"].default_value = 1.0
+    output = nodes.new("ShaderNodeOutputWorld")
+    output.location = (250.0, 0.0)
+    links.new(texture.outputs["Color"], background.inputs["Color"])
+    links.new(background.outputs["Background"], output.inputs["Surface"])
+    cycles = getattr(world, "cycles", None)  # absent when the Cycles add-on is disabled
+    if cycles is not None:
+        # the map is smooth: an importance map of twice its width (Cycles' automatic one is 4096 wide
+        # and takes seconds to build, docs/benchmarks/farm_render.md)
+        cycles.sampling_method = "MANUAL"
+        cycles.sample_map_resolution = 2 * image.size[0]
+    scene.world = world
+    return world
+
+
+def run_and_report(operator, context, build) -> set:
+    """Run build(context, photo, session) -> message for the operator; report the message or
+    the refusal (on the panel's status line too)."""
+    start = time.perf_counter()
+    try:
+        photo, session = photo_and_session(context, operator.image_name)
+        message = build(context, photo, session)
+    except ValueError as exc:
+        operator.report({"ERROR"}, str(exc))
+        set_status(context, str(exc), is_error=True)
+        return {"CANCELLED"}
+    except OSError as exc:  # the temporary map file (a full disk)
+        message = f"Cannot write the light map: {exc.strerror or exc}."
+        operator.report({"ERROR"}, message)
+        set_status(context, message, is_error=True)
+        return {"CANCELLED"}
+    message = f"{message} ({time.perf_counter() - start:.2f} s)"
+    operator.report({"INFO"}, message)
+    set_status(context, message)
+    return {"FINISHED"}
+
+
+def _world_step(context, photo, session) -> str:
+    world = make_world(context.scene, photo, session)
+    return f"The World '{world.name}' is now the light of '{photo.name}', strength 1"
+
+
+class RELIGHT_PHOTO_OT_light_to_world(bpy.types.Operator):
+    """Make the light estimated in the relit photo the scene's World (an Environment Texture kept in the
+    .blend), so that CG objects are lit like the person"""
+
+    bl_idname = "relight_photo.light_to_world"
+    bl_label = "Photo Light -> World"
+    bl_options = {"REGISTER", "UNDO"}
+
+    image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
+                               description="Relit photo (default: the Image Editor's image)")
+
+    def execute(self, context):
+        return run_and_report(self, context, _world_step)
+
+
+CLASSES = (RELIGHT_PHOTO_OT_light_to_world,)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister() -> None:
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

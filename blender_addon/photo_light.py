@@ -1,0 +1,84 @@
+"""The photo's light as a World, and the compositing setup around it: the plain parts (no bpy).
+
+bl_photo_world and bl_compositing build the datablocks; what they build is
+decided here: the map of the session's light (relight.light_map, written as a
+lossless EXR that Blender packs into the .blend), the datablocks' names, and
+the camera and floor that match the photo. Scene frame: the photo camera of
+docs/conventions.md (looking along +Y, X right, Z up), so the light needs no
+rotation; the camera stands CAMERA_HEIGHT above a floor at z = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+MAP_WIDTH = 512             # texels: the light is order-4 SH, far smoother than this (docs/addon.md)
+SENSOR_WIDTH_MM = 36.0      # a full-frame sensor: a 35 mm-equivalent focal length applies as is
+DEFAULT_LENS_MM = 50.0      # when the photo does not say its focal length (EXIF FocalLengthIn35mmFilm)
+CAMERA_HEIGHT = 1.5         # metres above the floor: a standing photographer
+FLOOR_HALF_WIDTH = 20.0     # metres either side of the view axis
+FLOOR_DEPTH = 40.0          # metres in front of the camera
+_EXIF_IFD = 0x8769           # the Exif sub-IFD
+_FOCAL_35MM = 0xA405         # FocalLengthIn35mmFilm
+
+
+def datablock_name(photo_name: str, what: str) -> str:
+    """'<photo>.<what>', like the add-on's output images: light (World and its map), camera,
+    shadow_catcher, composite."""
+    return f"{photo_name}.{what}"
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    resolution: tuple[int, int]            # (x, y) pixels: the photo's size
+    lens_mm: float
+    sensor_width_mm: float
+    location: tuple[float, float, float]
+    rotation_euler: tuple[float, float, float]
+
+
+def camera_setup(photo_size: tuple[int, int], lens_mm: float | None = None) -> CameraSetup:
+    """The photo camera for a photo of (height, width) pixels: at CAMERA_HEIGHT, looking along +Y
+    (Blender's rotation (90, 0, 0) degrees), the photo's resolution, `lens_mm` (35 mm-equivalent)
+    or DEFAULT_LENS_MM on a SENSOR_WIDTH_MM sensor fitted to the longer side."""
+    height, width = (int(v) for v in photo_size)
+    if height < 1 or width < 1:
+        raise ValueError(f"a photo of {width} x {height} pixels has no camera")
+    lens = DEFAULT_LENS_MM if lens_mm is None else float(lens_mm)
+    return CameraSetup(resolution=(width, height), lens_mm=lens, sensor_width_mm=SENSOR_WIDTH_MM,
+                       location=(0.0, 0.0, CAMERA_HEIGHT), rotation_euler=(math.pi / 2, 0.0, 0.0))
+
+
+def floor_corners() -> list[tuple[float, float, float]]:
+    """The shadow catcher: a rectangle on z = 0 from the camera's foot to FLOOR_DEPTH ahead."""
+    w, d = FLOOR_HALF_WIDTH, FLOOR_DEPTH
+    return [(-w, 0.0, 0.0), (w, 0.0, 0.0), (w, d, 0.0), (-w, d, 0.0)]
+
+
+def focal_35mm(path: str) -> float | None:
+    """The photo file's 35 mm-equivalent focal length (EXIF FocalLengthIn35mmFilm), or None
+    (no such file, no EXIF, no tag, an unreadable file). Reads the header only."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            value = im.getexif().get_ifd(_EXIF_IFD).get(_FOCAL_35MM)
+    except (OSError, ValueError, SyntaxError):  # Pillow's errors for unreadable files and EXIF
+        return None
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return None
+    return value if 1.0 <= value <= 2000.0 else None  # 0 means "unknown" in EXIF
+
+
+def write_light_map(light, path: str, width: int = MAP_WIDTH):
+    """The map of the SH light `light` [n, 3] (relight.light_map) written to `path` as a float32
+    EXR (atomically); returns the LightMap."""
+    from relight.exr import write_exr
+    from relight.light_map import light_map
+
+    result = light_map(light, width)
+    write_exr(path, {c: result.pixels[..., i] for i, c in enumerate("RGB")})
+    return result

@@ -1,0 +1,255 @@
+"""Relight Photo add-on: Photo Light -> World and Compositing Setup under headless bpy.
+
+The World holds the map of the light the network estimated (relight.light_map
+of the session's light, packed into the .blend), the compositing setup puts a
+render over the photo with a shadow-catcher floor, both survive save and
+reopen, and the buttons refuse in the artist's words when nothing was relit or
+the photo changed since."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+import bpy
+
+import blender_addon
+from blender_addon import bl_images, bl_photo_world, photo_light, state
+from relight import exr, sh
+from relight.light_map import light_map
+from test_addon_blender import make_tiny_model, pixels, write_person_png
+
+H, W = 72, 48  # test_addon_blender's photo
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return make_tiny_model(tmp_path_factory)
+
+
+@pytest.fixture
+def addon(model, tmp_path):
+    write_person_png(tmp_path / "person.png")
+    blender_addon.register()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    yield tmp_path
+    bpy.ops.wm.read_homefile()  # the default scene (with its World) for the tests that follow
+    blender_addon.unregister()
+
+
+def _photo(model, folder) -> str:
+    photo = bpy.data.images.load(str(folder / "person.png"))
+    s = bpy.context.scene.relight_photo
+    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
+    s.light_kind, s.preset = "PRESET", "studio"
+    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
+    return photo.name
+
+
+def _relit(model, folder) -> str:
+    name = _photo(model, folder)
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    return name
+
+
+def _session(name) -> state.PhotoSession:
+    return state.SESSIONS[bpy.data.images[name][bl_images.PHOTO_ID]]
+
+
+def _refusal(operator, name) -> str:
+    """The one error message an operator gives (bpy raises it as RuntimeError in background mode)."""
+    with pytest.raises(RuntimeError) as caught:
+        operator(image_name=name)
+    lines = str(caught.value).strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: ")
+    status = bpy.context.window_manager.relight_photo_status
+    assert status.is_error and status.message == lines[0][len("Error: "):]
+    return status.message
+
+
+def _world_map(world) -> np.ndarray:
+    nodes = world.node_tree.nodes
+    texture = next(n for n in nodes if n.type == "TEX_ENVIRONMENT")
+    return pixels(texture.image.name)[..., :3]
+
+
+def check_world(name: str) -> None:
+    """The scene's World is the photo's, made of the map of the session's light."""
+    world = bpy.context.scene.world
+    assert world is not None and world.name == f"{name}.light"
+    nodes = world.node_tree.nodes
+    texture = next(n for n in nodes if n.type == "TEX_ENVIRONMENT")
+    background = next(n for n in nodes if n.type == "BACKGROUND")
+    output = next(n for n in nodes if n.type == "OUTPUT_WORLD")
+    assert texture.projection == "EQUIRECTANGULAR" and not texture.inputs["Vector"].is_linked
+    assert background.inputs["Strength"].default_value == 1.0
+    assert background.inputs["Color"].links[0].from_node == texture
+    assert output.inputs["Surface"].links[0].from_node == background
+    image = texture.image
+    assert image.packed_file is not None and image.name == f"{name}.light"
+    assert tuple(image.size) == (photo_light.MAP_WIDTH, photo_light.MAP_WIDTH // 2)
+    expected = light_map(_session(name).decomposition.light, photo_light.MAP_WIDTH).pixels
+    np.testing.assert_array_equal(_world_map(world), expected)  # a float32 EXR, packed: lossless
+
+
+def check_compositing(name: str) -> None:
+    scene = bpy.context.scene
+    camera = scene.camera
+    assert camera.name == f"{name}.camera" and camera.type == "CAMERA"
+    assert (scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage) == (W, H, 100)
+    background = camera.data.background_images[0]
+    assert camera.data.show_background_images and background.image == bpy.data.images[name]
+    floor = bpy.data.objects[f"{name}.shadow_catcher"]
+    assert floor.is_shadow_catcher and scene.objects.get(floor.name) is not None
+    assert scene.render.engine == "CYCLES" and scene.render.film_transparent
+    assert scene.view_settings.view_transform == "Standard"
+    tree = scene.compositing_node_group if hasattr(scene, "compositing_node_group") else scene.node_tree
+    over = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeAlphaOver")
+    sources = {link.from_node.bl_idname: link.from_node for s in over.inputs for link in s.links}
+    assert sources["CompositorNodeImage"].image == bpy.data.images[name]
+    assert "CompositorNodeRLayers" in sources
+    assert over.outputs["Image"].links  # to the group output (Blender 5) or the Composite node (4)
+
+
+# ------------------------------------------------------------------ refusals
+
+def test_refuses_when_nothing_was_relit(addon, model):
+    name = _photo(model, addon)
+    for operator in (bpy.ops.relight_photo.light_to_world, bpy.ops.relight_photo.compositing_setup):
+        assert _refusal(operator, name) == f"Relight '{name}' first: its light is estimated when it is relit."
+    assert bpy.context.scene.world is None and not bpy.data.worlds  # nothing was made
+
+
+def test_refuses_a_photo_changed_since_it_was_relit(addon, model):
+    name = _relit(model, addon)
+    changed = f"The photo '{name}' changed since it was relit: press Relight."
+    from PIL import Image
+
+    codes = np.asarray(Image.open(addon / "person.png")).copy()
+    codes[:10] = 255
+    Image.fromarray(codes).save(addon / "person.png")  # a new file behind the photo
+    bpy.data.images[name].reload()
+    assert _refusal(bpy.ops.relight_photo.light_to_world, name) == changed
+    assert _refusal(bpy.ops.relight_photo.compositing_setup, name) == changed
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+
+    photo = bpy.data.images[name]  # painted on in Blender (not saved)
+    flat = np.empty(W * H * 4, np.float32)
+    photo.pixels.foreach_get(flat)
+    photo.pixels.foreach_set(1.0 - flat)
+    assert photo.is_dirty
+    assert _refusal(bpy.ops.relight_photo.light_to_world, name) == changed
+
+
+# ------------------------------------------------------------------ the World
+
+def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
+    name = _relit(model, addon)
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+    check_world(name)
+    status = bpy.context.window_manager.relight_photo_status
+    assert not status.is_error and status.message.startswith(f"The World '{name}.light' is now the light of")
+
+    # a new Relight, a new light: pressing again updates the same World and replaces its map
+    world = bpy.context.scene.world
+    _session(name).decomposition.light = sh.directional_light(-90.0, 4)  # as a relight with another estimate
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+    assert bpy.context.scene.world == world and len(bpy.data.worlds) == 1
+    check_world(name)
+    maps = [i for i in bpy.data.images if i.get(bl_images.OUTPUT_OF) == _session(name).photo_id
+            and i.get(bl_images.OUTPUT_LAYER) == "light"]
+    assert len(maps) == 1
+
+
+def test_the_buttons_never_read_the_photos_pixels(addon, model, monkeypatch):
+    # what keeps them under a second on a 24 MP photo: the light is in the session already
+    name = _relit(model, addon)
+
+    def forbidden(*_args, **_kwargs):
+        raise AssertionError("the photo's pixels were read")
+
+    monkeypatch.setattr(bl_images, "rgba_pixels", forbidden)
+    monkeypatch.setattr(bl_images, "linear_rgb_and_alpha", forbidden)
+    monkeypatch.setattr(bl_images, "photo_reader", forbidden)
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+
+
+def test_compositing_setup_and_world_survive_save_and_reopen(addon, model):
+    name = _relit(model, addon)
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    check_world(name)
+    check_compositing(name)
+    expected = _world_map(bpy.context.scene.world).copy()
+    blend = addon / "shot.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    check_compositing(name)
+    world = bpy.context.scene.world
+    assert world.name == f"{name}.light"
+    np.testing.assert_array_equal(_world_map(world), expected)  # from the .blend itself: packed
+    # and pressed again after reopening, the setup is updated, not duplicated
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    check_world(name)
+    check_compositing(name)
+    assert len(bpy.data.worlds) == 1 and len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 1
+
+
+# ------------------------------------------------------------------ a render over the photo
+
+def _cube(location, size):
+    mesh = bpy.data.meshes.new("cube")
+    h = size / 2
+    corners = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    mesh.from_pydata(corners, [], faces)
+    obj = bpy.data.objects.new("cube", mesh)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(addon, model):
+    name = _relit(model, addon)
+    # a light from behind the object (+Y), 35 degrees up, little ambient: the shadow falls toward
+    # the camera, on the floor in front of the object
+    _session(name).decomposition.light = sh.directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    scene = bpy.context.scene
+    camera = scene.camera.data
+    # a 1 m cube on the floor, 8 m ahead: in the photo camera (f = W * lens / sensor pixels, the
+    # horizon on the middle row) its base is at row H/2 + f * 1.5 / 7.5, its sides at W/2 -+ f * 0.5 / 7.5
+    _cube((0.0, 8.0, 0.5), 1.0)
+    f = W * camera.lens / camera.sensor_width
+    base = H / 2 + f * photo_light.CAMERA_HEIGHT / 7.5
+    half = f * 0.5 / 7.5
+    scene.cycles.samples = 32
+    scene.cycles.use_denoising = False
+    scene.cycles.device = "CPU"
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    out = addon / "composite.exr"
+    scene.render.filepath = str(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        bpy.ops.render.render(write_still=True)
+    planes = exr.read_exr(out)
+    composite = np.stack([planes[c] for c in "RGB"], -1)  # one part: R, G, B, A
+    photo = _session(name).photo  # the photo, linear, as the add-on decoded it
+    rows, cols = np.mgrid[0:H, 0:W] + 0.5
+    sky = rows < H / 2 - 2                      # above the horizon: nothing rendered there
+    object_ = (np.abs(cols - W / 2) < half - 1) & (rows > base - f / 7.5 + 1) & (rows < base - 1)
+    shadow = (np.abs(cols - W / 2) < half - 1) & (rows > base + 1)
+    far_floor = (rows > H / 2 + 2) & (np.abs(cols - W / 2) > 3 * half)
+    # sRGB decoded by Blender's colour management and by relight.colour agree to ~1e-4
+    np.testing.assert_allclose(composite[sky], photo[sky], atol=2e-3)
+    ratio = composite.sum(-1) / photo.sum(-1)
+    print(f"composite / photo: shadow {ratio[shadow].mean():.3f} ({shadow.sum()} px), open floor "
+          f"{ratio[far_floor].mean():.3f}; sky max |diff| {np.abs(composite[sky] - photo[sky]).max():.2e}")
+    assert ratio[shadow].mean() < 0.8, ratio[shadow].mean()          # the cube's shadow darkens the photo
+    assert ratio[far_floor].mean() > 0.95, ratio[far_floor].mean()   # the open floor barely does
+    assert np.abs(composite[object_] - photo[object_]).mean() > 0.05  # the cube covers the photo
+    assert math.isfinite(float(composite.sum()))
