@@ -1,7 +1,13 @@
-"""Training throughput of RelightNet (images/s): forward + all losses + backward + AdamW step.
+"""Training throughput (images/s): forward + all losses + backward + AdamW step.
 
     .venv/bin/python benchmarks/bench_train.py [--size 256] [--batch 4] [--steps 3] [--variants]
         [--preset default|small|paper] [--width W]
+    .venv/bin/python benchmarks/bench_train.py --geometry geo-default --size 128 --batch 8 --steps 6
+
+--geometry times the geometry-first GeometryNet (the shipped model) with its
+training losses under the CPU settings that matter: torch threads (1 = how the
+comparison trainings ran, two at a time; 2 = both cores in one run),
+channels-last memory format, and torch.compile.
 
 Random inputs with the shapes of real samples (the data pipeline is timed
 separately: --data DIR times model.data.TrainingScenes items). Prints a
@@ -66,6 +72,67 @@ def time_training(config: dict, batch: int, size: int, steps: int, warmup: int =
     return batch / step, infer, sum(p.numel() for p in model.parameters()), gflop
 
 
+def geometry_batch(batch: int, size: int, n: int) -> dict:
+    g = torch.Generator().manual_seed(0)
+    r = lambda *s: torch.rand(*s, generator=g)
+    normal = torch.nn.functional.normalize(r(batch, 3, size, size) - 0.5, dim=1)
+    return {"input": r(batch, 3, size, size) * 2 - 1, "albedo": r(batch, 3, size, size),
+            "transport": r(batch, n, size, size) - 0.5, "light": r(batch, n, 3),
+            "alpha": (r(batch, 1, size, size) > 0.3).float(), "normal": normal, "image": r(batch, 3, size, size),
+            "target_light": r(batch, n, 3), "target_image": r(batch, 3, size, size)}
+
+
+def time_geometry(preset: str, batch: int, size: int, steps: int, threads: int, channels_last: bool,
+                  compiled: bool, warmup: int = 2, bf16: bool = False) -> float:
+    """Median images/s of GeometryNet training steps (the losses of model.geometry)."""
+    from model.geometry import GEOMETRY_PRESETS, GeometryNet, geometry_losses
+    from model.train import loss_weights_from_args, parse_args
+
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    model = GeometryNet(sh_order=4, **GEOMETRY_PRESETS[preset])
+    weights = loss_weights_from_args(parse_args(["--data", ".", "--out", ".", "--preset", preset]))
+    data = geometry_batch(batch, size, 25)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+        data["input"] = data["input"].contiguous(memory_format=torch.channels_last)
+    model.train()
+    step_model = torch.compile(model) if compiled else model
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    times = []
+    for i in range(warmup + steps):
+        t0 = time.perf_counter()
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            pred = step_model(data["input"])
+        terms = geometry_losses({k: v.float() for k, v in pred.items()}, data, weights)
+        opt.zero_grad()
+        terms["total"].backward()
+        opt.step()
+        if i >= warmup:
+            times.append(time.perf_counter() - t0)
+    return batch / sorted(times)[len(times) // 2]
+
+
+def geometry_table(args) -> None:
+    import os
+
+    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, GeometryNet {args.geometry}, "
+          f"{args.size}x{args.size}, batch {args.batch}, median of {args.steps} steps after 2 warm-ups, "
+          f"load average before {os.getloadavg()[0]:.2f}\n")
+    print("| threads | channels-last | torch.compile | bf16 autocast | train images/s | ratio to 1 thread, plain |")
+    print("|---|---|---|---|---|---|")
+    base = None
+    yes = lambda flag: "yes" if flag else "no"
+    for threads, channels_last, compiled, bf16 in ((1, False, False, False), (2, False, False, False),
+                                                   (2, True, False, False), (2, True, False, True),
+                                                   (2, False, True, False)):
+        ips = time_geometry(args.geometry, args.batch, args.size, args.steps, threads, channels_last, compiled,
+                            bf16=bf16)
+        base = base or ips
+        print(f"| {threads} | {yes(channels_last)} | {yes(compiled)} | {yes(bf16)} | {ips:.2f} | {ips / base:.2f} |",
+              flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--size", type=int, default=256)
@@ -77,7 +144,12 @@ def main() -> None:
     p.add_argument("--variants", action="store_true", help="also time the ablations")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--data", help="also time TrainingScenes items from this dataset folder")
+    p.add_argument("--geometry", choices=("geo-small", "geo-default"),
+                   help="time this GeometryNet preset under thread / channels-last / compile settings instead")
     args = p.parse_args()
+    if args.geometry:
+        geometry_table(args)
+        return
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
