@@ -42,10 +42,12 @@ MIN_WIDTH, MAX_WIDTH = 8, 4096
 # sharp light (peak / mean 123 at 1e-4, 569 at 1e-6) and then costs accuracy
 # (benchmarks/bench_light_map.py --lambdas)
 REGULARISATION = 1e-4
-FIT_HEIGHT = 64           # the Newton solve runs on a 128 x 64 grid ...
-POLISH_HEIGHT = 256       # ... then POLISH_STEPS more steps on the map's grid (at most 512 x 256)
-POLISH_STEPS = 2
-MAX_STEPS = 60            # Newton steps on the coarse grid (the held-out lights take 3-15)
+# the Newton solve runs on a 128 x 64 grid (or the map's, when smaller); two more steps on a
+# 512 x 256 map's own grid change the irradiance error by < 0.0001 and cost 3x the time
+# (benchmarks/bench_light_map.py)
+FIT_HEIGHT = 64
+MAX_STEPS = 60            # Newton steps (the held-out lights take 3-15)
+TABLE_HEIGHT = 256        # maps up to 512 x 256 are evaluated with a cached basis table
 STRIP_ROWS = 64           # map rows evaluated at a time (bounds the basis table)
 IRRADIANCE_ORDER = 16     # the map's irradiance is compared up to this band (A_16 / A_0 < 0.002)
 
@@ -89,7 +91,7 @@ def _evaluate(coeffs: np.ndarray, height: int):
     """sum_k coeffs[k] Y_k at the texel centres of a 2H x H map, [H, 2H, 3] float64, in row strips."""
     width = 2 * height
     order = sh.order_from_num_coeffs(coeffs.shape[0])
-    if height <= POLISH_HEIGHT:
+    if height <= TABLE_HEIGHT:
         return (_grid(height, order)[0] @ coeffs).reshape(height, width, 3)
     dirs, _ = sh.equirect_directions(height, width)
     out = np.empty((height, width, 3))
@@ -141,22 +143,18 @@ def _newton(basis, omega, target, reg, c, steps: int) -> np.ndarray:
 
 
 def _fit(coeffs: np.ndarray, height: int) -> np.ndarray:
-    """The coefficients c of the module docstring, per channel, [n, 3] (0 on the bands not fitted)."""
+    """The coefficients c of the module docstring, per channel, [n, 3] (0 on the bands not fitted),
+    solved on a grid of min(height, FIT_HEIGHT) rows."""
     order = sh.order_from_num_coeffs(coeffs.shape[0])
     keep, inverse_a2 = _fitted_bands(order)
     reg = REGULARISATION * inverse_a2
-    fine = min(height, POLISH_HEIGHT)
-    grids = [(min(FIT_HEIGHT, fine), MAX_STEPS)] + ([(fine, POLISH_STEPS)] if fine > FIT_HEIGHT else [])
+    basis, omega = _grid(min(height, FIT_HEIGHT), order)
+    basis = basis[:, keep]
     out = np.zeros_like(coeffs)
     for channel in range(3):
         target = coeffs[keep, channel]
-        if not np.any(target):
-            continue  # a black channel stays black
-        c = target.copy()
-        for grid_height, steps in grids:
-            basis, omega = _grid(grid_height, order)
-            c = _newton(basis[:, keep], omega, target, reg, c, steps)
-        out[keep, channel] = c
+        if np.any(target):  # a black channel stays black
+            out[keep, channel] = _newton(basis, omega, target, reg, target.copy(), MAX_STEPS)
     return out
 
 
