@@ -15,9 +15,11 @@ along +Y), under three Worlds:
       turned as the sidecar says, resampled bilinearly; its order-8 SH is
       checked against the sidecar's `sh8`);
   (c) a constant World of the photo's mean colour (all its pixels) scaled to
-      the mean luminance of (a): the baseline an artist could make by hand.
+      the mean luminance of (a): the baseline an artist could make by hand;
+  (o) the true light's order-4 SH (the sidecar's) through relight.light_map:
+      the best an order-4 estimate can do, for scale.
 
-PSNR of (a) and (c) against (b) over the sphere's pixels (model.metrics.psnr,
+PSNR of (a), (c) and (o) against (b) over the sphere's pixels (model.metrics.psnr,
 peak the 99th percentile of (b) there, as benchmarks/bench_farm_render.py),
 also after scaling (a) and (c) by one factor to the true light's mean
 luminance (level-matched: the direction and colour alone), and the light's
@@ -195,11 +197,13 @@ def evaluate(data: Path, model: str, quality: str, size: int, samples: int, limi
                 ours, coverage = renderer.render(est_map.pixels)
                 reference, _ = renderer.render(truth)
                 baseline, _ = renderer.render(None, colour)
+                oracle, _ = renderer.render(light_map(light["sh"], MAP_WIDTH).pixels)
                 mask = coverage > 0.999
                 match = true_level / level if level > 0 else 1.0  # one factor for both: the level alone
                 rows.append({
                     "scene": path.stem, "light": k, "map": light["name"],
                     "psnr_ours": psnr(ours, reference, mask), "psnr_constant": psnr(baseline, reference, mask),
+                    "psnr_true_sh": psnr(oracle, reference, mask),
                     "psnr_ours_level_matched": psnr(ours * match, reference, mask),
                     "psnr_constant_level_matched": psnr(baseline * match, reference, mask),
                     "colour_error_ours_deg": angle_deg(estimated[0], light["sh"][0]),
@@ -231,6 +235,7 @@ def summary(rows: list[dict]) -> str:
         f"| (c) constant, photo's mean colour | {mean('psnr_constant'):.2f} | "
         f"{mean('psnr_constant_level_matched'):.2f} | {mean('colour_error_constant_deg'):.1f} / "
         f"{median('colour_error_constant_deg'):.1f} |",
+        f"| (o) the true light's order-4 SH | {mean('psnr_true_sh'):.2f} | | 0 |",
         "",
         f"{len(rows)} images; (a) - (c): {mean('psnr_ours') - mean('psnr_constant'):+.2f} dB "
         f"({mean('psnr_ours_level_matched') - mean('psnr_constant_level_matched'):+.2f} level-matched), "
