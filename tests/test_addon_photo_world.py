@@ -165,6 +165,23 @@ def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
     assert len(maps) == 1
 
 
+def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
+    name = _relit(model, addon)
+    direction = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    lights = {
+        "all energy in one direction": np.outer(sh.sh_basis(direction, 4), [1.0, 1.0, 1.0]),
+        "black": np.zeros((25, 3)),
+        "very bright": 1e30 * sh.directional_light(-90.0, 4),
+    }
+    for what, light in lights.items():
+        _session(name).decomposition.light = light
+        assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}, what
+        world_map = _world_map(bpy.context.scene.world)
+        assert np.all(np.isfinite(world_map)) and world_map.min() >= 0.0, what
+        np.testing.assert_array_equal(world_map, light_map(light, photo_light.MAP_WIDTH).pixels)
+    assert world_map.max() > 1e29  # the bright light stayed bright
+
+
 def test_the_buttons_never_read_the_photos_pixels(addon, model, monkeypatch):
     # what keeps them under a second on a 24 MP photo: the light is in the session already
     name = _relit(model, addon)

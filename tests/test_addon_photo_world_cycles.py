@@ -52,7 +52,10 @@ def render_sphere(scene, out_path, seed):
     scene.render.resolution_percentage = 100
     scene.view_settings.view_transform = "Standard"
     scene.view_layers[0].use_pass_normal = True
-    scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    if hasattr(scene.render.image_settings, "media_type"):  # Blender 5
+        scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
     scene.render.image_settings.color_depth = "32"
     scene.render.filepath = str(out_path)
     bpy.ops.render.render(write_still=True)
