@@ -93,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
                    help="train maps, or only the held-out maps")
+    s.add_argument("--clip-frames", type=_int_in("--clip-frames", 2, 1000), default=None, metavar="F",
+                   help="render clips instead of stills: scene i is frame i mod F of clip i // F (farm/clips.py)")
+    s.add_argument("--motion", choices=("turn", "sway"), default="turn",
+                   help="with --clip-frames: the person turns in place or shifts weight")
     r = p.add_argument_group("runner")
     r.add_argument("--workers", type=_int_in("--workers", 1, 256), default=1,
                    help="worker processes (local executor)")
@@ -124,17 +128,25 @@ def parse_args(argv: list[str]) -> RunConfig:
             f"--directions ({a.directions}) must be >= (order+1)^2 = {(a.order + 1) ** 2} "
             "to determine the transport coefficients"
         )
-    scene = SceneOptions(
+    settings = dict(
         resolution=a.res, lights=a.lights, samples=a.samples, denoise=a.denoise,
         denoise_prefilter=a.denoise_prefilter,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
         specular=a.specular, light_pool=a.light_pool,
     )
+    job_module = a.job_module
+    if a.clip_frames is not None:
+        from farm import clips
+
+        scene = clips.SceneOptions(**settings, clip_frames=a.clip_frames, motion=a.motion)
+        job_module = clips.__name__ if job_module == DEFAULT_JOB_MODULE else job_module
+    else:
+        scene = SceneOptions(**settings)
     return RunConfig(
         # Absolute: workers run in the repository root, Ray tasks on other nodes.
         out=Path(os.path.abspath(a.out)), scenes=a.scenes, seed=a.seed, first=a.first, scene=scene,
         workers=a.workers, recycle=a.recycle, timeout=a.timeout, retries=a.retries,
-        resume=a.resume, ray=a.ray, job_module=a.job_module, progress=a.progress, pin=a.pin,
+        resume=a.resume, ray=a.ray, job_module=job_module, progress=a.progress, pin=a.pin,
     )
 
 

@@ -361,8 +361,11 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
     return channels
 
 
-def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
-    """Sample, bake, build and render scene `index`; returns the finished JSON path."""
+def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *, sample_fn=None) -> Path:
+    """Sample, bake, build and render scene `index`; returns the finished JSON path.
+
+    `sample_fn` (same signature as sample_scene, which it defaults to) draws the
+    scene: farm.clips passes one that poses a clip's person for one frame."""
     from farm import lights, passes
 
     _check_index_and_seed(index, seed)
@@ -377,7 +380,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) ->
     work = passes.work_directory(out_dir)
     work_dir = Path(work.name)
     try:
-        sample = sample_scene(
+        sample = (sample_fn or sample_scene)(
             index, seed, options,
             render_sky=lambda params: passes.render_sky_equirect(params, lights.SKY_SIZE, work_dir),
         )

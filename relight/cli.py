@@ -1,4 +1,4 @@
-"""The `relight` command: `relight sh`, `relight presets`, `relight image`, `relight light`."""
+"""The `relight` command: `relight sh`, `relight presets`, `relight image`, `relight light`, `relight video`."""
 
 from __future__ import annotations
 
@@ -65,10 +65,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blender", action="store_true", help="also list Blender's maps (needs bpy)")
     p.set_defaults(func=_cmd_presets)
 
-    from relight import cli_image, cli_light
+    from relight import cli_image, cli_light, cli_video
 
     cli_image.register(sub)
     cli_light.register(sub)
+    cli_video.register(sub)
     return parser
 
 

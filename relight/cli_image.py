@@ -33,11 +33,25 @@ EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (ru
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
-    from relight.cli_args import ROTATE_LIMIT, finite_float
-
     p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("photo", help="photo file (PNG/JPEG/TIFF/WebP/EXR) or a folder of them")
+    add_light_options(p)
+    add_photo_options(p)
+    p.add_argument("--out", default=None,
+                   help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
+                        "(default: PHOTO_relit.png beside the photo)")
+    p.add_argument("--layers", action="store_true",
+                   help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
+    p.set_defaults(func=run_image)
+    return p
+
+
+def add_light_options(p) -> None:
+    """The options that say what light to relight with (`image`, `video`): --light or
+    --light-from, --rotate, --exposure, --no-normalize."""
+    from relight.cli_args import ROTATE_LIMIT, finite_float
+
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--light", help="equirect HDR map (.exr/.hdr) or preset name (see `relight presets`)")
     source.add_argument("--light-from", metavar="PHOTO",
@@ -48,16 +62,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--exposure", type=finite_float(-EXPOSURE_LIMIT, EXPOSURE_LIMIT, what="exposure (EV)"),
                    default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
-    add_photo_options(p)
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help="use the map's radiance as is (default: scale to mean luminance 0.8)")
-    p.add_argument("--out", default=None,
-                   help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
-                        "(default: PHOTO_relit.png beside the photo)")
-    p.add_argument("--layers", action="store_true",
-                   help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
-    p.set_defaults(func=run_image)
-    return p
 
 
 def add_photo_options(p) -> None:
@@ -159,6 +165,19 @@ def _light(source, args, relighter) -> np.ndarray:
     return L
 
 
+def target_light(args, relighter) -> np.ndarray:
+    """The SH light of the parsed light options (add_light_options): the map or preset, or the
+    light the network estimates in the --light-from photo; resolved before any photo is read."""
+    light_source = args.light
+    if args.light_from is not None:
+        from relight.photo import read_photo
+
+        donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
+        usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
+        light_source = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte)
+    return _light(light_source, args, relighter)
+
+
 def run_image(args) -> int:
     """Entry point of `relight image` (argparse namespace from register())."""
     source = Path(args.photo)
@@ -178,14 +197,7 @@ def run_image(args) -> int:
     else:
         out_path = _output_for(source, args.out, args.layers)
     relighter = open_relighter(args)
-    light_source = args.light
-    if args.light_from is not None:
-        from relight.photo import read_photo
-
-        donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
-        usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
-        light_source = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte)
-    light = _light(light_source, args, relighter)
+    light = target_light(args, relighter)
     if not folder:
         written = _process(relighter, source, out_path, args, args.mask, light)
         print(f"wrote {written}")

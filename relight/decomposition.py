@@ -83,6 +83,7 @@ class Decomposition:
     mask: np.ndarray | None = field(default=None, repr=False)  # user mask (full resolution)
     sh_order: int = 4
     person_matte: object = field(default=None, repr=False)  # relight.matte.PersonMatte when it gave the mask
+    network_alpha: np.ndarray | None = field(default=None, repr=False)  # the alpha head's [h, w], as it came
 
     def __post_init__(self):
         h, w = self.working_size

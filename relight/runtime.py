@@ -201,4 +201,5 @@ class Relighter(ModelSession):
             albedo=np.ascontiguousarray(out["albedo"]), transport=np.ascontiguousarray(out["transport"]),
             residual=np.ascontiguousarray(out["residual"]), light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
-            photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found)
+            photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found,
+            network_alpha=np.ascontiguousarray(out["alpha"][..., 0]))

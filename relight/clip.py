@@ -1,0 +1,260 @@
+"""Relight a clip frame by frame, stable from one frame to the next (docs/video.md).
+
+    clip = ClipRelighter(Relighter(...), sh_light("studio", 4), stability=0.5)
+    for frame in frames:                      # linear float32 [H, W, 3], in order
+        result = clip.relight(frame)          # FrameResult: .image, .person, .cut, .light ...
+
+Each frame is relit as `relight image` relights a photo, except that what should
+not change within a shot is held or smoothed over its frames:
+
+* **cuts**: a frame whose colour histogram differs from the previous one's by more
+  than CUT_THRESHOLD (total variation) starts a new shot, and every state below
+  starts afresh; so does a frame without a person (it is passed through unchanged);
+* **light**: the photo's light, which the geometry-first model fits per frame, is
+  the mean of the per-frame estimates over the shot's last LIGHT_WINDOW x stability
+  frames, and the albedo is re-derived from the frame under that light (the model's
+  own formula, relight.clip_maps.consistent_albedo), so a noisy fit no longer
+  flickers the brightness;
+* **maps**: the transport (and residual; and the albedo of models that are not
+  photo-consistent) and the person matte are smoothed over frames where the photo
+  agrees with the previous frame (relight.clip_maps); the detail transfer uses each
+  frame's own photo, so texture stays sharp.
+
+`stability` in [0, 1] sets the windows: 0 is independent per-frame processing
+(exactly `relight image` on each frame), 1 the longest windows (most lag when the
+light or the body changes). The whole state is a dict of arrays (state(),
+load_state()) so an interrupted job resumes exactly where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from relight.clip_maps import FILTER_MODES, MapSmoother, MatteSmoother, consistent_albedo, grid_grey, history_weight
+from relight.decomposition import Decomposition
+
+__all__ = ["ClipRelighter", "FrameResult", "CutDetector", "ShotLight", "DEFAULT_STABILITY",
+           "FILTER_MODES"]
+
+DEFAULT_STABILITY = 0.5
+MAP_WINDOW = 9          # frames: the maps' and the matte's effective EMA window at stability 1
+LIGHT_WINDOW = 120      # frames: the light's window at stability 1 (5 s at 24 fps; usually the whole shot)
+CUT_THRESHOLD = 0.35    # histogram total variation between consecutive frames that starts a new shot
+CUT_BINS = 8            # per channel, of the sRGB thumbnail's joint histogram
+CUT_THUMB = 96          # px: longest side of the thumbnail the histogram counts
+
+
+@dataclass
+class FrameResult:
+    image: np.ndarray                 # the relit frame, linear float32 [H, W, 3] (the input when no person)
+    person: bool                      # False: nobody found, the frame passed through unchanged
+    cut: bool                         # this frame starts a new shot
+    light: np.ndarray | None = None   # the network's estimate of this frame's light [n, 3]
+    shot_light: np.ndarray | None = None  # the light the frame was decomposed under (smoothed)
+    clamped: float = 0.0              # share of the person's pixels whose negative light was clamped
+    layers: dict | None = None        # Decomposition.layers() when asked for
+
+
+@dataclass
+class Analysis:
+    """One frame as ClipRelighter.analyse leaves it for finish()."""
+
+    frame: np.ndarray
+    histogram: np.ndarray
+    decomposition: Decomposition | None   # None: no person in the frame
+    smooth_matte: bool = False            # the mask is the segmenter's: smoothed over frames in finish()
+
+
+def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
+    """`d` with another full-resolution matte (the smoothed one), its working-resolution alpha
+    resampled from it as decompose() does."""
+    from relight.resample import resize_linear
+
+    y0, y1, x0, x1 = d.box
+    h, w = d.working_size
+    alpha = np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0).astype(np.float32)
+    return Decomposition(albedo=d.albedo, transport=d.transport, residual=d.residual, light=d.light, alpha=alpha,
+                         box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working,
+                         mask=mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
+
+
+class CutDetector:
+    """A new shot where consecutive frames' colour histograms differ by more than the threshold."""
+
+    def __init__(self, threshold: float = CUT_THRESHOLD):
+        self.threshold = float(threshold)
+        self.previous: np.ndarray | None = None
+
+    @staticmethod
+    def histogram(frame: np.ndarray) -> np.ndarray:
+        from relight.colour import srgb_encode
+
+        step = max(1, max(frame.shape[:2]) // CUT_THUMB)
+        thumb = srgb_encode(np.ascontiguousarray(frame[::step, ::step]))
+        codes = np.minimum((thumb * CUT_BINS).astype(np.intp), CUT_BINS - 1)
+        joint = (codes[..., 0] * CUT_BINS + codes[..., 1]) * CUT_BINS + codes[..., 2]
+        counts = np.bincount(joint.ravel(), minlength=CUT_BINS ** 3).astype(np.float64)
+        return counts / counts.sum()
+
+    def update_histogram(self, hist: np.ndarray) -> bool:
+        """True when the frame of histogram `hist` starts a new shot (the first frame does): its
+        total variation from the previous frame's exceeds the threshold."""
+        d = 1.0 if self.previous is None else 0.5 * float(np.abs(hist - self.previous).sum())
+        self.previous = hist
+        return d > self.threshold
+
+
+class ShotLight:
+    """The mean of the per-frame light estimates over the shot's last `window` frames."""
+
+    def __init__(self, window: int):
+        self.lights: deque = deque(maxlen=max(1, int(window)))
+
+    def reset(self) -> None:
+        self.lights.clear()
+
+    def update(self, light: np.ndarray) -> np.ndarray:
+        self.lights.append(np.asarray(light, np.float64))
+        return np.mean(self.lights, axis=0).astype(np.float32)
+
+
+class ClipRelighter:
+    """Relights a clip's frames in order (see the module doc).
+
+    relighter: relight.runtime.Relighter; light: target SH coefficients [n, 3];
+    exposure_ev: as in Decomposition.relight; matte: "person" (the segmenter) or
+    "network"; person: which person (1 = the largest); stability: 0..1; mode:
+    "ema" or "flow" (relight.clip_maps); threads: the segmenter's onnxruntime threads.
+    """
+
+    def __init__(self, relighter, light, exposure_ev: float = 0.0, *, matte: str = "person",
+                 person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
+                 threads: int | None = None):
+        from relight.decomposition import exposure_scale
+        from relight.runtime import MATTE_SOURCES
+
+        if matte not in MATTE_SOURCES:
+            raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
+        if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability <= 1.0:
+            raise ValueError(f"stability must be a number in [0, 1], got {stability!r}")
+        exposure_scale(exposure_ev)  # validates
+        self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
+        self.matte, self.person, self.threads = matte, person, threads
+        self.stability = float(stability)
+        history = history_weight(1.0 + self.stability * (MAP_WINDOW - 1))
+        self.cuts = CutDetector()
+        self.shot_light = ShotLight(1 + round(self.stability * LIGHT_WINDOW))
+        self.maps = MapSmoother(history, mode)
+        self.matte_filter = MatteSmoother(history)
+        config = json.loads(relighter.metadata.get("relight.network_config", "{}") or "{}")
+        # the geometry-first model's albedo is photo / shading under its fitted light: re-derived
+        # under the shot's light (docs/model.md); other models' albedo is smoothed like the maps
+        self.reliable = float(config["reliable"]) if config.get("arch") == "geometry" else None
+
+    def reset(self) -> None:
+        """Forget the shot: the next frame starts afresh (a cut, a frame without a person)."""
+        self.shot_light.reset()
+        self.maps.reset()
+        self.matte_filter.reset()
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything the next frame depends on, as arrays (np.savez-able); load_state() restores it."""
+        lights = list(self.shot_light.lights)
+        out = {"lights": np.stack(lights) if lights else np.zeros((0,))}
+        if self.cuts.previous is not None:
+            out["cut_histogram"] = self.cuts.previous
+        if self.matte_filter.previous is not None:
+            out["matte"] = self.matte_filter.previous
+        maps = self.maps.state
+        if maps is not None:
+            out.update({"maps_box": np.asarray(maps["box"]), "maps_size": np.asarray(maps["size"]),
+                        "maps_grey": maps["grey"], "maps_alpha": maps["alpha"]})
+            out.update({f"map_{k}": v for k, v in maps["maps"].items()})
+        return out
+
+    def load_state(self, state: dict) -> None:
+        """Continue from a state() (of a ClipRelighter with the same settings)."""
+        self.reset()
+        self.cuts.previous = state.get("cut_histogram")
+        for light in state["lights"]:
+            self.shot_light.lights.append(np.asarray(light, np.float64))
+        self.matte_filter.previous = state.get("matte")
+        if "maps_box" in state:
+            self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
+                               "size": tuple(int(v) for v in state["maps_size"]),
+                               "grey": state["maps_grey"], "alpha": state["maps_alpha"],
+                               "maps": {k[4:]: v for k, v in state.items() if k.startswith("map_")}}
+
+    def analyse(self, frame: np.ndarray, mask: np.ndarray | None = None) -> "Analysis":
+        """What does not depend on other frames: the person matte, the network's decomposition
+        and the frame's histogram. Thread-safe: a job analyses several frames at once, then
+        finish()es them in order. `mask` ([H, W] in [0, 1]): the frame's own person mask (its
+        alpha channel), used as it is instead of the matte."""
+        from relight.matte import NoPersonError, person_matte
+
+        histogram = self.cuts.histogram(frame)
+        smooth_matte = False
+        if mask is not None and not np.any(mask > 0):  # the frame's own alpha marks nobody
+            return Analysis(frame, histogram, None)
+        if mask is None and self.matte == "person":
+            try:
+                mask = person_matte(frame, self.person, threads=self.threads).alpha
+            except NoPersonError:
+                return Analysis(frame, histogram, None)
+            smooth_matte = self.stability > 0
+        d = self.relighter.decompose(frame, mask, matte=self.matte, person=self.person)
+        return Analysis(frame, histogram, d, smooth_matte)
+
+    def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:
+        """The analysed frame relit, in clip order (the temporal state advances by one frame).
+        `layers`: also Decomposition.layers() of the frame (None when it has no person)."""
+        cut = self.cuts.update_histogram(analysis.histogram)
+        if cut:
+            self.reset()
+        d = analysis.decomposition
+        if d is None:
+            self.reset()
+            return FrameResult(analysis.frame, False, cut)
+        estimate = np.asarray(d.light, np.float32)
+        shot_light = estimate
+        if self.stability > 0:
+            if analysis.smooth_matte:
+                d = _with_mask(d, self.matte_filter.update(d.mask))
+            shot_light = self.shot_light.update(estimate)
+            d = self._stabilised(d, shot_light)
+        image = d.relight(self.light, self.exposure_ev)
+        stats = d.last_stats
+        return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
+                           d.layers(self.light, self.exposure_ev) if layers else None)
+
+    def relight(self, frame: np.ndarray, mask: np.ndarray | None = None, layers: bool = False) -> FrameResult:
+        """The next frame (linear float32 [H, W, 3]) relit: finish(analyse(frame, mask))."""
+        return self.finish(self.analyse(frame, mask), layers)
+
+    def _stabilised(self, d: Decomposition, shot_light: np.ndarray) -> Decomposition:
+        """The frame's decomposition with smoothed maps, under the shot's light."""
+        from relight.prt import to_network_input
+
+        maps = {"transport": d.transport, "residual": d.residual}
+        if self.reliable is None:
+            maps["albedo"] = d.albedo
+        if d.mask is None:  # the network's own matte: smoothed with the maps
+            maps["alpha"] = d.alpha[..., None]
+        grey = grid_grey(d.photo_working)
+        smooth = self.maps.update(d.box, d.working_size, grey, d.alpha, maps)
+        transport = smooth["transport"]
+        alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
+        if self.reliable is not None:
+            x = to_network_input(d.photo_working, d.alpha if d.mask is not None else None)
+            shading = np.einsum("hwn,nc->hwc", transport, shot_light.astype(np.float32))
+            albedo = consistent_albedo(x, shading, d.network_alpha, self.reliable)
+        else:
+            albedo = smooth["albedo"]
+        return Decomposition(
+            albedo=albedo, transport=transport, residual=smooth["residual"], light=shot_light, alpha=alpha,
+            box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working, mask=d.mask,
+            sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)

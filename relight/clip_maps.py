@@ -1,0 +1,211 @@
+"""The temporal filters of a clip (relight.clip): low-resolution maps and the person matte
+smoothed over frames, and the photo-consistent albedo of the geometry-first model.
+
+Maps live on a grid: the working-resolution crop `box` = (y0, y1, x0, x1) of the frame
+resized to `size` = (h, w). The previous frame's smoothed maps are resampled onto this
+frame's grid (the boxes may differ), optionally displaced by optical flow, and blended:
+
+    smoothed = k * previous(warped) + (1 - k) * current,   k = history * previous alpha * agree
+
+`agree` = exp(-(d / AGREE_SCALE)^2), d the absolute difference between this frame's
+working-resolution photo and the previous one's warped the same way (sRGB grey): where
+the photo changed (the person moved more than the warp explains, or something new came
+in), the current maps win, so motion leaves no trail. `mode`: "ema" (no motion
+compensation: the boxes' geometry only), "flow" (DIS optical flow, OpenCV; measured
+against "ema" in docs/video.md). The full-resolution person matte gets the same
+agreement test against its own previous value (MatteSmoother).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["MapSmoother", "MatteSmoother", "consistent_albedo", "grid_grey", "FILTER_MODES",
+           "AGREE_SCALE", "MATTE_AGREE_SCALE"]
+
+FILTER_MODES = ("ema", "flow")
+AGREE_SCALE = 0.08        # sRGB grey difference at which the history's weight falls to 1/e
+MATTE_AGREE_SCALE = 0.25  # alpha difference at which the matte's history weight falls to 1/e
+MIN_MEAN_SHADING = 0.08   # model/physics.py photo_consistent_albedo: floor of the mean shading
+CLIPPED = 0.99            # model/geometry.py: an encoded input above this in any channel is saturated
+
+
+def grid_grey(photo_working: np.ndarray) -> np.ndarray:
+    """sRGB grey [h, w] float32 of a working-resolution linear crop (what flow and the
+    agreement test compare)."""
+    from relight.colour import srgb_encode
+
+    grey = photo_working @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    return srgb_encode(grey.astype(np.float32)).astype(np.float32)
+
+
+def grid_axes(box_from, size_from, box_to, size_to) -> tuple[np.ndarray, np.ndarray]:
+    """For each row and each column of grid `to`, its position (pixel units, centres at
+    integers) on grid `from`: both grids are crops of one frame resized, so the mapping
+    is separable."""
+    fy0, fy1, fx0, fx1 = box_from
+    ty0, ty1, tx0, tx1 = box_to
+    fh, fw = size_from
+    th, tw = size_to
+    # frame coordinates of the `to` pixel centres, then `from` grid coordinates
+    ys = ty0 + (np.arange(th, dtype=np.float64) + 0.5) * ((ty1 - ty0) / th)
+    xs = tx0 + (np.arange(tw, dtype=np.float64) + 0.5) * ((tx1 - tx0) / tw)
+    return (ys - fy0) * (fh / (fy1 - fy0)) - 0.5, (xs - fx0) * (fw / (fx1 - fx0)) - 0.5
+
+
+def _taps(g: np.ndarray, n: int):
+    """Bilinear taps along one axis: (first index, second index, weight of the second, inside)."""
+    inside = (g > -0.5) & (g < n - 0.5)
+    c = np.clip(g, 0, n - 1)
+    i0 = np.minimum(np.floor(c).astype(np.intp), max(n - 2, 0))
+    i1 = np.minimum(i0 + 1, n - 1)
+    return i0, i1, (c - i0).astype(np.float32), inside
+
+
+def sample_separable(image: np.ndarray, gy: np.ndarray, gx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear samples of image [h, w, C] on the grid gy [H] x gx [W] (pixel units, centres at
+    integers), and which samples fell inside the image [H, W] (outside: 0)."""
+    h, w = image.shape[:2]
+    y0, y1, fy, in_y = _taps(gy, h)
+    x0, x1, fx, in_x = _taps(gx, w)
+    fy = fy[:, None, None]
+    rows = image[y0] * (1 - fy) + image[y1] * fy
+    fx = fx[None, :, None]
+    out = rows[:, x0] * (1 - fx) + rows[:, x1] * fx
+    inside = in_y[:, None] & in_x[None, :]
+    out[~inside] = 0.0
+    return out.astype(np.float32, copy=False), inside
+
+
+def sample(image: np.ndarray, gy: np.ndarray, gx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear samples of image [h, w, C] at (gy, gx) [H, W] (pixel units, centres at
+    integers), and which samples fell inside the image [H, W] bool (outside: 0)."""
+    h, w = image.shape[:2]
+    flat = image.reshape(h * w, -1)
+    y0, y1, fy, in_y = _taps(gy, h)
+    x0, x1, fx, in_x = _taps(gx, w)
+    fy, fx = fy[..., None], fx[..., None]
+    top = flat[y0 * w + x0] * (1 - fx) + flat[y0 * w + x1] * fx
+    bottom = flat[y1 * w + x0] * (1 - fx) + flat[y1 * w + x1] * fx
+    out = top * (1 - fy) + bottom * fy
+    inside = in_y & in_x
+    out[~inside] = 0.0
+    return out.astype(np.float32, copy=False), inside
+
+
+def dis_flow(current: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """Flow [h, w, 2] (dy, dx) with current(p) ~ previous(p + flow(p)): OpenCV's DIS on the
+    sRGB greys (ValueError when OpenCV is not installed)."""
+    try:
+        import cv2
+    except ImportError:
+        raise ValueError("flow-guided filtering needs OpenCV: pip install opencv-python-headless") from None
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+    to_u8 = lambda g: np.clip(np.rint(g * 255.0), 0, 255).astype(np.uint8)  # noqa: E731
+    h, w = current.shape
+    if min(h, w) < 8:  # DIS needs a few patches
+        return np.zeros((h, w, 2), np.float32)
+    flow = dis.calc(to_u8(current), to_u8(previous), None)  # (dx, dy)
+    return np.ascontiguousarray(flow[..., ::-1], dtype=np.float32)
+
+
+class MapSmoother:
+    """Exponential smoothing of named working-resolution maps over a clip's frames, the
+    previous frame's maps warped onto this frame's grid first (see the module doc)."""
+
+    def __init__(self, history: float, mode: str = "ema"):
+        if not 0.0 <= history < 1.0:
+            raise ValueError(f"history must be in [0, 1), got {history}")
+        if mode not in FILTER_MODES:
+            raise ValueError(f"mode must be one of {FILTER_MODES}, got {mode!r}")
+        self.history, self.mode = float(history), mode
+        self.state: dict | None = None
+
+    def reset(self) -> None:
+        self.state = None
+
+    def update(self, box, size, grey: np.ndarray, alpha: np.ndarray, maps: dict) -> dict:
+        """The smoothed `maps` ({name: [h, w, C]}) of this frame (grid `box`, `size`; its
+        sRGB grey [h, w] and alpha [h, w]); the state becomes them. Never modifies its inputs."""
+        prev = self.state
+        if prev is None or self.history == 0.0:
+            out = dict(maps)
+        else:
+            gy, gx = grid_axes(prev["box"], prev["size"], box, size)
+            names = sorted(maps)
+            stacked = np.concatenate([prev["maps"][k] for k in names] + [prev["alpha"][..., None],
+                                                                         prev["grey"][..., None]], axis=2)
+            if self.mode == "flow":
+                warped_grey, _ = sample_separable(prev["grey"][..., None], gy, gx)
+                flow = dis_flow(grey, warped_grey[..., 0])
+                # the flow is measured on this grid; the previous grid's pixels are scaled by the boxes
+                sy = prev["size"][0] / (prev["box"][1] - prev["box"][0]) * ((box[1] - box[0]) / size[0])
+                sx = prev["size"][1] / (prev["box"][3] - prev["box"][2]) * ((box[3] - box[2]) / size[1])
+                warped, inside = sample(stacked, gy[:, None] + flow[..., 0] * sy, gx[None, :] + flow[..., 1] * sx)
+            else:
+                warped, inside = sample_separable(stacked, gy, gx)
+            prev_alpha, prev_grey = warped[..., -2], warped[..., -1]
+            agree = np.exp(-np.square((grey - prev_grey) / np.float32(AGREE_SCALE)))
+            k = (np.float32(self.history) * np.clip(prev_alpha, 0.0, 1.0) * agree * inside)[..., None]
+            out, c = {}, 0
+            for name in names:
+                n = maps[name].shape[2]
+                out[name] = (k * warped[..., c:c + n] + (1 - k) * maps[name]).astype(np.float32)
+                c += n
+        self.state = {"box": tuple(int(v) for v in box), "size": tuple(int(v) for v in size),
+                      "grey": grey, "alpha": alpha, "maps": out}
+        return out
+
+
+class MatteSmoother:
+    """The full-resolution person matte smoothed over frames where it hardly changed:
+    alpha = k * previous + (1 - k) * current, k = history * exp(-(|current - previous| /
+    MATTE_AGREE_SCALE)^2). A moving edge (a change near 1) takes the current matte at once;
+    the segmenter's small frame-to-frame jitter is averaged."""
+
+    def __init__(self, history: float):
+        self.history = float(history)
+        self.previous: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self.previous = None
+
+    def update(self, alpha: np.ndarray) -> np.ndarray:
+        prev = self.previous
+        if prev is None or prev.shape != alpha.shape or self.history == 0.0:
+            out = alpha
+        else:
+            rows = np.flatnonzero(np.any(alpha > 0, axis=1) | np.any(prev > 0, axis=1))
+            out = alpha.copy()
+            if rows.size:  # only the rows either matte touches: the rest is 0 in both
+                r0, r1 = rows[0], rows[-1] + 1
+                a, p = alpha[r0:r1], prev[r0:r1]
+                d = (a - p) * np.float32(1.0 / MATTE_AGREE_SCALE)
+                k = np.exp(-(d * d)) * np.float32(self.history)
+                out[r0:r1] = a + k * (p - a)
+                # exact 0 and 1 stay exact: the photo outside the person is untouched bit for bit
+                np.copyto(out[r0:r1], a, where=(a == 0) & (p == 0))
+        self.previous = out
+        return out
+
+
+def consistent_albedo(x: np.ndarray, shading: np.ndarray, network_alpha: np.ndarray, reliable: float) -> np.ndarray:
+    """model/physics.py photo_consistent_albedo in numpy: photo / max(shading, reliable *
+    mean shading), in [0, 1], the photo being what the network input `x` ([h, w, 3] in
+    [-1, 1], relight.prt.to_network_input) encodes and the mean weighted by the network's
+    alpha where no channel is clipped (model/geometry.py)."""
+    from relight.colour import srgb_decode
+
+    photo = srgb_decode((x + np.float32(1.0)) * np.float32(0.5)).astype(np.float32)
+    unclipped = np.clip((2.0 * CLIPPED - 1.0 - x.max(axis=2)) * 1e6, 0.0, 1.0)
+    w = (network_alpha * unclipped).astype(np.float64)
+    lum = shading.mean(axis=2, dtype=np.float64)
+    mean = max(float((lum * w).sum() / (w.sum() + 1e-4)), MIN_MEAN_SHADING)
+    floor = np.float32(reliable * mean)
+    return np.clip(photo / np.maximum(shading, floor), 0.0, 1.0).astype(np.float32)
+
+
+def history_weight(window: float) -> float:
+    """The EMA weight whose effective window ((1 + k) / (1 - k) frames) is `window`."""
+    return 0.0 if window <= 1.0 else (window - 1.0) / (window + 1.0)
+
