@@ -99,6 +99,8 @@ def check_compositing(name: str) -> None:
     scene = bpy.context.scene
     camera = scene.camera
     assert camera.name == f"{name}.camera" and camera.type == "CAMERA"
+    assert camera.data.lens == photo_light.DEFAULT_LENS_MM  # the test PNG has no EXIF focal length
+    assert tuple(camera.rotation_euler) == pytest.approx((math.pi / 2, 0.0, 0.0))
     assert (scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage) == (W, H, 100)
     background = camera.data.background_images[0]
     assert camera.data.show_background_images and background.image == bpy.data.images[name]
