@@ -10,6 +10,15 @@ from .bl_session import POLL_SECONDS, current_session, release_job, set_status, 
 REST_SECONDS = 0.3                # a dial untouched this long is at rest: the full-size relight starts
 
 
+def missing_photo_notice(session: state.PhotoSession) -> str:
+    """The lasting panel notice of a session reopened without its photo ('' otherwise)."""
+    if not session.photo_missing:
+        return ""
+    height, width = session.photo.shape[:2]
+    return (f"{session.photo_missing} The saved relight is shown at {width} x {height} and the dials work; "
+            "for full size or Save Layers, point the image at the photo again (Image > Replace) and press Relight.")
+
+
 def compute_relit(context, session: state.PhotoSession, dials=None):
     """Linear RGB [H, W, 3] of the cached decomposition relit with the current dials."""
     light, rotation, exposure, strength = dials or current_dials(context, session)
@@ -37,7 +46,7 @@ def refresh_relit(context, preview: bool = False) -> None:
     session.dial_generation += 1
     try:
         dials = current_dials(context, session)
-        if preview and session.preview is not None:
+        if preview and session.preview is not None and not session.photo_missing:
             rgba = engine.relit_rgba(session.preview, *dials)
             write_output(session, "preview", rgba, session.preview.size)
             show_in_editors(session, "preview")
@@ -45,7 +54,8 @@ def refresh_relit(context, preview: bool = False) -> None:
             _arm_full_size()
         else:
             render_relit(context, session, dials)
-            set_status(context, "")
+            # reopened without its photo: the notice stays while the dials work on the saved preview
+            set_status(context, missing_photo_notice(session), is_error=bool(session.photo_missing))
     except ValueError as exc:
         set_status(context, str(exc), is_error=True)
 
@@ -97,8 +107,8 @@ def full_when_resting():
     running = state.RUNNING.get("dial")
     if running is not None and not running.finished:
         return POLL_SECONDS  # one full-size relight at a time: start when that one ends
-    if session.provisional:
-        return POLL_SECONDS  # reopening: the full photo is still being read
+    if session.provisional:  # reopening: the full photo is still being read, or is gone
+        return None if session.photo_missing else POLL_SECONDS
     try:
         dials = current_dials(context, session)
     except ValueError as exc:

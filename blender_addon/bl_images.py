@@ -119,10 +119,31 @@ def has_pixels(image: bpy.types.Image) -> bool:
     return image.has_data and image.size[0] > 0 and image.size[1] > 0
 
 
+def no_pixels_reason(image) -> str:
+    """Why `image` gives no pixels, said as a sentence about its file (has_pixels was False)."""
+    if image.source == "FILE" and image.packed_file is None:
+        path = bpy.path.abspath(image.filepath, library=image.library)
+        if not os.path.isfile(path):
+            return f"The photo file of '{image.name}' is missing ({path or 'no path'}): it was moved or deleted."
+        return f"'{image.name}' is not an image Blender can read ({os.path.basename(path)})."
+    return f"The image '{image.name}' has no pixels."
+
+
+def file_missing(image) -> str:
+    """A sentence when the photo's file is gone from disk ('' when it is there, packed or generated),
+    told without loading the image."""
+    if image.source != "FILE" or image.packed_file is not None or image.has_data:
+        return ""
+    path = bpy.path.abspath(image.filepath, library=image.library)
+    if os.path.isfile(path):
+        return ""
+    return f"The photo file of '{image.name}' is missing ({path or 'no path'}): it was moved or deleted."
+
+
 def rgba_pixels(image: bpy.types.Image) -> np.ndarray:
     """The image's pixels as float32 [H, W, C] (C = image.channels), top row first (a view)."""
     if not has_pixels(image):
-        raise ValueError(f"The image '{image.name}' has no pixels: is its file missing?")
+        raise ValueError(no_pixels_reason(image))
     width, height = image.size
     channels = image.channels
     flat = np.empty(width * height * channels, dtype=np.float32)
@@ -165,7 +186,7 @@ def photo_reader(image):
             with_alpha = image.alpha_mode != "NONE"
             return lambda: pipeline.read_8bit_file(path, None, with_alpha, name)
     if not has_pixels(image):
-        raise ValueError(f"The image '{image.name}' has no pixels: is its file missing?")
+        raise ValueError(no_pixels_reason(image))
     width, height = image.size
     pipeline.check_photo_size(width, height)
     path = _plain_file(image)

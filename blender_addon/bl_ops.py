@@ -315,6 +315,9 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             session = current_session(context)
         if session is None:
             raise ValueError("Relight the photo first: there are no layers to save yet.")
+        if session.photo_missing:
+            raise ValueError(f"{session.photo_missing} Saving layers needs the photo at full size: point "
+                             "the image at it again (Image > Replace) and press Relight.")
         if session.provisional:
             raise ValueError("The photo is still being read after opening the file: save the layers in a moment.")
         return session

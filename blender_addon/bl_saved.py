@@ -32,24 +32,31 @@ def poll_saves():
 
 
 @bpy.app.handlers.persistent
-def on_save_post(*_args) -> None:
+def on_save_post(filepath="", *_args) -> None:
     """Keep each decomposition next to the .blend (`<name>_relight/<photo id>.npz`), so
     reopening the file restores the results without a network run.
 
-    With a UI the files are written by threads (compressing takes ~0.4 s at 24 MP);
-    they are not daemons, so quitting Blender waits for them, and opening a file
-    waits for them first."""
-    blend = bpy.data.filepath
+    `filepath` is the file Blender wrote: File > Save Copy writes another file than
+    bpy.data.filepath, and its copy gets decompositions of its own. With a UI the
+    files are written by threads (compressing takes ~0.4 s at 24 MP); they are not
+    daemons, so quitting Blender waits for them, and opening a file waits for them first."""
+    blend = filepath if isinstance(filepath, str) and filepath else bpy.data.filepath
     if not blend:
         return
+    copy = os.path.abspath(blend) != os.path.abspath(bpy.data.filepath or blend)
     for session in list(state.SESSIONS.values()):
         if bl_images.photo_by_id(session.photo_id) is None:
             continue
         path = pipeline.saved_relight_path(blend, session.photo_id)
-        if session.provisional or (session.saved_to == path and os.path.isfile(path)):
-            continue  # a provisional session's file is the one it came from
+        if session.provisional:
+            if session.saved_to and os.path.abspath(session.saved_to) != os.path.abspath(path):
+                _copy_saved(session.saved_to, path)  # a reopened preview: its file goes along
+            continue
+        if session.saved_to == path and os.path.isfile(path):
+            continue
         meta = work.save_meta(session)
-        session.saved_to = path
+        if not copy:
+            session.saved_to = path
         failures: list = []
         if bl_session.updates_immediately():
             work.save_one(session, path, meta, failures)
@@ -64,9 +71,30 @@ def on_save_post(*_args) -> None:
             bpy.app.timers.register(poll_saves, first_interval=0.2)
 
 
+def _copy_saved(source: str, target: str) -> None:
+    """A saved decomposition copied beside another .blend (Save As / Save Copy of a file
+    whose photo was not read again), atomically."""
+    from relight.fileio import atomic_path
+
+    try:
+        os.makedirs(os.path.dirname(target), exist_ok=True)
+        with open(source, "rb") as src, atomic_path(target, ".npz") as tmp:
+            with open(tmp, "wb") as dst:
+                dst.write(src.read())
+    except OSError as exc:
+        set_status(bpy.context, f"The saved relight could not be copied next to the .blend "
+                                f"({exc.strerror or exc}): it will need Relight after reopening.", is_error=True)
+
+
 def _restore_plan(context, image, path: str) -> dict:
     arrays, meta = engine.load_decomposition_arrays(path)
-    reader = bl_images.photo_reader(image)
+    missing = bl_images.file_missing(image)
+    reader = None
+    if not missing:
+        try:
+            reader = bl_images.photo_reader(image)
+        except ValueError as exc:
+            missing = str(exc)
     inputs = pipeline.saved_mask_inputs(meta["mask_key"])
     if inputs["mode"] == "IMAGE":
         mask_name = inputs["name"]
@@ -77,7 +105,7 @@ def _restore_plan(context, image, path: str) -> dict:
     work.restore_lights(meta.get("lights", []))
     dials = dials_for(context, int(meta["sh_order"]), meta["model_path"])
     return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path,
-                dials=dials)
+                dials=dials, missing=missing)
 
 
 def restore_saved(context) -> int:
@@ -90,17 +118,27 @@ def restore_saved(context) -> int:
     if not blend:
         return 0
     plans = []
-    for image in bpy.data.images:
+    for image_name in [image.name for image in bpy.data.images]:
+        image = bpy.data.images.get(image_name)  # None: an output removed by _drop_outputs below
+        if image is None:
+            continue
         pid = bl_images.photo_id(image)
         if not pid or bl_images.owner_of(image):
             continue
         path = pipeline.saved_relight_path(blend, pid)
-        if not os.path.isfile(path):
-            continue
         try:
-            plans.append(_restore_plan(context, image, path))
+            if not os.path.isfile(path):
+                raise ValueError(f"The saved relight of '{image.name}' is not next to this .blend "
+                                 f"({os.path.basename(os.path.dirname(path))}/ was not moved with it): press Relight.")
+            plan = _restore_plan(context, image, path)
         except ValueError as exc:
-            set_status(context, str(exc), is_error=True)
+            if _drop_outputs(pid):  # only a photo that had results needs saying
+                set_status(context, str(exc), is_error=True)
+            continue
+        if plan["missing"]:
+            _restore_without_photo(context, plan)
+        else:
+            plans.append(plan)
     if not plans:
         return 0
     immediately = bl_session.updates_immediately()
@@ -118,6 +156,32 @@ def restore_saved(context) -> int:
         state.RUNNING["restore_plans"] = plans
         bpy.app.timers.register(poll_restore, first_interval=0.0)
     return len(plans)
+
+
+def _drop_outputs(pid: str) -> int:
+    """Remove a photo's output images that cannot be filled again (Blender keeps their
+    names, not their pixels): black images must not pose as results. Returns how many."""
+    outputs = [image for image in bpy.data.images if bl_images.owner_of(image) == pid]
+    for image in outputs:
+        bpy.data.images.remove(image)
+    return len(outputs)
+
+
+def _restore_without_photo(context, plan: dict) -> None:
+    """The photo cannot be read (moved, deleted, not an image): the saved decomposition alone
+    gives every output at the saved preview's size, and the dials keep working on it."""
+    preview = engine.saved_preview(plan["arrays"], plan["meta"])
+    if preview is None:  # saved by an add-on that kept no preview of small photos
+        _drop_outputs(plan["meta"]["photo_id"])
+        set_status(context, f"{plan['missing']} Its saved relight has no copy of the photo: "
+                            "point the image at the photo again (Image > Replace) and press Relight.", is_error=True)
+        return
+    session = _show_saved_preview(context, plan)
+    session.photo_missing = plan["missing"]
+    buffers = work.layer_buffers(session, plan["dials"])
+    for layer in pipeline.layers_in_order(buffers):
+        write_output(session, layer, buffers[layer], preview.size)
+    set_status(context, bl_dials.missing_photo_notice(session), is_error=True)
 
 
 def _start_restore(plans: list):
@@ -145,6 +209,7 @@ def _show_saved_preview(context, plan: dict) -> None:
     settings = addon_settings(context)
     if settings.last_photo_id not in state.SESSIONS:
         settings.last_photo_id = session.photo_id
+    return session
 
 
 def poll_restore():

@@ -33,6 +33,7 @@ class PhotoSession:
     dial_generation: int = 0    # bumped on every dial change: a late full-size result is dropped
     people: int = 0             # people the person matte found (AUTO mask), else 0
     provisional: bool = False   # reopening: only the saved preview so far (photo and decomposition at preview size)
+    photo_missing: str = ""     # reopened without its photo (why): the saved preview stays, the dials work on it
     extras: dict = field(default_factory=dict)
 
 

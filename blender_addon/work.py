@@ -139,7 +139,8 @@ def save_meta(session: state.PhotoSession) -> dict:
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
     try:
-        engine.save_decomposition(path, session.decomposition, meta, session.preview)
+        # a small photo is its own preview: kept too, so reopening shows the result without the file
+        engine.save_decomposition(path, session.decomposition, meta, session.preview or session.decomposition)
     except OSError as exc:
         session.saved_to = ""
         failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "

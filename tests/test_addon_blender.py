@@ -478,7 +478,17 @@ def test_error_photo_file_missing(addon, settings, tmp_path):
     image = bpy.data.images.load(str(path))
     path.unlink()
     try:
-        _error("The image 'gone.png' has no pixels: is its file missing?", image_name=image.name)
+        _error(f"The photo file of 'gone.png' is missing ({path}): it was moved or deleted.", image_name=image.name)
+    finally:
+        bpy.data.images.remove(image)
+
+
+def test_error_file_that_is_not_an_image(addon, settings, tmp_path):
+    path = tmp_path / "notes.png"
+    path.write_text("these are notes, not a photo\n")
+    image = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        _error("'notes.png' is not an image Blender can read (notes.png).", image_name=image.name)
     finally:
         bpy.data.images.remove(image)
 

@@ -142,3 +142,76 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
         for timer in bl_ops._TIMERS:
             if bpy.app.timers.is_registered(timer):
                 bpy.app.timers.unregister(timer)
+
+
+def _relit_and_saved(model, folder):
+    """Relight the photo with the dials moved off their defaults, save: (name, photo id, outputs, blend)."""
+    name = _setup(model, folder)
+    bpy.context.scene.relight_photo.exposure = 0.5
+    assert _relight(name) == {"FINISHED"}
+    outputs = {layer: pixels(f"{name}.{layer}").copy() for layer in LAYERS}
+    pid = bpy.data.images[name][bl_images.PHOTO_ID]
+    blend = folder / "shot.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
+    return name, pid, outputs, blend
+
+
+@pytest.mark.parametrize("what", ["deleted", "moved"])
+def test_reopening_without_the_photo_shows_the_saved_result_and_the_dials_work(addon, model, what):
+    name, pid, before, blend = _relit_and_saved(model, addon)
+    photo = addon / "person.png"
+    if what == "deleted":
+        photo.unlink()
+    else:
+        (addon / "elsewhere").mkdir()
+        photo.rename(addon / "elsewhere" / "person.png")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    session = state.SESSIONS[pid]
+    assert session.photo_missing and session.provisional
+    for layer in LAYERS:  # the saved result, from the saved decomposition alone (a small photo is its own preview)
+        np.testing.assert_allclose(pixels(f"{name}.{layer}"), before[layer], rtol=HALF, atol=HALF)
+    status = bpy.context.window_manager.relight_photo_status
+    notice = status.message
+    assert status.is_error and "missing" in notice and "the dials work" in notice and "Image > Replace" in notice
+    bpy.context.scene.relight_photo.rotation = math.radians(70.0)  # a dial, as the artist turns it
+    turned = pixels(f"{name}.relit")
+    assert np.abs(turned - before["relit"]).max() > 1e-2
+    expect = session.decomposition.relight(sh_light("studio", session.decomposition.sh_order, rotation_deg=70.0),
+                                           exposure_ev=0.5)
+    np.testing.assert_allclose(turned[..., :3], expect, atol=1e-5)
+    assert status.message == notice  # the notice lasts while the dials work
+    with pytest.raises(RuntimeError, match="Saving layers needs the photo at full size"):
+        bpy.ops.relight_photo.save_layers(filepath=str(addon / "layers.exr"), image_name=name)
+    assert not (addon / "layers.exr").exists()
+    assert bl_dials.full_when_resting() is None  # no full-size relight waits forever for a photo that is gone
+
+
+def test_save_copy_keeps_a_decomposition_beside_the_copy(addon, model):
+    name, pid, before, blend = _relit_and_saved(model, addon)
+    (addon / "copies").mkdir()
+    copy = addon / "copies" / "shot_copy.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(copy), copy=True) == {"FINISHED"}  # File > Save Copy
+    assert os.path.isfile(pipeline.saved_relight_path(str(copy), pid))
+    assert state.SESSIONS[pid].saved_to == pipeline.saved_relight_path(str(blend), pid)  # the open file's own
+    bpy.ops.wm.open_mainfile(filepath=str(copy))
+    assert state.SESSIONS[pid].saved_to == pipeline.saved_relight_path(str(copy), pid)
+    for layer in LAYERS:
+        np.testing.assert_allclose(pixels(f"{name}.{layer}"), before[layer], rtol=HALF, atol=HALF)
+
+
+def test_a_blend_moved_without_its_relight_folder_leaves_no_black_results(addon, model):
+    import shutil
+
+    name, pid, _before, blend = _relit_and_saved(model, addon)
+    (addon / "moved").mkdir()
+    shutil.copy(blend, addon / "moved" / "shot.blend")  # the .blend and its photo, not shot_relight/
+    shutil.copy(addon / "person.png", addon / "moved" / "person.png")
+    bpy.ops.wm.open_mainfile(filepath=str(addon / "moved" / "shot.blend"))
+    assert state.SESSIONS == {}
+    assert not [image.name for image in bpy.data.images if bl_images.owner_of(image) == pid]
+    status = bpy.context.window_manager.relight_photo_status
+    assert status.is_error and status.message == (
+        f"The saved relight of '{name}' is not next to this .blend (shot_relight/ was not moved with it): "
+        "press Relight.")
+    assert _relight(name) == {"FINISHED"}  # the photo is there: Relight brings the results back
+    assert np.abs(pixels(f"{name}.relit")).max() > 0.05
