@@ -126,13 +126,13 @@ def evaluate_clip(clip: dict, relit: np.ndarray) -> dict:
 
 
 def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,), modes=("ema",), matte: str = "person",
-             max_frames: int | None = None, threads: int | None = None) -> dict:
+             max_frames: int | None = None, threads: int | None = None, source: str = "prt") -> dict:
     """{"rows": [{"method", "flicker_excess", "psnr", "ms"}...], "clips": N, "frames": T}: per-frame
     processing first, then every (stability, mode); each figure the mean over clips."""
     from relight import quality as quality_presets
     from relight.runtime import Relighter
 
-    clips = load_clips(folders, max_frames)
+    clips = load_clips(folders, max_frames, source)
     path = model if model is not None else quality_presets.model_path(quality)
     relighter = Relighter(path, threads=threads, working_size=quality)
     methods = [("per-frame", 0.0, "ema")] + [(f"{mode} s={s:g}", s, mode) for s in stabilities for mode in modes]
@@ -149,17 +149,18 @@ def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,),
         row["flicker_ratio"] = row["flicker_excess"] / base if base > 0 else float("nan")
         row["psnr_delta"] = row["psnr"] - rows[0]["psnr"]
     return {"rows": rows, "clips": [c["name"] for c in clips], "frames": int(sum(len(c["frames"]) for c in clips)),
-            "matte": matte, "quality": quality}
+            "matte": matte, "quality": quality, "source": source}
 
 
 def markdown(result: dict) -> str:
-    lines = [f"{len(result['clips'])} clips, {result['frames']} frames, matte {result['matte']}, "
-             f"quality {result['quality']}", "",
-             "| method | flicker excess (% of image) | vs per-frame | PSNR dB | vs per-frame dB | ms/frame |",
-             "|---|---|---|---|---|---|"]
+    lines = [f"{len(result['clips'])} clips, {result['frames']} frames, {result['source']} frames, matte "
+             f"{result['matte']}, quality {result['quality']}", "",
+             "| method | flicker excess (% of image) | vs per-frame | jitter excess (%) | PSNR dB | vs per-frame dB "
+             "| ms/frame |",
+             "|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
-        lines.append(f"| {r['method']} | {100 * r['flicker_excess']:.3f} | {r['flicker_ratio']:.2f} | {r['psnr']:.2f} "
-                     f"| {r['psnr_delta']:+.2f} | {r['ms']:.1f} |")
+        lines.append(f"| {r['method']} | {100 * r['flicker_excess']:+.3f} | {r['flicker_ratio']:+.2f} "
+                     f"| {100 * r['jitter_excess']:+.3f} | {r['psnr']:.2f} | {r['psnr_delta']:+.2f} | {r['ms']:.1f} |")
     return "\n".join(lines)
 
 
@@ -172,12 +173,15 @@ def main(argv=None) -> int:
     p.add_argument("--mode", nargs="+", default=["ema"], choices=("ema", "flow"))
     p.add_argument("--matte", default="person", choices=("person", "gt", "network"),
                    help="person: the segmenter (as `relight video`); gt: the true alpha as each frame's mask")
+    p.add_argument("--source", default="prt", choices=SOURCES,
+                   help="prt: the noise-free PRT person (default); pt: the path-traced person (each frame denoised "
+                        "on its own, so its noise flickers in the input and in the truth)")
     p.add_argument("--frames", type=int, default=None, help="first N frames of each clip")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--json", default=None, help="also write the figures as JSON here")
     args = p.parse_args(argv)
     result = evaluate(args.clips, args.model, args.quality, args.stability, args.mode, args.matte, args.frames,
-                      args.threads)
+                      args.threads, args.source)
     print(markdown(result))
     if args.json:
         from relight.fileio import atomic_write_json

@@ -300,9 +300,10 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     bar = tqdm(total=info.frames, initial=start, desc="relight", unit="frame", file=sys.stderr, disable=None,
                dynamic_ncols=True)
     nobody, clamped, count, last = [], 0.0, 0, start - 1
+    committed = None  # (next frame, the filter state once every frame before it is written)
 
     def emit(index, analysis):
-        nonlocal clamped, count, last
+        nonlocal clamped, count, last, committed
         skip = frames is not None and index in frames.done
         result = runner.finish(analysis, layers=args.layers and not skip)
         if not result.person:
@@ -313,8 +314,11 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
             if not skip:
                 layers = (result.layers or _empty_layers(result.image)) if args.layers else None
                 frames.writer.write(index, result.image, layers)
+            # a snapshot (the filters replace their arrays, never change them in place): an
+            # interrupt during the next frame's finish() or write() must not save that frame's state
+            committed = (index + 1, runner.state())
             if (index + 1) % CHECKPOINT_EVERY == 0:
-                frames.checkpoint(index + 1, runner.state())
+                frames.checkpoint(*committed)
         else:
             video.write(result.image)
         count, last = count + 1, index
@@ -332,9 +336,9 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
             index, future = pending.popleft()
             emit(index, future.result())
     except KeyboardInterrupt:
-        if frames is not None and last >= start:
+        if frames is not None and committed is not None:
             try:
-                frames.checkpoint(last + 1, runner.state())
+                frames.checkpoint(*committed)
             except OSError:
                 pass  # a full disk: the last checkpoint stands, the resume re-runs a few more frames
         raise

@@ -205,6 +205,9 @@ class VideoFile:
         self.path = Path(path)
         container = _open_input(self.path)
         try:
+            if container.format.name in ("image2", "gif") or container.format.name.endswith("_pipe"):
+                raise ValueError(f"{self.path}: an image, not a video (relight image relights a photo; "
+                                 "relight video takes a video file or a folder of frames)")
             if not container.streams.video:
                 raise ValueError(f"{self.path}: no video stream in the file")
             stream = container.streams.video[0]

@@ -1,0 +1,239 @@
+"""`relight video`: files and folders in and out, resume, interrupts and every bad-input path."""
+
+from __future__ import annotations
+
+import errno
+from fractions import Fraction
+
+import av
+import numpy as np
+import pytest
+from PIL import Image
+
+from clip_support import background, person_clip, write_frames, write_video
+from relight import cli_video, video_io
+from relight.cli import main
+from relight.photo import read_photo
+
+
+@pytest.fixture(scope="module")
+def clip_frames():
+    return person_clip(12)
+
+
+def _run(capsys, *argv):
+    code = main(["video", *map(str, argv), "--quality", "draft", "--threads", "1"])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _folder(path, suffix=".png"):
+    return {p.name: read_photo(p)[0] for p in sorted(path.iterdir()) if p.suffix == suffix}
+
+
+def _leftovers(path):
+    """Temporary files that a write left behind (there must be none)."""
+    return [p.name for p in path.rglob("*") if ".tmp" in p.name]
+
+
+def test_video_to_video_keeps_count_rate_size_and_audio(tmp_path, capsys, clip_frames):
+    from test_video_io import _write_video
+
+    src = _write_video(tmp_path / "in.mp4", clip_frames, Fraction(30000, 1001), audio="aac")
+    code, out, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4")
+    assert code == 0, err
+    assert "relit 12 frames" in out
+    clip = video_io.open_clip(tmp_path / "out.mp4")
+    assert (clip.info.width, clip.info.height, clip.info.fps) == (160, 90, Fraction(30000, 1001))
+    assert len(list(clip.frames())) == 12
+    with av.open(str(tmp_path / "out.mp4")) as c:
+        assert [s.codec_context.name for s in c.streams.audio] == ["aac"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4", "out.mp4"]
+
+
+def test_folder_to_folder_and_exr_keeps_linear_values(tmp_path, capsys, clip_frames):
+    frames = [f.copy() for f in clip_frames[:4]]
+    for f in frames:
+        f[:3, :3] = 4.0  # a light source in the background: linear values above 1
+    src = write_frames(tmp_path / "in", frames, fmt="exr")
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out", "--stability", "0")
+    assert code == 0, err
+    got = _folder(tmp_path / "out", ".exr")
+    assert sorted(got) == [f"f_{i:04d}.exr" for i in range(1, 5)]
+    # stability 0: each frame exactly as `relight image` relights it
+    code = main(["image", str(src / "f_0003.exr"), "--light", "studio", "--quality", "draft",
+                 "--threads", "1", "--out", str(tmp_path / "still.exr")])
+    assert code == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(got["f_0003.exr"], read_photo(tmp_path / "still.exr")[0])
+    # linear values above 1 survive in EXR frames (the background is kept bit for bit)
+    assert np.all(got["f_0001.exr"][:3, :3] == 4.0)
+
+
+def test_layers_and_a_frame_without_a_person(tmp_path, capsys, clip_frames):
+    frames = clip_frames[:3] + [background()] + clip_frames[3:5]
+    src = write_frames(tmp_path / "in", frames)
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out", "--layers")
+    assert code == 0, err
+    assert "no person in frames 4: written unchanged" in err
+    from relight.exr import read_exr
+
+    empty = read_exr(tmp_path / "out" / "f_0004.exr")
+    assert np.all(empty["Relight.Alpha.A"] == 0)
+    np.testing.assert_array_equal(np.stack([empty[f"Relight.Relit.{c}"] for c in "RGB"], -1),
+                                  read_photo(src / "f_0004.png")[0])
+    assert read_exr(tmp_path / "out" / "f_0005.exr")["Relight.Alpha.A"].max() > 0.5
+
+
+def _interrupt_after(monkeypatch, cls, method, calls):
+    """Make cls.method raise KeyboardInterrupt on its `calls`-th call (as Ctrl-C would)."""
+    original = getattr(cls, method)
+    count = {"n": 0}
+
+    def wrapped(self, *a, **kw):
+        count["n"] += 1
+        if count["n"] == calls:
+            raise KeyboardInterrupt
+        return original(self, *a, **kw)
+
+    monkeypatch.setattr(cls, method, wrapped)
+
+
+def test_resume_after_an_interrupt_writes_only_the_missing_frames_identically(tmp_path, capsys, monkeypatch,
+                                                                                clip_frames):
+    src = write_frames(tmp_path / "in", clip_frames)
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "whole")
+    assert code == 0, err
+    whole = _folder(tmp_path / "whole")
+
+    with monkeypatch.context() as m:
+        _interrupt_after(m, video_io.FrameFolderWriter, "write", 8)
+        code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part")
+    assert code == cli_video.EXIT_INTERRUPTED
+    assert "interrupted" in err and "--resume" in err
+    assert sorted(_folder(tmp_path / "part")) == [f"f_{i:04d}.png" for i in range(1, 8)]
+    assert _leftovers(tmp_path / "part") == []
+
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part")
+    assert code == 2 and "--resume" in err  # without --resume a half-done folder is refused
+    written = []
+    original = video_io.FrameFolderWriter.write
+    monkeypatch.setattr(video_io.FrameFolderWriter, "write",
+                        lambda self, i, *a: written.append(i) or original(self, i, *a))
+    code, out, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part", "--resume")
+    assert code == 0, err
+    assert written == list(range(7, 12)) and "(7 were there already)" in out
+    part = _folder(tmp_path / "part")
+    assert sorted(part) == sorted(whole)
+    for name in whole:
+        np.testing.assert_array_equal(part[name], whole[name])
+
+
+def test_resume_without_a_saved_state_recomputes_from_the_start(tmp_path, capsys, monkeypatch, clip_frames):
+    """A job killed outright (no checkpoint yet): the resume replays the filter from frame 1."""
+    src = write_frames(tmp_path / "in", clip_frames[:8])
+    code, _, err = _run(capsys, src, "--light", "city", "--out", tmp_path / "whole", "--stability", "1")
+    assert code == 0, err
+    with monkeypatch.context() as m:
+        _interrupt_after(m, video_io.FrameFolderWriter, "write", 5)
+        _run(capsys, src, "--light", "city", "--out", tmp_path / "part", "--stability", "1")
+    (tmp_path / "part" / cli_video.STATE_FILE).unlink()
+    code, _, err = _run(capsys, src, "--light", "city", "--out", tmp_path / "part", "--stability", "1", "--resume")
+    assert code == 0, err
+    whole, part = _folder(tmp_path / "whole"), _folder(tmp_path / "part")
+    for name in whole:
+        np.testing.assert_array_equal(part[name], whole[name])
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part", "--stability", "1", "--resume")
+    assert code == 2 and "light differ" in err
+
+
+def test_a_resumable_video_job_keeps_its_frames_until_the_video_is_complete(tmp_path, capsys, monkeypatch,
+                                                                           clip_frames):
+    src = write_video(tmp_path / "in.mp4", clip_frames[:8])
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "whole.mp4")
+    assert code == 0, err
+    with monkeypatch.context() as m:
+        _interrupt_after(m, video_io.FrameFolderWriter, "write", 6)
+        code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4", "--resume")
+    assert code == cli_video.EXIT_INTERRUPTED
+    assert not (tmp_path / "out.mp4").exists()
+    assert len(list((tmp_path / "out.mp4.frames").glob("*.png"))) == 5
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4", "--resume")
+    assert code == 0, err
+    assert not (tmp_path / "out.mp4.frames").exists()
+    got = [f for _, f, _ in video_io.open_clip(tmp_path / "out.mp4").frames()]
+    want = [f for _, f, _ in video_io.open_clip(tmp_path / "whole.mp4").frames()]
+    assert len(got) == len(want) == 8
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_an_interrupted_video_leaves_no_file(tmp_path, capsys, monkeypatch, clip_frames):
+    src = write_video(tmp_path / "in.mp4", clip_frames[:6])
+    _interrupt_after(monkeypatch, video_io.VideoWriter, "write", 4)
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4")
+    assert code == cli_video.EXIT_INTERRUPTED and "no video written" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4"]
+
+
+def _disk_full(*_a, **_k):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_full_disk_fails_the_job_with_one_message_and_whole_frames_only(tmp_path, capsys, monkeypatch,
+                                                                           clip_frames):
+    src = write_frames(tmp_path / "in", clip_frames[:6])
+    from PIL.Image import Image as PilImage
+
+    original, calls = PilImage.save, {"n": 0}
+
+    def save(self, fp, *a, **k):  # the 4th frame's PNG fails half-way, as a full disk does
+        calls["n"] += 1
+        if calls["n"] == 4:
+            open(fp, "wb").write(b"\x89PNG partial")
+            _disk_full()
+        return original(self, fp, *a, **k)
+
+    monkeypatch.setattr(PilImage, "save", save)
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out")
+    assert code == cli_video.EXIT_FAILED
+    assert err.count("\n") == 1 and "output disk full" in err and "--resume" in err
+    assert sorted(_folder(tmp_path / "out")) == ["f_0001.png", "f_0002.png", "f_0003.png"]
+    assert _leftovers(tmp_path / "out") == []
+    monkeypatch.undo()
+    src_video = write_video(tmp_path / "in.mp4", clip_frames[:4])
+    monkeypatch.setattr(video_io.VideoWriter, "write", _disk_full)
+    code, _, err = _run(capsys, src_video, "--light", "studio", "--out", tmp_path / "o.mp4")
+    assert code == cli_video.EXIT_FAILED and "output disk full" in err
+    assert not (tmp_path / "o.mp4").exists() and _leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("setup, extra, message", [
+    (lambda d: (d / "x.mp4").write_bytes(b"garbage" * 100), [], "not a readable video"),
+    (lambda d: (d / "x").mkdir(), [], "no frames"),
+    (lambda d: (write_frames(d / "x", person_clip(2)), Image.new("RGB", (40, 30)).save(d / "x" / "f_0003.png")),
+     [], "every frame of a clip must have one size"),
+    (lambda d: write_frames(d / "x", person_clip(2)), ["--mask", "m.png"], "--mask applies to one photo"),
+    (lambda d: write_video(d / "x.mp4", person_clip(2)), ["--fps", "30"], "--fps applies to a folder"),
+    (lambda d: write_frames(d / "x", person_clip(2)), ["--out-same"], "must differ from the input folder"),
+    (lambda d: write_video(d / "x.mp4", person_clip(2)), ["--layers"], "apply to a folder of frames"),
+    (lambda d: write_frames(d / "x", person_clip(2)), ["--format", "png", "--layers"], "--layers writes"),
+])
+def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, setup, extra, message):
+    (tmp_path / "in").mkdir()
+    setup(tmp_path / "in")
+    source = next((tmp_path / "in").iterdir())
+    out = source if extra == ["--out-same"] else tmp_path / ("out.mp4" if "--layers" in extra and
+                                                             len(extra) == 1 else "out")
+    extra = [] if extra == ["--out-same"] else extra
+    code, _, err = _run(capsys, source, "--light", "studio", "--out", out, *extra)
+    assert code == 2
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.mp4").exists()
+
+
+def test_folder_input_fps_sets_the_video_rate(tmp_path, capsys, clip_frames):
+    src = write_frames(tmp_path / "in", clip_frames[:3])
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "o.webm", "--fps", "12.5")
+    assert code == 0, err
+    clip = video_io.open_clip(tmp_path / "o.webm")
+    assert clip.info.fps == Fraction(25, 2) and len(list(clip.frames())) == 3

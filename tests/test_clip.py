@@ -1,0 +1,186 @@
+"""relight.clip and relight.clip_maps: a clip relit frame by frame, stable over time."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+
+import numpy as np
+import pytest
+
+from clip_support import background, person_clip, two_shots
+from relight import quality
+from relight.clip import LIGHT_WINDOW, ClipRelighter, CutDetector
+from relight.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, consistent_albedo, history_weight
+from relight.light import sh_light
+from relight.prt import to_network_input
+from relight.runtime import Relighter
+
+
+@pytest.fixture(scope="module")
+def relighter():
+    """The shipped geometry-first model at Draft (96 px), one thread: a frame in ~30 ms."""
+    return Relighter(quality.model_path("draft"), threads=1, working_size="draft")
+
+
+@pytest.fixture(scope="module")
+def clip12():
+    return person_clip(12)
+
+
+def test_a_generated_clip_relights_with_a_stable_light(relighter, clip12):
+    light = sh_light("studio", relighter.sh_order)
+    runner = ClipRelighter(relighter, light, stability=1.0, threads=1)
+    results = [runner.relight(f) for f in clip12]
+    assert all(r.person and r.image.shape == f.shape for r, f in zip(results, clip12))
+    assert [r.cut for r in results] == [True] + [False] * 11
+    raw = np.stack([r.light for r in results]).astype(np.float64)
+    shot = np.stack([r.shot_light for r in results]).astype(np.float64)
+    spread = raw.max(axis=0) - raw.min(axis=0)
+    assert np.all(spread > 0), "the network's per-frame estimates should differ (else the test proves nothing)"
+    # the shot light is the mean m_k of the last N = LIGHT_WINDOW estimates; once the window is full,
+    # m_k - m_{k-1} = (l_k - l_{k-N}) / N: the light moves by at most 1/N of the estimates' spread a frame
+    n = LIGHT_WINDOW
+    assert n < 12
+    slack = 1e-5 * np.abs(raw).max()
+    for k in range(12):
+        np.testing.assert_allclose(shot[k], raw[max(0, k - n + 1):k + 1].mean(axis=0), rtol=0, atol=slack)
+    steps = np.abs(np.diff(shot[n - 1:], axis=0))
+    assert np.all(steps <= spread / n + slack)
+    assert np.abs(np.diff(raw[n - 1:], axis=0)).max() > steps.max()  # the raw estimates jump more
+
+
+def test_stability_zero_is_relight_image_on_every_frame(relighter, clip12):
+    light = sh_light("city", relighter.sh_order)
+    runner = ClipRelighter(relighter, light, exposure_ev=0.5, stability=0.0, threads=1)
+    for frame in clip12[:4]:
+        got = runner.relight(frame)
+        d = relighter.decompose(frame)
+        np.testing.assert_array_equal(got.image, d.relight(light, 0.5))
+        np.testing.assert_array_equal(got.light, d.light)
+
+
+def test_the_albedo_twin_gives_the_graphs_albedo_under_its_own_light(relighter, clip12):
+    d = relighter.decompose(clip12[3])
+    config = json.loads(relighter.metadata["relight.network_config"])
+    x = to_network_input(d.photo_working, d.alpha)
+    shading = np.einsum("hwn,nc->hwc", d.transport, d.light)
+    albedo = consistent_albedo(x, shading, d.network_alpha, config["reliable"])
+    # the graph divides the same float32 values; its shading sums 25 float32 products in another
+    # order (relative rounding ~25 x 2^-24 = 1.5e-6 of the largest term, which can be ~10x the sum)
+    np.testing.assert_allclose(albedo, d.albedo, rtol=2e-4, atol=2e-5)
+
+
+def test_a_cut_starts_a_new_shot_with_its_own_light(relighter):
+    frames = two_shots(5, 4)
+    light = sh_light("studio", relighter.sh_order)
+    runner = ClipRelighter(relighter, light, stability=1.0, threads=1)
+    results = [runner.relight(f) for f in frames]
+    assert [r.cut for r in results] == [True, False, False, False, False, True, False, False, False]
+    # after the cut the shot light averages the new shot's estimates only
+    np.testing.assert_allclose(results[5].shot_light, results[5].light, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(results[6].shot_light, (results[5].light + results[6].light) / 2, rtol=0,
+                               atol=1e-5 * np.abs(results[5].light).max())
+
+
+def test_cut_detector_ignores_motion_and_sees_a_new_background():
+    detector = CutDetector()
+    frames = person_clip(6, step=4) + person_clip(2, tint=(0.5, 0.3, 0.1))
+    cuts = [detector.update_histogram(detector.histogram(f)) for f in frames]
+    assert cuts == [True, False, False, False, False, False, True, False]
+
+
+def test_state_round_trip_continues_exactly(relighter, clip12):
+    light = sh_light("studio", relighter.sh_order)
+    whole = ClipRelighter(relighter, light, stability=0.7, threads=1)
+    expected = [whole.relight(f).image for f in clip12]
+    first = ClipRelighter(relighter, light, stability=0.7, threads=1)
+    for f in clip12[:6]:
+        first.relight(f)
+    buffer = io.BytesIO()
+    np.savez(buffer, **first.state())
+    buffer.seek(0)
+    with np.load(buffer) as saved:
+        state = {k: saved[k] for k in saved.files}
+    second = ClipRelighter(relighter, light, stability=0.7, threads=1)
+    second.load_state(state)
+    for f, want in zip(clip12[6:], expected[6:]):
+        np.testing.assert_array_equal(second.relight(f).image, want)
+
+
+def test_a_frame_without_a_person_passes_through_and_the_next_starts_afresh(relighter, clip12):
+    light = sh_light("studio", relighter.sh_order)
+    runner = ClipRelighter(relighter, light, stability=0.5, threads=1)
+    runner.relight(clip12[0])
+    runner.relight(clip12[1])
+    empty = background()
+    result = runner.relight(empty)
+    assert not result.person and result.image is empty
+    after = runner.relight(clip12[2])
+    np.testing.assert_array_equal(after.shot_light, after.light)  # a fresh shot: its own estimate
+    # the frame's own alpha marks nobody: passed through too
+    assert not runner.relight(clip12[3], np.zeros(clip12[3].shape[:2], np.float32)).person
+
+
+def test_history_weight_gives_the_asked_window():
+    for window in (1.0, 3.0, 9.0):
+        k = history_weight(window)
+        assert math.isclose((1 + k) / (1 - k), window)
+
+
+def test_map_smoother_keeps_still_maps_and_follows_a_change():
+    rng = np.random.default_rng(0)
+    grey = rng.random((20, 16)).astype(np.float32)
+    alpha = np.ones((20, 16), np.float32)
+    maps = {"t": rng.random((20, 16, 5)).astype(np.float32)}
+    smoother = MapSmoother(0.8)
+    box, size = (10, 50, 20, 52), (20, 16)
+    for _ in range(3):
+        out = smoother.update(box, size, grey, alpha, maps)
+    # a fixed point: k x + (1 - k) x == x up to float32 rounding
+    np.testing.assert_allclose(out["t"], maps["t"], rtol=1e-6, atol=1e-6)
+    # a new picture (grey changes by >= 0.5 everywhere): the history weight is at most
+    # 0.8 exp(-(0.5 / 0.08)^2) < 1e-16, so the current maps come through
+    new = {"t": maps["t"] + 1.0}
+    out = smoother.update(box, size, np.where(grey > 0.5, grey - 0.5, grey + 0.5), alpha, new)
+    np.testing.assert_allclose(out["t"], new["t"], rtol=0, atol=1e-6)
+
+
+def test_flow_mode_follows_a_moving_picture_better_than_plain_smoothing():
+    h, w = 48, 64
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+
+    def picture(shift):
+        return (0.5 + 0.25 * np.sin((x - shift) / 4.0) * np.cos(y / 5.0)).astype(np.float32)
+
+    alpha = np.ones((h, w), np.float32)
+    errors = {}
+    for mode in ("ema", "flow"):
+        smoother = MapSmoother(0.8, mode)
+        total = 0.0
+        for t in range(6):
+            grey = picture(1.5 * t)
+            out = smoother.update((0, h, 0, w), (h, w), grey, alpha, {"g": grey[..., None]})
+            total += float(np.abs(out["g"][8:-8, 8:-8, 0] - grey[8:-8, 8:-8]).mean())
+        errors[mode] = total
+    assert errors["flow"] < 0.5 * errors["ema"]
+
+
+def test_matte_smoother_damps_jitter_and_keeps_exact_background():
+    history, delta = history_weight(9.0), 0.02
+    smoother = MatteSmoother(history)
+    frames = []
+    for t in range(40):
+        a = np.zeros((10, 10), np.float32)
+        a[2:8, 2:8] = 0.5 + delta * (-1) ** t
+        frames.append(smoother.update(a))
+    assert np.all(frames[-1][:2] == 0) and np.all(frames[-1][:, :2] == 0)
+    # alternating input 0.5 +- delta: the output alternates with amplitude A = (1 - k) delta / (1 + k),
+    # k = history exp(-(d / scale)^2) with d = |input - previous output| <= 2 delta, so k >= k_low
+    k_low = history * math.exp(-((2 * delta) / MATTE_AGREE_SCALE) ** 2)
+    amplitude = abs(float(frames[-1][4, 4] - frames[-2][4, 4])) / 2
+    assert amplitude <= (1 - k_low) / (1 + k_low) * delta + 1e-7
+    # a real change (0.5 -> 1): k = history exp(-4) < 0.015, the matte moves almost all the way at once
+    moved = smoother.update(np.where(frames[-1] > 0, np.float32(1.0), np.float32(0.0)))
+    assert moved[4, 4] > 0.99

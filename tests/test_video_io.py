@@ -1,0 +1,215 @@
+"""relight.video_io: video files and frame folders in and out, and how bad input fails."""
+
+from __future__ import annotations
+
+import errno
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+from PIL import Image
+
+from relight.colour import srgb_decode, srgb_encode
+from relight.video_io import ClipInfo, FrameFolder, FrameFolderWriter, VideoWriter, decode_srgb, encode_srgb8, \
+    frame_number, open_clip
+
+
+def _frames(n, h=36, w=48, seed=0):
+    """Smooth frames (video codecs keep smooth content within a few code values)."""
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    out = []
+    for i in range(n):
+        t = i / max(1, n - 1)
+        rgb = np.stack([0.2 + 0.6 * x, 0.3 + 0.4 * y * (1 - t), 0.1 + 0.5 * t + 0 * x], axis=-1)
+        out.append(srgb_decode(rgb).astype(np.float32))
+    return out
+
+
+def _write_video(path, frames, fps=Fraction(25), audio=None):
+    """A video through VideoWriter; with `audio` ("aac"/"libopus") a sine track beside it,
+    written with PyAV directly (the source a user would have)."""
+    h, w = frames[0].shape[:2]
+    if audio is None:
+        writer = VideoWriter(path, ClipInfo(Path(path), "frames", w, h, fps, len(frames)))
+        for f in frames:
+            writer.write(f)
+        return writer.close()
+    c = av.open(str(path), "w")
+    v = c.add_stream("libx264", rate=fps)
+    v.width, v.height, v.pix_fmt = w, h, "yuv420p"
+    a = c.add_stream(audio, rate=48000)
+    for i, f in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
+        frame.pts, frame.time_base = i, 1 / fps
+        c.mux(v.encode(frame))
+    total = int(48000 * len(frames) / fps)
+    tone = (0.3 * np.sin(2 * np.pi * 440 * np.arange(total) / 48000)).astype(np.float32)
+    for s0 in range(0, total, 960):
+        chunk = tone[s0:s0 + 960]
+        af = av.AudioFrame.from_ndarray(np.stack([chunk, chunk]), format="fltp", layout="stereo")
+        af.sample_rate, af.pts, af.time_base = 48000, s0, Fraction(1, 48000)
+        c.mux(a.encode(af))
+    c.mux(a.encode(None))
+    c.mux(v.encode(None))
+    c.close()
+    return Path(path)
+
+
+def _audio_seconds(path) -> float:
+    with av.open(str(path)) as c:
+        s = c.streams.audio[0]
+        return sum(float(p.duration * s.time_base) for p in c.demux(s) if p.duration)
+
+
+def test_srgb_tables_round_trip_every_code():
+    codes = np.arange(256, dtype=np.uint8)
+    np.testing.assert_array_equal(encode_srgb8(decode_srgb(codes)), codes)
+    np.testing.assert_allclose(decode_srgb(codes), srgb_decode(codes / 255.0), rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("suffix, fps", [(".mp4", Fraction(25)), (".webm", Fraction(30000, 1001)),
+                                         (".mov", Fraction(24)), (".mkv", Fraction(12))])
+def test_video_round_trip_keeps_count_rate_size_and_values(tmp_path, suffix, fps):
+    frames = _frames(12)
+    path = _write_video(tmp_path / f"clip{suffix}", frames, fps)
+    clip = open_clip(path)
+    assert (clip.info.width, clip.info.height, clip.info.fps) == (48, 36, fps)
+    got = [f for _, f, _ in clip.frames()]
+    assert len(got) == 12
+    # 8-bit 4:2:0 at CRF 18 on smooth content: within a few sRGB code values
+    err = np.abs(srgb_encode(np.stack(got)) - srgb_encode(np.stack(frames)))
+    assert err.mean() < 2 / 255 and err.max() < 12 / 255
+    assert [i for i, _, _ in clip.frames(start=9)] == [9, 10, 11]
+
+
+def test_odd_sizes_are_kept(tmp_path):
+    frames = _frames(3, h=35, w=47)
+    clip = open_clip(_write_video(tmp_path / "odd.mp4", frames))
+    assert (clip.info.width, clip.info.height) == (47, 35)
+    assert len(list(clip.frames())) == 3
+
+
+@pytest.mark.parametrize("source, out", [("aac", ".mp4"), ("aac", ".webm"), ("libopus", ".mkv")])
+def test_audio_is_copied_or_reencoded(tmp_path, source, out):
+    frames = _frames(12)
+    src = _write_video(tmp_path / ("src.mkv" if source == "libopus" else "src.mp4"), frames, audio=source)
+    clip = open_clip(src)
+    assert clip.info.audio
+    writer = VideoWriter(tmp_path / f"out{out}", clip.info, audio_from=src)
+    for _, f, _ in clip.frames():
+        writer.write(f)
+    writer.close()
+    with av.open(str(tmp_path / f"out{out}")) as c:
+        assert len(c.streams.audio) == 1
+        assert c.streams.audio[0].codec_context.name in ({"opus"} if out == ".webm" else {"aac", "opus"})
+    # the whole track: 12 frames at 25 fps are 0.48 s (codec frames round it up by < 25 ms)
+    assert 0.48 - 0.03 <= _audio_seconds(tmp_path / f"out{out}") <= 0.48 + 0.05
+
+
+def test_an_aborted_video_leaves_nothing(tmp_path):
+    out = tmp_path / "out.mp4"
+    writer = VideoWriter(out, ClipInfo(out, "frames", 48, 36, Fraction(24), 2))
+    writer.write(_frames(1)[0])
+    writer.abort()
+    assert list(tmp_path.iterdir()) == []
+    writer = VideoWriter(out, ClipInfo(out, "frames", 48, 36, Fraction(24), 2))
+    with pytest.raises(ValueError, match="no frames"):
+        writer.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_full_disk_while_encoding_is_one_oserror_and_no_file(tmp_path):
+    out = tmp_path / "out.mp4"
+    writer = VideoWriter(out, ClipInfo(out, "frames", 48, 36, Fraction(24), 2))
+    writer.write(_frames(1)[0])
+
+    def full(*_):
+        raise av.error.FFmpegError(errno.ENOSPC, "No space left on device")
+
+    writer.container = _Failing(writer.container, full)
+    with pytest.raises(OSError) as info:
+        writer.close()
+    assert info.value.errno == errno.ENOSPC
+    assert list(tmp_path.iterdir()) == []
+
+
+class _Failing:
+    """A container whose mux fails like a full disk."""
+
+    def __init__(self, container, fail):
+        self._container, self.mux = container, fail
+
+    def close(self):
+        self._container.close()
+
+
+def _png(path, h=20, w=30, value=100, alpha=False):
+    a = np.full((h, w, 4 if alpha else 3), value, np.uint8)
+    Image.fromarray(a).save(path)
+
+
+def test_frame_folder_is_ordered_by_number_and_keeps_alpha(tmp_path):
+    for n in (10, 9, 100, 1):
+        _png(tmp_path / f"shot_{n}.png", value=n, alpha=n == 9)
+    clip = open_clip(tmp_path, fps=Fraction(30))
+    assert clip.info.names == ("shot_1", "shot_9", "shot_10", "shot_100")
+    assert (clip.info.frames, clip.info.fps, clip.info.kind) == (4, Fraction(30), "frames")
+    got = list(clip.frames())
+    assert [round(float(srgb_encode(f[0, 0, 0]) * 255)) for _, f, _ in got] == [1, 9, 10, 100]
+    assert [a is not None for _, _, a in got] == [False, True, False, False]
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda d: None, "no frames"),
+    (lambda d: (_png(d / "a.png"), _png(d / "b_2.png")), "has no number"),
+    (lambda d: (_png(d / "a_2.png"), _png(d / "b_02.png")), "two frames are numbered 2"),
+    (lambda d: (_png(d / "f_1.png"), _png(d / "f_2.png", h=21)), "every frame of a clip must have one size"),
+    (lambda d: (d / "f_1.png").write_bytes(b"not an image"), "not a readable image"),
+])
+def test_bad_frame_folders_fail_before_any_frame_is_decoded(tmp_path, make, message):
+    make(tmp_path)
+    with pytest.raises(ValueError, match=message):
+        FrameFolder(tmp_path)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"this is not a video at all" * 40, "not a readable video"),
+    (b"", "file is empty"),
+])
+def test_a_file_that_is_not_a_video_is_one_valueerror(tmp_path, content, message):
+    path = tmp_path / "x.mp4"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message):
+        open_clip(path)
+
+
+def test_an_image_or_audio_file_is_not_a_video_and_a_missing_input_is_named(tmp_path):
+    _png(tmp_path / "photo.png")
+    with pytest.raises(ValueError, match="an image, not a video"):
+        open_clip(tmp_path / "photo.png")
+    c = av.open(str(tmp_path / "sound.m4a"), "w")
+    a = c.add_stream("aac", rate=48000)
+    tone = np.zeros((2, 4800), np.float32)
+    af = av.AudioFrame.from_ndarray(tone, format="fltp", layout="stereo")
+    af.sample_rate, af.pts, af.time_base = 48000, 0, Fraction(1, 48000)
+    c.mux(a.encode(af))
+    c.mux(a.encode(None))
+    c.close()
+    with pytest.raises(ValueError, match="no video stream"):
+        open_clip(tmp_path / "sound.m4a")
+    with pytest.raises(ValueError, match="no such file"):
+        open_clip(tmp_path / "missing.mp4")
+
+
+def test_frame_folder_writer_names_and_what_is_written(tmp_path):
+    w = FrameFolderWriter(tmp_path, "png")
+    assert w.path(0).name == "frame_000001.png" and w.written() == set()
+    w.write(4, _frames(1)[0])
+    (tmp_path / ".frame_000002.png.tmp").write_bytes(b"x")  # a temporary is not a frame
+    assert w.written() == {4}
+    named = FrameFolderWriter(tmp_path, "exr", names=["a_1", "a_2"])
+    named.write(1, _frames(1)[0])
+    assert named.written() == {1} and (tmp_path / "a_2.exr").is_file()
+    assert frame_number("take3_0042") == 42 and frame_number("plain") is None
