@@ -327,6 +327,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             session = self._session(context)
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
+            set_status(context, str(exc), is_error=True)
             return {"CANCELLED"}
         if not self.filepath:
             self.filepath = bpy.path.ensure_ext(bpy.path.clean_name(session.source) + "_layers", ".exr")
@@ -339,16 +340,18 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             if not self.filepath:
                 raise ValueError("Choose a file to save the layers to.")
             path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
+            work.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
             dials = current_dials(context, session)
             relit = compute_relit(context, session, dials)
             engine.save_layers(path, relit, engine.layers(session.decomposition, *dials[:3]))
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        except OSError as exc:
-            self.report({"ERROR"}, f"Cannot write '{self.filepath}': {exc.strerror or exc}.")
+        except (ValueError, OSError) as exc:
+            message = str(exc) if isinstance(exc, ValueError) else \
+                f"Cannot write '{self.filepath}': {exc.strerror or exc}."
+            self.report({"ERROR"}, message)
+            set_status(context, message, is_error=True)  # the panel says it too, where the artist looks
             return {"CANCELLED"}
         self.report({"INFO"}, f"Saved the layers of '{session.source}' to {path}.")
+        set_status(context, f"Saved the layers of '{session.source}' to {path}.")
         return {"FINISHED"}
 
 

@@ -9,6 +9,7 @@ to Blender.
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -145,3 +146,27 @@ def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list)
         session.saved_to = ""
         failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "
                         f"({exc.strerror or exc}): it will need Relight after reopening.")
+
+
+# Save Layers writes 14 float32 channels (relit RGBA, albedo, shading, residual RGB, alpha),
+# compressed at best to about half: the free space asked for before any work
+LAYERS_EXR_CHANNELS = 14
+
+
+def check_layers_target(path: str, height: int, width: int) -> None:
+    """ValueError, in the artist's words, when the layers cannot be written to `path`:
+    checked before anything is computed (a 24 MP photo's layers take seconds)."""
+    import shutil
+
+    folder = os.path.dirname(path) or "."
+    if os.path.isdir(path):
+        raise ValueError(f"'{path}' is a folder: choose a file name for the layers.")
+    if not os.path.isdir(folder):
+        raise ValueError(f"The folder '{folder}' does not exist: choose another place for the layers.")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"The folder '{folder}' cannot be written to: choose another place for the layers.")
+    need = LAYERS_EXR_CHANNELS * 4 * height * width // 2
+    free = shutil.disk_usage(folder).free
+    if free < need:
+        raise ValueError(f"The disk holding '{folder}' has {free / 1e6:.0f} MB free; the layers need about "
+                         f"{need / 1e6:.0f} MB: free some space or choose another place.")

@@ -539,6 +539,30 @@ def test_error_save_before_relight(addon, settings, tmp_path):
         bpy.ops.relight_photo.save_layers(filepath=str(tmp_path / "x.exr"), image_name=addon["photo"])
 
 
+def test_save_layers_refusals_reach_the_panel_before_any_work(addon, settings, tmp_path, monkeypatch):
+    import shutil
+
+    name = addon["photo"]
+    relight(name)
+    status = bpy.context.window_manager.relight_photo_status
+    computed = []
+    monkeypatch.setattr(bl_ops, "compute_relit", lambda *a, **k: computed.append(1))  # the work: never reached
+    (tmp_path / "taken.exr").mkdir()
+    cases = [(tmp_path / "taken.exr", f"'{tmp_path / 'taken.exr'}' is a folder: choose a file name for the layers."),
+             (tmp_path / "no" / "l.exr", f"The folder '{tmp_path / 'no'}' does not exist: choose another place"),
+             ]
+    for target, message in cases:
+        with pytest.raises(RuntimeError, match="Error: "):
+            bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name)
+        assert status.is_error and status.message.startswith(message), status.message
+    h, w = session(name).photo.shape[:2]
+    free = 14 * 4 * h * w // 2 - 1  # one byte short of what the layers need
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: type("Usage", (), {"free": free})())
+    with pytest.raises(RuntimeError, match="MB free; the layers need about"):
+        bpy.ops.relight_photo.save_layers(filepath=str(tmp_path / "l.exr"), image_name=name)
+    assert "free some space" in status.message and computed == [] and not (tmp_path / "l.exr").exists()
+
+
 def test_a_bad_light_chosen_after_relighting_shows_in_the_panel(addon, settings):
     name = addon["photo"]
     relight(name)
