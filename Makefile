@@ -19,7 +19,7 @@ FARM_BPY_TESTS = tests/test_blender_mapping.py tests/test_farm_scene.py -m "not 
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q -e '.[farm,train,distributed,dev]'
+	$(PY) -m pip install -q -e '.[farm,train,distributed,dev,video]'
 	touch $@
 
 .venv-b42/.installed: pyproject.toml
