@@ -157,7 +157,7 @@ class BufferPool:
 
     MIN_VALUES = 1 << 20
 
-    def __init__(self, keep: int = 2):  # enough for dial changes; more would hold 384 MB each at 24 MP
+    def __init__(self, keep: int = 1):  # one dial change at a time; each kept buffer holds 384 MB at 24 MP
         import threading
 
         self.keep = keep

@@ -35,15 +35,21 @@ def mask_key(inputs: dict) -> tuple:
 
 def layer_buffers(session: state.PhotoSession, dials, token=None, with_relit: bool = True) -> dict:
     """Every output layer as a buffer in Blender's layout (worker-safe)."""
+    from relight.decomposition import LAYER_NAMES
+
     light, rotation, exposure, strength = dials
+    decomposition = session.decomposition
     buffers = {}
     if with_relit:
-        buffers["relit"] = engine.relit_rgba(session.decomposition, light, rotation, exposure, strength)
-    maps = engine.layers(session.decomposition, light, rotation, exposure)
-    for layer in list(maps):
+        buffers["relit"] = engine.relit_rgba(decomposition, light, rotation, exposure, strength)
+    coeffs = engine.coefficients(decomposition, light, rotation)
+    for layer in LAYER_NAMES:
+        if layer == "residual" and not decomposition.has_residual:
+            continue  # black under every light (a model without E): no full-size image for it
         if token is not None:
             token.check()
-        buffers[layer] = pipeline.to_blender_rgba(maps.pop(layer))  # each map freed once packed
+        # one full-size map at a time, packed at once: a 24 MP map is 288 MB, its buffer 384 MB
+        buffers[layer] = pipeline.to_blender_rgba(decomposition.layer(layer, coeffs, exposure))
     if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
         # the photo cut out by the person matte, so the user can check what was found
         buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)

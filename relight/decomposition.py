@@ -24,6 +24,7 @@ __all__ = ["DETAIL_EPS", "DETAIL_MAX", "Decomposition", "RelightStats", "exposur
 
 DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
+LAYER_NAMES = ("albedo", "shading", "residual", "alpha")  # Decomposition.layers(), in this order
 
 
 def exposure_scale(exposure_ev) -> float:
@@ -198,16 +199,30 @@ class Decomposition:
         photo's own light when None. albedo * shading + residual is the relit
         person before the clamp at 0 (the layers keep their sign: linear, for
         compositing)."""
-        L = self._light(self.light if coeffs is None else coeffs, exposure_ev)
+        return {name: self.layer(name, coeffs, exposure_ev) for name in LAYER_NAMES}
+
+    def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0) -> np.ndarray:
+        """One of layers() at full resolution, alone: a caller that packs each map as it comes
+        holds one full-size map at a time (a 24 MP map is 288 MB)."""
+        if name == "alpha":
+            return self.full_alpha()
+        if name not in LAYER_NAMES:
+            raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
+        if name == "albedo":
+            values = self._albedo_m
+        else:
+            L = self._light(self.light if coeffs is None else coeffs, exposure_ev)
+            values = (self._transport_m if name == "shading" else self._residual_m) @ L
         h, w = self.working_size
-        maps = {}
-        for name, values in (("albedo", self._albedo_m), ("shading", self._transport_m @ L),
-                             ("residual", self._residual_m @ L)):
-            small = np.zeros((h * w, 3), np.float32)
-            small[self._matte] = values
-            maps[name] = self._to_full(small.reshape(h, w, 3))
-        maps["alpha"] = self.full_alpha()
-        return maps
+        small = np.zeros((h * w, 3), np.float32)
+        small[self._matte] = values
+        return self._to_full(small.reshape(h, w, 3))
+
+    @property
+    def has_residual(self) -> bool:
+        """False when the residual transport E is zero wherever the matte is (the geometry-first
+        model has none): its layer is black under every light."""
+        return bool(np.any(self._residual_m))
 
     def _to_full(self, small: np.ndarray) -> np.ndarray:
         H, W = self.size
