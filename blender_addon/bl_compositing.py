@@ -172,11 +172,4 @@ class RELIGHT_PHOTO_OT_compositing_setup(bpy.types.Operator):
 CLASSES = (RELIGHT_PHOTO_OT_compositing_setup,)
 
 
-def register() -> None:
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister() -> None:
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
