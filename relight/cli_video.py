@@ -129,13 +129,13 @@ class _Frames:
     (JOB_FILE: the settings, and the frame count once the job is complete; STATE_FILE: the
     filter state at the last checkpoint)."""
 
-    def __init__(self, folder: Path, names, fmt: str, fingerprint: dict, resume: bool):
+    def __init__(self, folder: Path, names, fmt: str, fingerprint: dict, resume: bool, video: bool = False):
         import json
 
         from relight.video_io import FrameFolderWriter
 
         self.folder = folder
-        self.writer = FrameFolderWriter(folder, fmt, names)
+        self.writer = FrameFolderWriter(folder, fmt, names, video_codes=video)
         self.fingerprint = fingerprint
         folder.mkdir(parents=True, exist_ok=True)
         self.done = self.writer.written()
@@ -236,7 +236,7 @@ def run_video(args) -> int:
     names = info.names if info.kind == "frames" and kind == "frames" else None  # None: frame_000001, ...
     frames = None
     if folder is not None:
-        frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume)
+        frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume, video=kind == "video")
         if frames.complete is not None and len(frames.done) >= frames.complete and kind == "frames":
             frames.finish(frames.complete)
             print(f"all {frames.complete} frames are already in {out}")
@@ -302,8 +302,9 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     nobody, clamped, count, last = [], 0.0, 0, start - 1
     committed = None  # (next frame, the filter state once every frame before it is written)
 
-    def emit(index, analysis):
+    def emit(frame, analysis):
         nonlocal clamped, count, last, committed
+        index = frame.index
         skip = frames is not None and index in frames.done
         result = runner.finish(analysis, layers=args.layers and not skip)
         if not result.person:
@@ -313,28 +314,28 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         if frames is not None:
             if not skip:
                 layers = (result.layers or _empty_layers(result.image)) if args.layers else None
-                frames.writer.write(index, result.image, layers)
+                frames.writer.write(index, result.image, layers, frame.codes, result.changed)
             # a snapshot (the filters replace their arrays, never change them in place): an
             # interrupt during the next frame's finish() or write() must not save that frame's state
             committed = (index + 1, runner.state())
             if (index + 1) % CHECKPOINT_EVERY == 0:
                 frames.checkpoint(*committed)
         else:
-            video.write(result.image)
+            video.write(result.image, frame.codes, result.changed)
         count, last = count + 1, index
         bar.update(1)
 
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="relight-analyse")
     pending: deque = deque()
     try:
-        for index, frame, alpha in _prefetch(clip.frames(start)):
-            pending.append((index, pool.submit(runner.analyse, frame, alpha)))
+        for frame in _prefetch(clip.frames(start)):
+            pending.append((frame, pool.submit(runner.analyse, frame.image, frame.alpha)))
             if len(pending) > workers:
-                index, future = pending.popleft()
-                emit(index, future.result())
+                frame, future = pending.popleft()
+                emit(frame, future.result())
         while pending:
-            index, future = pending.popleft()
-            emit(index, future.result())
+            frame, future = pending.popleft()
+            emit(frame, future.result())
     except KeyboardInterrupt:
         if frames is not None and committed is not None:
             try:
@@ -399,10 +400,13 @@ def _encode_folder(frames, info, out: Path) -> None:
 
     from relight.video_io import FrameFolder, VideoWriter
 
+    from PIL import Image
+
     video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
     try:
-        for _, image, _ in FrameFolder(frames.folder, info.fps).frames():
-            video.write(image)
+        for path in FrameFolder(frames.folder, info.fps).files:
+            with Image.open(path) as im:  # the codes the direct path would have encoded
+                video.write_codes(np.asarray(im.convert("RGB")))
     except BaseException:
         video.abort()
         raise

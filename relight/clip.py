@@ -60,6 +60,7 @@ class FrameResult:
     shot_light: np.ndarray | None = None  # the light the frame was decomposed under (smoothed)
     clamped: float = 0.0              # share of the person's pixels whose negative light was clamped
     layers: dict | None = None        # Decomposition.layers() when asked for
+    changed: tuple | None = None      # (y0, y1, x0, x1): outside it the image is the input bit for bit
 
 
 @dataclass
@@ -70,6 +71,7 @@ class Analysis:
     histogram: np.ndarray
     decomposition: Decomposition | None   # None: no person in the frame
     smooth_matte: bool = False            # the mask is the segmenter's: smoothed over frames in finish()
+    matte_box: tuple | None = None        # (y0, y1, x0, x1) of the segmenter's matte
 
 
 def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
@@ -172,6 +174,8 @@ class ClipRelighter:
             out["cut_histogram"] = self.cuts.previous
         if self.matte_filter.previous is not None:
             out["matte"] = self.matte_filter.previous
+            if self.matte_filter.box is not None:
+                out["matte_box"] = np.asarray(self.matte_filter.box)
         maps = self.maps.state
         if maps is not None:
             out.update({"maps_box": np.asarray(maps["box"]), "maps_size": np.asarray(maps["size"]),
@@ -186,6 +190,7 @@ class ClipRelighter:
         for light in state["lights"]:
             self.shot_light.lights.append(np.asarray(light, np.float64))
         self.matte_filter.previous = state.get("matte")
+        self.matte_filter.box = tuple(int(v) for v in state["matte_box"]) if "matte_box" in state else None
         if "maps_box" in state:
             self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
                                "size": tuple(int(v) for v in state["maps_size"]),
@@ -200,17 +205,19 @@ class ClipRelighter:
         from relight.matte import NoPersonError, person_matte
 
         histogram = self.cuts.histogram(frame)
-        smooth_matte = False
+        smooth_matte, matte_box = False, None
         if mask is not None and not np.any(mask > 0):  # the frame's own alpha marks nobody
             return Analysis(frame, histogram, None)
         if mask is None and self.matte == "person":
             try:
-                mask = person_matte(frame, self.person, threads=self.threads).alpha
+                found = person_matte(frame, self.person, threads=self.threads)
             except NoPersonError:
                 return Analysis(frame, histogram, None)
-            smooth_matte = self.stability > 0
+            mask, smooth_matte = found.alpha, self.stability > 0
+            x0, y0, x1, y1 = found.box
+            matte_box = (y0, y1, x0, x1)
         d = self.relighter.decompose(frame, mask, matte=self.matte, person=self.person)
-        return Analysis(frame, histogram, d, smooth_matte)
+        return Analysis(frame, histogram, d, smooth_matte, matte_box)
 
     def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:
         """The analysed frame relit, in clip order (the temporal state advances by one frame).
@@ -226,13 +233,13 @@ class ClipRelighter:
         shot_light = estimate
         if self.stability > 0:
             if analysis.smooth_matte:
-                d = _with_mask(d, self.matte_filter.update(d.mask))
+                d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box))
             shot_light = self.shot_light.update(estimate)
             d = self._stabilised(d, shot_light)
         image = d.relight(self.light, self.exposure_ev)
         stats = d.last_stats
         return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
-                           d.layers(self.light, self.exposure_ev) if layers else None)
+                           d.layers(self.light, self.exposure_ev) if layers else None, d.box)
 
     def relight(self, frame: np.ndarray, mask: np.ndarray | None = None, layers: bool = False) -> FrameResult:
         """The next frame (linear float32 [H, W, 3]) relit: finish(analyse(frame, mask))."""
@@ -242,8 +249,9 @@ class ClipRelighter:
         """The frame's decomposition with smoothed maps, under the shot's light."""
         from relight.prt import to_network_input
 
-        maps = {"transport": d.transport, "residual": d.residual}
-        if self.reliable is None:
+        maps = {"transport": d.transport}
+        if self.reliable is None:  # the geometry-first model's E is 0 (docs/model.md): nothing to smooth
+            maps["residual"] = d.residual
             maps["albedo"] = d.albedo
         if d.mask is None:  # the network's own matte: smoothed with the maps
             maps["alpha"] = d.alpha[..., None]
@@ -258,6 +266,7 @@ class ClipRelighter:
         else:
             albedo = smooth["albedo"]
         return Decomposition(
-            albedo=albedo, transport=transport, residual=smooth["residual"], light=shot_light, alpha=alpha,
+            albedo=albedo, transport=transport, residual=smooth.get("residual", d.residual), light=shot_light,
+            alpha=alpha,
             box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working, mask=d.mask,
             sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)

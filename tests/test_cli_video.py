@@ -160,8 +160,8 @@ def test_a_resumable_video_job_keeps_its_frames_until_the_video_is_complete(tmp_
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4", "--resume")
     assert code == 0, err
     assert not (tmp_path / "out.mp4.frames").exists()
-    got = [f for _, f, _ in video_io.open_clip(tmp_path / "out.mp4").frames()]
-    want = [f for _, f, _ in video_io.open_clip(tmp_path / "whole.mp4").frames()]
+    got = [f for _, f, _, _ in video_io.open_clip(tmp_path / "out.mp4").frames()]
+    want = [f for _, f, _, _ in video_io.open_clip(tmp_path / "whole.mp4").frames()]
     assert len(got) == len(want) == 8
     for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)

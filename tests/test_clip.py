@@ -184,3 +184,32 @@ def test_matte_smoother_damps_jitter_and_keeps_exact_background():
     # a real change (0.5 -> 1): k = history exp(-4) < 0.015, the matte moves almost all the way at once
     moved = smoother.update(np.where(frames[-1] > 0, np.float32(1.0), np.float32(0.0)))
     assert moved[4, 4] > 0.99
+
+
+@pytest.fixture(scope="module")
+def random_model(tmp_path_factory):
+    """A seeded random RelightNet (not photo-consistent: its albedo and E are smoothed as maps)."""
+    from export.random_model import export_random_model
+
+    path, _, _ = export_random_model(tmp_path_factory.mktemp("clip") / "tiny.onnx", seed=5, sh_order=4, width=4,
+                                     depth=2)
+    return Relighter(path, threads=1, working_size="draft")
+
+
+@pytest.mark.parametrize("kind", ["shipped", "random"])
+def test_a_still_clip_is_a_fixed_point(relighter, random_model, clip12, kind):
+    """Frames that do not change relight as a single frame does: every smoothing averages equal
+    values (the geometry model's albedo twin within its float32 tolerance, test above)."""
+    model = relighter if kind == "shipped" else random_model
+    matte = "person" if kind == "shipped" else "network"
+    light = sh_light("studio", model.sh_order)
+    still = ClipRelighter(model, light, stability=0.0, matte=matte, threads=1).relight(clip12[0]).image
+    runner = ClipRelighter(model, light, stability=1.0, matte=matte, threads=1)
+    assert (runner.reliable is None) == (kind == "random")
+    for _ in range(4):
+        got = runner.relight(clip12[0]).image
+    # the relit person is the photo times a shading ratio: the albedo twin's relative error (2e-4)
+    # passes through it, with room for the float32 sums of the composite
+    np.testing.assert_allclose(got, still, rtol=1e-3, atol=1e-4)
+    state = runner.state()
+    assert ("map_albedo" in state) == (kind == "random") and ("map_residual" in state) == (kind == "random")

@@ -76,12 +76,17 @@ def test_video_round_trip_keeps_count_rate_size_and_values(tmp_path, suffix, fps
     path = _write_video(tmp_path / f"clip{suffix}", frames, fps)
     clip = open_clip(path)
     assert (clip.info.width, clip.info.height, clip.info.fps) == (48, 36, fps)
-    got = [f for _, f, _ in clip.frames()]
+    got = [f for _, f, _, _ in clip.frames()]
     assert len(got) == 12
-    # 8-bit 4:2:0 at CRF 18 on smooth content: within a few sRGB code values
-    err = np.abs(srgb_encode(np.stack(got)) - srgb_encode(np.stack(frames)))
-    assert err.mean() < 2 / 255 and err.max() < 12 / 255
-    assert [i for i, _, _ in clip.frames(start=9)] == [9, 10, 11]
+    # lossy 8-bit 4:2:0 (H.264 at CRF 18, VP9 at CRF 30): no exact bound exists; these encoders
+    # keep smooth content above 35 dB PSNR in sRGB, a mean error under 2 code values
+    err = srgb_encode(np.stack(got)) - srgb_encode(np.stack(frames))
+    assert np.abs(err).mean() < 2 / 255
+    assert -10 * np.log10(np.mean(err.astype(np.float64) ** 2)) > 35
+    assert [f.index for f in clip.frames(start=9)] == [9, 10, 11]
+    # an 8-bit stream keeps its codes, which the linear image decodes exactly
+    first = next(clip.frames())
+    np.testing.assert_array_equal(decode_srgb(first.codes), first.image)
 
 
 def test_odd_sizes_are_kept(tmp_path):
@@ -98,7 +103,7 @@ def test_audio_is_copied_or_reencoded(tmp_path, source, out):
     clip = open_clip(src)
     assert clip.info.audio
     writer = VideoWriter(tmp_path / f"out{out}", clip.info, audio_from=src)
-    for _, f, _ in clip.frames():
+    for _, f, _, _ in clip.frames():
         writer.write(f)
     writer.close()
     with av.open(str(tmp_path / f"out{out}")) as c:
@@ -157,8 +162,8 @@ def test_frame_folder_is_ordered_by_number_and_keeps_alpha(tmp_path):
     assert clip.info.names == ("shot_1", "shot_9", "shot_10", "shot_100")
     assert (clip.info.frames, clip.info.fps, clip.info.kind) == (4, Fraction(30), "frames")
     got = list(clip.frames())
-    assert [round(float(srgb_encode(f[0, 0, 0]) * 255)) for _, f, _ in got] == [1, 9, 10, 100]
-    assert [a is not None for _, _, a in got] == [False, True, False, False]
+    assert [round(float(srgb_encode(f.image[0, 0, 0]) * 255)) for f in got] == [1, 9, 10, 100]
+    assert [f.alpha is not None for f in got] == [False, True, False, False]
 
 
 @pytest.mark.parametrize("make, message", [
