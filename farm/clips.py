@@ -7,8 +7,9 @@ A job module for the farm's executors (like farm.scene: SceneOptions and
 render_scene): scene index i is frame i mod F of clip i // F (F = --clip-frames),
 written as the ordinary scene file scene_{i:06d} with every per-frame buffer,
 so resume, validation, retries and Ray work as for stills. A clip is the
-scene that farm.scene draws for index i // F (body, clothes, camera, lights:
-the same for every frame) with the whole person moved rigidly per frame:
+scene that farm.scene draws for index i // F (body, clothes, camera, lights
+and the bake's random directions: the same for every frame) with the whole
+person moved rigidly per frame:
 
 * ``turn``: turning in place about the vertical through the body's centre,
   TURN_DEGREES over the clip;

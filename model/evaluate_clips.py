@@ -100,13 +100,15 @@ def jitter(frames: np.ndarray, alpha: np.ndarray) -> float:
     return float(np.mean(values)) if values else 0.0
 
 
-def relight_clip(clip: dict, relighter, stability: float, mode: str, matte: str) -> tuple[np.ndarray, float]:
+def relight_clip(clip: dict, relighter, stability: float, mode: str, matte: str,
+                 light_window: int | None = None) -> tuple[np.ndarray, float]:
     """(relit frames [T, H, W, 3], mean ms per frame) of one clip. matte "gt": the true alpha is
     each frame's mask (the decomposition alone); "person"/"network": the runtime's mattes."""
     from relight.clip import ClipRelighter
 
     runner = ClipRelighter(relighter, clip["light"], stability=stability, mode=mode,
-                           matte="network" if matte == "network" else "person")
+                           matte="network" if matte == "network" else "person",
+                           light_window=light_window if stability > 0 else None)
     out, seconds = [], 0.0
     for t, frame in enumerate(clip["frames"]):
         mask = clip["alpha"][t] if matte == "gt" else None
@@ -126,7 +128,8 @@ def evaluate_clip(clip: dict, relit: np.ndarray) -> dict:
 
 
 def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,), modes=("ema",), matte: str = "person",
-             max_frames: int | None = None, threads: int | None = None, source: str = "prt") -> dict:
+             max_frames: int | None = None, threads: int | None = None, source: str = "prt",
+             light_windows=(None,)) -> dict:
     """{"rows": [{"method", "flicker_excess", "psnr", "ms"}...], "clips": N, "frames": T}: per-frame
     processing first, then every (stability, mode); each figure the mean over clips."""
     from relight import quality as quality_presets
@@ -135,12 +138,14 @@ def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,),
     clips = load_clips(folders, max_frames, source)
     path = model if model is not None else quality_presets.model_path(quality)
     relighter = Relighter(path, threads=threads, working_size=quality)
-    methods = [("per-frame", 0.0, "ema")] + [(f"{mode} s={s:g}", s, mode) for s in stabilities for mode in modes]
+    methods = [("per-frame", 0.0, "ema", None)] + [
+        (f"{mode} s={s:g}" + (f" light {w}" if w is not None else ""), s, mode, w)
+        for s in stabilities for mode in modes for w in light_windows]
     rows = []
-    for name, stability, mode in methods:
+    for name, stability, mode, window in methods:
         per_clip = []
         for clip in clips:
-            relit, ms = relight_clip(clip, relighter, stability, mode, matte)
+            relit, ms = relight_clip(clip, relighter, stability, mode, matte, window)
             per_clip.append({**evaluate_clip(clip, relit), "ms": ms})
         rows.append({"method": name, **{k: float(np.mean([c[k] for c in per_clip])) for k in per_clip[0]},
                      "per_clip": per_clip})
@@ -177,11 +182,13 @@ def main(argv=None) -> int:
                    help="prt: the noise-free PRT person (default); pt: the path-traced person (each frame denoised "
                         "on its own, so its noise flickers in the input and in the truth)")
     p.add_argument("--frames", type=int, default=None, help="first N frames of each clip")
+    p.add_argument("--light-window", type=int, nargs="+", default=[None],
+                   help="frames the light is averaged over (default: relight.clip's, from the stability)")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--json", default=None, help="also write the figures as JSON here")
     args = p.parse_args(argv)
     result = evaluate(args.clips, args.model, args.quality, args.stability, args.mode, args.matte, args.frames,
-                      args.threads, args.source)
+                      args.threads, args.source, args.light_window)
     print(markdown(result))
     if args.json:
         from relight.fileio import atomic_write_json

@@ -51,6 +51,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("input", help="video file or folder of numbered frames")
     add_light_options(p)
     add_photo_options(p)
+    # the shared --threads counts frames analysed at once here (each network on one thread)
+    p._option_string_actions["--threads"].help = ("frames analysed at once, each network on one onnxruntime "
+                                                  "thread (default: the cores available)")
     p.add_argument("--out", required=True,
                    help="output video (.mp4 .mov .m4v .mkv .webm) or folder of frames")
     p.add_argument("--format", choices=("png", "exr"), default=None,
