@@ -123,9 +123,10 @@ def geometry_table(args) -> None:
     print("|---|---|---|---|---|---|")
     base = None
     yes = lambda flag: "yes" if flag else "no"
-    for threads, channels_last, compiled, bf16 in ((1, False, False, False), (2, False, False, False),
-                                                   (2, True, False, False), (2, True, False, True),
-                                                   (2, False, True, False)):
+    rows = [(1, False, False, False), (2, False, False, False), (2, True, False, False), (2, True, False, True)]
+    if args.compile:  # minutes of compiling, and slower here: measured once (docs/benchmarks/model.md)
+        rows.append((2, False, True, False))
+    for threads, channels_last, compiled, bf16 in rows:
         ips = time_geometry(args.geometry, args.batch, args.size, args.steps, threads, channels_last, compiled,
                             bf16=bf16)
         base = base or ips
@@ -144,6 +145,7 @@ def main() -> None:
     p.add_argument("--variants", action="store_true", help="also time the ablations")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--data", help="also time TrainingScenes items from this dataset folder")
+    p.add_argument("--compile", action="store_true", help="with --geometry: also time torch.compile")
     p.add_argument("--geometry", choices=("geo-small", "geo-default"),
                    help="time this GeometryNet preset under thread / channels-last / compile settings instead")
     args = p.parse_args()

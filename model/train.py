@@ -121,20 +121,15 @@ def loss_weights_from_args(args) -> dict:
 
 
 def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_decay: float,
-                          schedule: str = "constant", warmup: int = 0, total_steps: int = 1,
-                          channels_last: bool = False):
+                          schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
     import lightning as L
 
     class RelightModule(L.LightningModule):
         def __init__(self, model_config: dict, weights: dict, lr: float, weight_decay: float,
-                     schedule: str = "constant", warmup: int = 0, total_steps: int = 1,
-                     channels_last: bool = False):
+                     schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
             super().__init__()
             self.save_hyperparameters()  # plain dicts and floats: loadable with weights_only=True
             self.model = build_network(model_config)
-            # NHWC convolutions: 1.18x the images/s of NCHW on 2 CPU cores (benchmarks/bench_train.py --geometry)
-            self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
-            self.model = self.model.to(memory_format=self.memory_format)
             self.geometry = model_config.get("arch") == GEOMETRY
             self.weights = dict(weights) if self.geometry else LossWeights.from_dict(weights)
 
@@ -142,7 +137,7 @@ def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_d
             return self.model(image)
 
         def _losses(self, batch):
-            pred = self.model(batch["input"].contiguous(memory_format=self.memory_format))
+            pred = self.model(batch["input"])
             pred = {k: v.float() for k, v in pred.items()}
             # under AMP, autocast would run the rendering einsums in float16: keep losses in float32
             with torch.autocast(device_type=self.device.type, enabled=False):
@@ -224,9 +219,7 @@ def parse_args(argv=None):
     p.add_argument("--ckpt-every", type=int, default=500, help="write checkpoints/last.ckpt every N steps")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--threads", type=int, default=0,
-                   help="torch CPU threads (0: torch's default, all cores; 1 is far faster on a busy machine)")
-    p.add_argument("--channels-last", action=argparse.BooleanOptionalAction, default=True,
-                   help="NHWC memory format for the convolutions (default on: faster on CPUs)")
+                   help="torch CPU threads (0: torch's default; 1 is far faster on a busy machine)")
     p.add_argument("--padding", type=int, default=DEFAULT_PADDING)
     p.add_argument("--cache-scenes", type=int, default=64,
                    help="cropped scenes kept in memory (reading an EXR costs more than a step)")
@@ -333,7 +326,7 @@ def train(args) -> Path:
     weights = loss_weights_from_args(args)
     model_config = build_model_config(args)
     module = make_lightning_module(model_config, weights, args.lr, args.weight_decay,
-                                   args.lr_schedule, args.warmup, args.steps, args.channels_last)
+                                   args.lr_schedule, args.warmup, args.steps)
     if args.init:
         start = load_model(args.init)
         if start.config() != module.model.config():
@@ -369,8 +362,7 @@ def train(args) -> Path:
               "loss_weights": weights,
               "data": [str(d) for d in args.data], "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
-    model = module.model.cpu().eval().to(memory_format=torch.contiguous_format)  # safetensors stores dense NCHW
-    return save_model(model, out / "model.safetensors", extra={"training": record})
+    return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})
 
 
 def main(argv=None) -> int:

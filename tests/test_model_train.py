@@ -211,30 +211,3 @@ def test_photo_like_capture_is_off_by_default_and_can_be_turned_on(monkeypatch, 
         with pytest.raises(Stop):
             train.train(args)
         assert seen.pop("capture") is expected
-
-
-def test_channels_last_changes_the_speed_not_the_maths(one_thread):
-    """The NHWC memory format (train's default) gives the NCHW losses and gradients up to
-    float32 summation order: a convolution's terms are the same, only their order differs."""
-    from model.geometry import GEOMETRY_PRESETS
-
-    g = torch.Generator().manual_seed(1)
-    r = lambda *s: torch.rand(*s, generator=g)
-    b, size, n = 2, 32, 25
-    batch = {"input": r(b, 3, size, size) * 2 - 1, "albedo": r(b, 3, size, size), "light": r(b, n, 3),
-             "transport": r(b, n, size, size) - 0.5, "alpha": (r(b, 1, size, size) > 0.3).float(),
-             "normal": torch.nn.functional.normalize(r(b, 3, size, size) - 0.5, dim=1),
-             "image": r(b, 3, size, size), "target_light": r(b, n, 3), "target_image": r(b, 3, size, size)}
-    config = dict(arch="geometry", sh_order=4, **GEOMETRY_PRESETS["geo-small"])
-    weights = train.loss_weights_from_args(train.parse_args(["--data", ".", "--out", ".", "--preset", "geo-small"]))
-    results = []
-    for channels_last in (False, True):
-        torch.manual_seed(0)
-        module = train.make_lightning_module(config, weights, 1e-3, 0.0, channels_last=channels_last)
-        _, terms = module._losses(batch)
-        terms["total"].backward()
-        grads = torch.cat([p.grad.flatten() for p in module.model.parameters() if p.grad is not None])
-        results.append((float(terms["total"]), grads))
-    (loss_a, grad_a), (loss_b, grad_b) = results
-    assert loss_b == pytest.approx(loss_a, rel=1e-4)
-    assert torch.linalg.norm(grad_b - grad_a) <= 1e-3 * torch.linalg.norm(grad_a)
