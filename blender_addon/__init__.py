@@ -9,9 +9,9 @@ _REGISTERED = []
 
 
 def register():
-    from . import bl_compositing, bl_ops, bl_photo_world, bl_props, bl_ui
+    from . import bl_compositing, bl_ops, bl_photo_world, bl_props, bl_sequence, bl_ui
 
-    for module in (bl_props, bl_ops, bl_photo_world, bl_compositing, bl_ui):
+    for module in (bl_props, bl_ops, bl_photo_world, bl_compositing, bl_sequence, bl_ui):
         module.register()
         _REGISTERED.append(module)
 

@@ -60,6 +60,10 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
         row.scale_y = 1.4
         row.enabled = not status.running
         row.operator("relight_photo.relight", icon="LIGHT_SUN")
+        if image is not None and image.source in {"SEQUENCE", "MOVIE"}:  # frame by frame (bl_sequence)
+            row = layout.row()
+            row.enabled = not status.running
+            row.operator("relight_photo.relight_sequence", icon="RENDER_ANIMATION")
         row = layout.row()
         row.enabled = settings.last_photo_id in state.SESSIONS
         row.operator("relight_photo.save_layers", icon="FILE_IMAGE")

@@ -179,21 +179,6 @@ class _Frames:
         (self.folder / STATE_FILE).unlink(missing_ok=True)
 
 
-def _spans(indices) -> str:
-    """1-based frame numbers as ranges: '3-5, 9'."""
-    out, run = [], []
-    for i in sorted(indices):
-        if run and i == run[-1] + 1:
-            run.append(i)
-            continue
-        if run:
-            out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
-        run = [i]
-    if run:
-        out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
-    return ", ".join(out)
-
-
 def _empty_layers(frame: np.ndarray) -> dict:
     zeros = np.zeros_like(frame)
     return {"albedo": zeros, "shading": zeros, "residual": zeros, "alpha": np.zeros(frame.shape[:2], np.float32)}
@@ -217,6 +202,7 @@ def run_video(args) -> int:
     from relight.cli_image import open_relighter, target_light
     from relight.clip import ClipRelighter
     from relight.session import cores_available
+    from relight.video_io import frame_spans
     from relight.video_io import VideoWriter, open_clip
 
     if args.mask is not None:
@@ -281,7 +267,7 @@ def run_video(args) -> int:
     finally:
         _on_sigterm(previous)
     if nobody:
-        print(f"relight video: no person in frames {_spans(nobody)}: written unchanged", file=sys.stderr)
+        print(f"relight video: no person in frames {frame_spans(nobody)}: written unchanged", file=sys.stderr)
     if clamped > 0.01:
         print(f"relight video: warning: negative light (SH ringing) clamped to 0 on up to {clamped:.1%} of the "
               "person", file=sys.stderr)
@@ -298,6 +284,8 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     from concurrent.futures import ThreadPoolExecutor
 
     from tqdm import tqdm
+
+    from relight.video_io import frame_spans
 
     start = frames.start if frames is not None else 0
     bar = tqdm(total=info.frames, initial=start, desc="relight", unit="frame", file=sys.stderr, disable=None,
@@ -353,7 +341,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         total = len(frames.writer.names) if frames.writer.names is not None else last + 1
         missing = [i for i in range(total) if not frames.writer.done(i)]
         if missing:
-            raise ValueError(f"{args.input}: frames {_spans(missing)} are missing from {frames.folder} (the clip "
+            raise ValueError(f"{args.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
                              f"ended after {last + 1} frames)")
     return count, nobody, clamped
 

@@ -134,12 +134,13 @@ class ClipRelighter:
     exposure_ev: as in Decomposition.relight; matte: "person" (the segmenter) or
     "network"; person: which person (1 = the largest); stability: 0..1; mode:
     "ema" or "flow" (relight.clip_maps); threads: the segmenter's onnxruntime threads;
-    light_window: frames the light is averaged over (default 1 + (LIGHT_WINDOW - 1) x stability).
+    light_window: frames the light is averaged over (default 1 + (LIGHT_WINDOW - 1) x stability);
+    working_size: the network's working size (default the relighter's own).
     """
 
     def __init__(self, relighter, light, exposure_ev: float = 0.0, *, matte: str = "person",
                  person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
-                 threads: int | None = None, light_window: int | None = None):
+                 threads: int | None = None, light_window: int | None = None, working_size=None):
         from relight.decomposition import exposure_scale
         from relight.runtime import MATTE_SOURCES
 
@@ -149,7 +150,7 @@ class ClipRelighter:
             raise ValueError(f"stability must be a number in [0, 1], got {stability!r}")
         exposure_scale(exposure_ev)  # validates
         self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
-        self.matte, self.person, self.threads = matte, person, threads
+        self.matte, self.person, self.threads, self.working_size = matte, person, threads, working_size
         self.stability = float(stability)
         history = history_weight(1.0 + self.stability * (MAP_WINDOW - 1))
         self.cuts = CutDetector()
@@ -221,7 +222,7 @@ class ClipRelighter:
             mask, smooth_matte = found.alpha, self.stability > 0
             x0, y0, x1, y1 = found.box
             matte_box = (y0, y1, x0, x1)
-        d = self.relighter.decompose(frame, mask, matte=self.matte, person=self.person)
+        d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person)
         return Analysis(frame, histogram, d, smooth_matte, matte_box)
 
     def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:

@@ -34,7 +34,8 @@ import numpy as np
 from relight.fileio import temp_path_beside
 
 __all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "VideoWriter", "FrameFolderWriter", "open_clip",
-           "VIDEO_SUFFIXES", "OUTPUT_VIDEO_SUFFIXES", "FRAME_SUFFIXES", "DEFAULT_FPS", "frame_number"]
+           "VIDEO_SUFFIXES", "OUTPUT_VIDEO_SUFFIXES", "FRAME_SUFFIXES", "DEFAULT_FPS", "frame_number",
+           "frame_spans", "frame_codes", "encode_srgb8", "decode_srgb"]
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi")
 OUTPUT_VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm")
@@ -76,6 +77,21 @@ class ClipInfo:
     audio: bool = False
     names: tuple[str, ...] = field(default=(), repr=False)   # frame file stems (folders)
     colour: dict = field(default_factory=dict, repr=False)   # video colour tags, copied to the output
+
+
+def frame_spans(indices) -> str:
+    """0-based frame indices as 1-based frame numbers in ranges: '3-5, 9'."""
+    out, run = [], []
+    for i in sorted(indices):
+        if run and i == run[-1] + 1:
+            run.append(i)
+            continue
+        if run:
+            out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
+        run = [i]
+    if run:
+        out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
+    return ", ".join(out)
 
 
 def frame_number(name: str) -> int | None:
@@ -161,11 +177,12 @@ class FrameFolder:
     """The numbered frames of a folder, read with relight.photo (alpha, when a frame has
     one, is returned as its mask)."""
 
-    def __init__(self, path, fps: Fraction | None = None, max_pixels: int | None = None):
+    def __init__(self, path, fps: Fraction | None = None, max_pixels: int | None = None, files=None):
         self.path = Path(path)
         self.max_pixels = max_pixels
-        files = [p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES
-                 and not p.name.startswith(".")]
+        if files is None:
+            files = [p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES
+                     and not p.name.startswith(".")]
         if not files:
             raise ValueError(f"{self.path}: no frames ({', '.join(FRAME_SUFFIXES)}) in the folder")
         numbered = {}
@@ -181,6 +198,12 @@ class FrameFolder:
         width, height = self._sizes()
         self.info = ClipInfo(self.path, "frames", width, height, fps or DEFAULT_FPS, len(self.files),
                              names=tuple(p.stem for p in self.files))
+
+    @classmethod
+    def from_files(cls, files, fps: Fraction | None = None, max_pixels: int | None = None) -> "FrameFolder":
+        """The clip of these frame files (one folder's image sequence; ordered by their numbers)."""
+        files = [Path(f) for f in files]
+        return cls(files[0].parent if files else Path("."), fps, max_pixels, files)
 
     def _sizes(self) -> tuple[int, int]:
         """The size every frame declares, read from headers only; ValueError at the first that differs."""
