@@ -83,7 +83,7 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
     written stay (progress.written says how many)."""
     from relight.clip import ClipRelighter
     from relight.light import resolve
-    from relight.video_io import FrameFolderWriter
+    from relight.video_out import FrameFolderWriter
 
     from . import pipeline
 

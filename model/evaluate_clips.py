@@ -22,7 +22,6 @@ frame's own background (what a perfect relighter outputs). numpy + onnxruntime o
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections import defaultdict

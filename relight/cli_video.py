@@ -87,7 +87,7 @@ def _fps(text: str) -> Fraction:
 
 def _plan(args, info):
     """(kind "video" | "frames", output path, frames folder or None, frame format)."""
-    from relight.video_io import OUTPUT_VIDEO_SUFFIXES
+    from relight.video_out import OUTPUT_VIDEO_SUFFIXES
 
     out = Path(args.out)
     source = Path(args.input)
@@ -135,7 +135,7 @@ class _Frames:
     def __init__(self, folder: Path, names, fmt: str, fingerprint: dict, resume: bool, video: bool = False):
         import json
 
-        from relight.video_io import FrameFolderWriter
+        from relight.video_out import FrameFolderWriter
 
         self.folder = folder
         self.writer = FrameFolderWriter(folder, fmt, names, video_codes=video)
@@ -202,8 +202,8 @@ def run_video(args) -> int:
     from relight.cli_image import open_relighter, target_light
     from relight.clip import ClipRelighter
     from relight.session import cores_available
-    from relight.video_io import frame_spans
-    from relight.video_io import VideoWriter, open_clip
+    from relight.video_io import frame_spans, open_clip
+    from relight.video_out import VideoWriter
 
     if args.mask is not None:
         raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
@@ -237,7 +237,7 @@ def run_video(args) -> int:
     try:
         if kind == "video" and folder is None:
             video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
-        done, nobody, clamped = _loop(clip, runner, frames, video, args, info, workers)
+        done, written, nobody, clamped = _loop(clip, runner, frames, video, args, info, workers)
         if video is not None:
             video.close()
             video = None
@@ -256,7 +256,7 @@ def run_video(args) -> int:
         if video is not None:
             video.abort()
         full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
-        kept = f"; the frames written are whole: free space and rerun with --resume" if folder is not None else ""
+        kept = "; the frames written are whole: free space and rerun with --resume" if folder is not None else ""
         print(f"relight video: error: {'output disk full' if full else 'cannot write'} ({exc}){kept}",
               file=sys.stderr)
         return EXIT_FAILED
@@ -271,15 +271,15 @@ def run_video(args) -> int:
     if clamped > 0.01:
         print(f"relight video: warning: negative light (SH ringing) clamped to 0 on up to {clamped:.1%} of the "
               "person", file=sys.stderr)
-    skipped = len(frames.done) if frames is not None else 0
-    print(f"relit {done - skipped} frames into {out}" + (f" ({skipped} were there already)" if skipped else ""))
+    kept = len(frames.done) if frames is not None else 0
+    print(f"relit {written} frames into {out}" + (f" ({kept} were there already)" if kept else ""))
     return 0
 
 
 def _loop(clip, runner, frames, video, args, info, workers: int):
     """Relight every frame from the resume point: `workers` frames analysed at once (matte and
     network, ClipRelighter.analyse), finished and written in order; (frames processed, frames
-    without a person, largest clamped share)."""
+    written, frames without a person, largest clamped share)."""
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
@@ -290,11 +290,11 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     start = frames.start if frames is not None else 0
     bar = tqdm(total=info.frames, initial=start, desc="relight", unit="frame", file=sys.stderr, disable=None,
                dynamic_ncols=True)
-    nobody, clamped, count, last = [], 0.0, 0, start - 1
+    nobody, clamped, count, written, last = [], 0.0, 0, 0, start - 1
     committed = None  # (next frame, the filter state once every frame before it is written)
 
     def emit(frame, analysis):
-        nonlocal clamped, count, last, committed
+        nonlocal clamped, count, written, last, committed
         index = frame.index
         skip = frames is not None and index in frames.done
         result = runner.finish(analysis, layers=args.layers and not skip)
@@ -306,6 +306,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
             if not skip:
                 layers = (result.layers or _empty_layers(result.image)) if args.layers else None
                 frames.writer.write(index, result.image, layers, frame.codes, result.changed)
+                written += 1
             # a snapshot (the filters replace their arrays, never change them in place): an
             # interrupt during the next frame's finish() or write() must not save that frame's state
             committed = (index + 1, runner.state())
@@ -313,6 +314,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
                 frames.checkpoint(*committed)
         else:
             video.write(result.image, frame.codes, result.changed)
+            written += 1
         count, last = count + 1, index
         bar.update(1)
 
@@ -343,7 +345,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         if missing:
             raise ValueError(f"{args.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
                              f"ended after {last + 1} frames)")
-    return count, nobody, clamped
+    return count, written, nobody, clamped
 
 
 def _prefetch(frames, depth: int = 2):
@@ -389,7 +391,8 @@ def _encode_folder(frames, info, out: Path) -> None:
     """The resumable video job's frames (OUTPUT.frames/) into OUTPUT; the folder goes once it is."""
     import shutil
 
-    from relight.video_io import FrameFolder, VideoWriter
+    from relight.video_io import FrameFolder
+    from relight.video_out import VideoWriter
 
     from PIL import Image
 

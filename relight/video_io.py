@@ -1,28 +1,22 @@
-"""Clips in and out: video files through PyAV, folders of numbered frames through relight.photo.
+"""Clips in: video files through PyAV, folders of numbered frames through relight.photo.
 
     clip = open_clip("in.mp4")                 # or a folder: frame_0001.png, frame_0002.png, ...
     clip.info                                  # ClipInfo: size, frame rate, frame count, audio
-    for frame in clip.frames(start=0): ...   # Frame: index, linear float32 [H, W, 3], alpha, codes
-    out = VideoWriter("out.mp4", clip.info, audio_from=clip.path)
-    out.write(relit); out.close()              # the file appears, complete, only at close()
+    for frame in clip.frames(start=0): ...     # Frame: index, linear float32 [H, W, 3], alpha, codes
 
-Video files (.mp4 .mov .m4v .mkv .webm .avi in; .mp4 .mov .m4v .mkv .webm out) are
-read and written with PyAV, whose wheels carry FFmpeg and its codecs
-(docs/video.md says why PyAV). Frames are 8-bit (10/12-bit sources read
-through 16 bits), sRGB-encoded like photos, decoded with the stream's own
-YCbCr matrix and range (untagged: BT.709 from 720 lines up, else BT.601;
-limited range). Output video is H.264 (VP9 for .webm), 4:2:0 when width and
-height are even, else 4:4:4 so the size is kept; frame rate and colour tags
-are kept and the audio of the source is copied (re-encoded when the output
-container cannot hold its codec). A folder of frames is the files whose names
-end in a number, in the number's order; every frame must have the size of the
-first (checked before anything is decoded). Every failure to read is one
-ValueError naming the file.
+Video files (.mp4 .mov .m4v .mkv .webm .avi) are read with PyAV, whose wheels
+carry FFmpeg and its codecs (docs/video.md says why PyAV). Frames are 8-bit
+(10/12-bit sources read through 16 bits), sRGB-encoded like photos, decoded
+with the stream's own YCbCr matrix and range (untagged: BT.709 from 720 lines
+up, else BT.601; limited range); an 8-bit frame keeps its codes beside the
+linear image. A folder of frames is the files whose names end in a number, in
+the number's order; every frame must have the size of the first (checked
+before anything is decoded). Every failure to read is one ValueError naming
+the file. Writing: relight.video_out.
 """
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -31,25 +25,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relight.fileio import temp_path_beside
 
-__all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "VideoWriter", "FrameFolderWriter", "open_clip",
-           "VIDEO_SUFFIXES", "OUTPUT_VIDEO_SUFFIXES", "FRAME_SUFFIXES", "DEFAULT_FPS", "frame_number",
-           "frame_spans", "frame_codes", "encode_srgb8", "decode_srgb"]
+__all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
+           "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container"]
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi")
-OUTPUT_VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm")
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".webp", ".bmp")
 DEFAULT_FPS = Fraction(24)   # a folder of frames has no rate of its own
 MAX_FPS = 1000
-H264_CRF = "18"              # visually lossless for most footage; the relit frames are 8-bit anyway
-H264_PRESET = "veryfast"     # docs/BENCHMARKS.md: encoding is a small share of a frame's time at this preset
-VP9_OPTIONS = {"crf": "30", "b:v": "0", "deadline": "good", "cpu-used": "5", "row-mt": "1"}
-# audio codecs each container holds as they are (copied); others are re-encoded to its default
-AUDIO_COPY = {".mp4": {"aac", "mp3", "alac", "ac3", "eac3", "opus", "flac"}, ".m4v": {"aac", "mp3", "ac3", "alac"},
-              ".mov": {"aac", "mp3", "alac", "ac3", "pcm_s16le", "pcm_s24le", "pcm_f32le"},
-              ".webm": {"opus", "vorbis"}, ".mkv": None}  # None: anything
-AUDIO_REENCODE = {".webm": "libopus"}  # the rest: aac
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")  # the last run of digits in a name
 
 
@@ -115,59 +98,6 @@ def decode_srgb(codes: np.ndarray) -> np.ndarray:
     if levels not in _TABLES:
         _TABLES[levels] = _srgb_table(levels)
     return _TABLES[levels][codes]
-
-
-_ENCODE_BINS = 4096  # bins of sqrt(linear): each holds at most one rounding threshold (the closest two
-                     # thresholds, near code 255, are 0.0039 apart in sqrt(linear))
-_ENCODE: tuple[np.ndarray, np.ndarray] | None = None
-
-
-def _encode_tables() -> tuple[np.ndarray, np.ndarray]:
-    """(code at each sqrt bin's lower edge, the linear value where code k + 1 begins, k = 0..255)."""
-    global _ENCODE
-    if _ENCODE is None:
-        from relight.colour import srgb_decode
-
-        # rint(255 srgb_encode(x)) steps from k to k + 1 where srgb_encode(x) = (k + 0.5) / 255
-        steps = srgb_decode((np.arange(255, dtype=np.float64) + 0.5) / 255.0)
-        edges = (np.arange(_ENCODE_BINS + 1, dtype=np.float64) / _ENCODE_BINS) ** 2
-        codes = np.searchsorted(steps, edges, side="right").astype(np.uint8)
-        _ENCODE = codes, np.append(steps, np.inf).astype(np.float32)
-    return _ENCODE
-
-
-def encode_srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB codes, clipped to [0, 1] and rounded: a table lookup in
-    sqrt(linear) and one comparison with the next code's threshold, 3x faster than
-    evaluating the curve on a 1080p frame. It gives rint(255 srgb_encode(x)) except within
-    float32 rounding of a threshold (one code off, 1e-5 of random values); decoded codes
-    (decode_srgb) come back exactly."""
-    a = np.asarray(linear, np.float32)
-    out = np.empty(a.shape, np.uint8)
-    codes, steps = _encode_tables()
-    rows = max(1, (1 << 18) // max(1, a[0].size)) if a.ndim > 1 else a.shape[0]
-    for r0 in range(0, a.shape[0], rows):  # strips: temporaries stay in cache
-        x = a[r0:r0 + rows]
-        if not np.all(np.isfinite(x)):
-            raise ValueError("frame to write contains NaN or Inf")
-        x = np.clip(x, 0.0, 1.0)
-        code = codes[(np.sqrt(x) * np.float32(_ENCODE_BINS)).astype(np.intp)]
-        code += x >= steps[code]
-        out[r0:r0 + rows] = code
-    return out
-
-
-def frame_codes(linear: np.ndarray, codes: np.ndarray | None = None, changed=None) -> np.ndarray:
-    """encode_srgb8(linear), computed only inside `changed` = (y0, y1, x0, x1) when `codes`, the
-    codes the frame was decoded from, are given (outside that box `linear` is the decoded
-    frame, which encodes back to its codes exactly); changed None with codes: nothing changed."""
-    if codes is None:
-        return encode_srgb8(linear)
-    out = codes.copy()
-    if changed is not None:
-        y0, y1, x0, x1 = changed
-        out[y0:y1, x0:x1] = encode_srgb8(linear[y0:y1, x0:x1])
-    return out
 
 
 # ------------------------------------------------------------------ folders of frames
@@ -254,7 +184,7 @@ def _declared_size(path: Path) -> tuple[int, int]:
 # ------------------------------------------------------------------ video files
 
 
-def _av():
+def import_av():
     try:
         import av
     except ImportError:
@@ -263,8 +193,8 @@ def _av():
     return av
 
 
-def _open_input(path: Path):
-    av = _av()
+def open_container(path: Path):
+    av = import_av()
     try:
         return av.open(str(path), mode="r")
     except (av.error.FFmpegError, UnicodeDecodeError, OSError) as exc:
@@ -280,7 +210,7 @@ class VideoFile:
         from relight.photo import check_declared_size
 
         self.path = Path(path)
-        container = _open_input(self.path)
+        container = open_container(self.path)
         try:
             if container.format.name in ("image2", "gif") or container.format.name.endswith("_pipe"):
                 raise ValueError(f"{self.path}: an image, not a video (relight image relights a photo; "
@@ -310,8 +240,8 @@ class VideoFile:
     def frames(self, start: int = 0):
         """Frames from `start` on (earlier frames are decoded and dropped: exact whatever the
         codec's keyframes); 8-bit streams keep their sRGB codes beside the linear image."""
-        av = _av()
-        container = _open_input(self.path)
+        av = import_av()
+        container = open_container(self.path)
         try:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
@@ -359,234 +289,3 @@ def open_clip(path, fps: Fraction | None = None, max_pixels: int | None = None):
     if fps is not None:
         raise ValueError("--fps applies to a folder of frames; a video file keeps its own frame rate")
     return clip
-
-
-# ------------------------------------------------------------------ writing
-
-
-class FrameFolderWriter:
-    """Frames into a folder, one file each, written atomically (a frame is there whole or not
-    at all): PNG (8-bit sRGB) or EXR (linear float, optionally the layers for Blender).
-    `names`: the file stem of each frame; None: frame_000001, frame_000002, ..."""
-
-    def __init__(self, folder, fmt: str, names=None, video_codes: bool = False):
-        if fmt not in ("png", "exr"):
-            raise ValueError(f"frame format must be png or exr, got {fmt!r}")
-        self.folder, self.fmt = Path(folder), fmt
-        self.names = None if names is None else list(names)
-        # PNGs holding exactly the codes VideoWriter.write would encode (a resumable video's frames)
-        self.video_codes = video_codes and fmt == "png"
-
-    def name(self, index: int) -> str:
-        return f"frame_{index + 1:06d}" if self.names is None else self.names[index]
-
-    def path(self, index: int) -> Path:
-        return self.folder / f"{self.name(index)}.{self.fmt}"
-
-    def done(self, index: int) -> bool:
-        return self.path(index).is_file()
-
-    def written(self) -> set[int]:
-        """Indices of the frames already in the folder."""
-        if self.names is not None:
-            return {i for i in range(len(self.names)) if self.done(i)}
-        if not self.folder.is_dir():
-            return set()
-        pattern = re.compile(rf"frame_(\d{{6,}})\.{self.fmt}")
-        return {int(m.group(1)) - 1 for p in self.folder.iterdir() if (m := pattern.fullmatch(p.name))}
-
-    def write(self, index: int, linear: np.ndarray, layers: dict | None = None, codes=None, changed=None) -> Path:
-        """Write frame `index` (`codes`, `changed`: as frame_codes, for video_codes PNGs)."""
-        from relight.photo import write_image, write_layers_exr
-
-        if layers is not None:
-            return write_layers_exr(self.path(index), linear, layers)
-        if self.video_codes:
-            from PIL import Image
-
-            from relight.fileio import atomic_path
-
-            with atomic_path(self.path(index), ".png") as tmp:
-                Image.fromarray(frame_codes(linear, codes, changed), "RGB").save(tmp, format="PNG",
-                                                                                  compress_level=1)
-            return self.path(index)
-        return write_image(self.path(index), linear)
-
-
-class VideoWriter:
-    """Frames into a video file. Everything goes to a temporary file beside the output,
-    which replaces OUTPUT only when close() has finished it; abort() (or any error in
-    close) removes it, so a video under OUTPUT's name is always complete."""
-
-    def __init__(self, path, info: ClipInfo, audio_from=None):
-        av = _av()
-        self.path = Path(path)
-        suffix = self.path.suffix.lower()
-        if suffix not in OUTPUT_VIDEO_SUFFIXES:
-            raise ValueError(f"video output must end in {', '.join(OUTPUT_VIDEO_SUFFIXES)}, got {self.path.name}")
-        if not self.path.parent.is_dir():
-            raise ValueError(f"output folder does not exist: {self.path.parent}")
-        self.info = info
-        self.count = 0
-        self.tmp = temp_path_beside(self.path, suffix)
-        self._audio = None
-        try:
-            self.container = av.open(str(self.tmp), mode="w")
-            even = info.width % 2 == 0 and info.height % 2 == 0
-            if suffix == ".webm":
-                stream = self.container.add_stream("libvpx-vp9", rate=info.fps)
-                stream.pix_fmt = "yuv420p" if even else "yuv444p"
-                stream.options = dict(VP9_OPTIONS)
-            else:
-                stream = self.container.add_stream("libx264", rate=info.fps)
-                stream.pix_fmt = "yuv420p" if even else "yuv444p"  # 4:2:0 needs even sides
-                stream.options = {"crf": H264_CRF, "preset": H264_PRESET}
-            stream.width, stream.height = info.width, info.height
-            stream.thread_type = "AUTO"
-            colour = {"colorspace": 1, "color_primaries": 1, "color_trc": 13, "color_range": 1}  # 709, sRGB curve
-            colour.update({k: v for k, v in info.colour.items() if v not in (0, 2)})  # the source's, where tagged
-            self._colour = colour
-            for key, value in colour.items():
-                setattr(stream.codec_context, key, value)
-            self.stream = stream
-            if audio_from is not None:
-                self._audio = _AudioCopy(Path(audio_from), self.container, suffix)
-        except BaseException as exc:
-            self._discard()
-            if isinstance(exc, av.error.FFmpegError):
-                raise ValueError(f"{self.path}: cannot start the video ({exc})") from None
-            raise
-
-    def write(self, linear: np.ndarray, codes: np.ndarray | None = None, changed=None) -> None:
-        """Append one frame (linear RGB [H, W, 3], encoded to 8-bit sRGB by frame_codes)."""
-        self.write_codes(frame_codes(linear, codes, changed))
-
-    def write_codes(self, codes: np.ndarray) -> None:
-        """Append one frame of 8-bit sRGB codes [H, W, 3]."""
-        av = _av()
-        if codes.shape != (self.info.height, self.info.width, 3) or codes.dtype != np.uint8:
-            raise ValueError(f"frame is {codes.shape} {codes.dtype}, the video is "
-                             f"{self.info.height}x{self.info.width}x3 uint8")
-        frame = av.VideoFrame.from_ndarray(codes, format="rgb24")
-        space = "itu709" if self._colour["colorspace"] == 1 else "itu601"
-        frame = frame.reformat(format=self.stream.pix_fmt, dst_colorspace=space,
-                               dst_color_range="JPEG" if self._colour["color_range"] == 2 else "MPEG")
-        frame.pts = self.count
-        frame.time_base = 1 / Fraction(self.info.fps)
-        self._mux(self.stream.encode(frame))
-        self.count += 1
-        if self._audio is not None:
-            self._audio.copy_until(self.count / self.info.fps)
-
-    def _mux(self, packets) -> None:
-        try:
-            self.container.mux(packets)
-        except _av().error.FFmpegError as exc:
-            _raise_write_error(self.path, exc)
-
-    def close(self) -> Path:
-        """Flush the encoder, copy the rest of the audio, and move the finished file to OUTPUT."""
-        try:
-            if self.count == 0:
-                raise ValueError(f"{self.path}: no frames to write")
-            self._mux(self.stream.encode(None))
-            if self._audio is not None:
-                self._audio.copy_until(None)
-                self._audio.close()
-                self._audio = None
-            try:
-                self.container.close()
-            except _av().error.FFmpegError as exc:
-                _raise_write_error(self.path, exc)
-            self.container = None
-            os.replace(self.tmp, self.path)
-            return self.path
-        except BaseException:
-            self._discard()
-            raise
-
-    def abort(self) -> None:
-        """Drop the unfinished video (its temporary file)."""
-        self._discard()
-
-    def _discard(self) -> None:
-        for closing in (self._audio, getattr(self, "container", None)):
-            if closing is not None:
-                try:
-                    closing.close()
-                except Exception:  # noqa: BLE001 - tearing down after an error: the first error is the one to report
-                    pass
-        self._audio = None
-        self.container = None
-        self.tmp.unlink(missing_ok=True)
-
-
-def _raise_write_error(path: Path, exc) -> None:
-    import errno as errno_module
-
-    code = getattr(exc, "errno", None)
-    if code in (errno_module.ENOSPC, errno_module.EDQUOT) or "No space left" in str(exc):
-        raise OSError(errno_module.ENOSPC, f"output disk full while writing {path.name}") from None
-    raise OSError(code or errno_module.EIO, f"cannot write {path.name} ({exc})") from None
-
-
-class _AudioCopy:
-    """The source's first audio stream into the output, packet by packet as the video
-    advances (kept interleaved): copied when the container holds its codec, else
-    re-encoded to the container's usual codec."""
-
-    def __init__(self, source: Path, container, suffix: str):
-        self.input = _open_input(source)
-        if not self.input.streams.audio:
-            self.input.close()
-            self.input = None
-            return
-        self.in_stream = self.input.streams.audio[0]
-        name = self.in_stream.codec_context.name
-        allowed = AUDIO_COPY.get(suffix)
-        self.copy = allowed is None or name in allowed
-        if self.copy:
-            self.out_stream = container.add_stream_from_template(self.in_stream)
-        else:
-            self.out_stream = container.add_stream(AUDIO_REENCODE.get(suffix, "aac"),
-                                                   rate=self.in_stream.codec_context.sample_rate or 48000)
-            self._resampler = None
-        self.container = container
-        self._packets = self.input.demux(self.in_stream)
-        self._pending = None
-
-    def copy_until(self, seconds) -> None:
-        """Mux the audio up to `seconds` of presentation time (None: all of it)."""
-        if self.input is None:
-            return
-        av = _av()
-        tb = self.in_stream.time_base
-        while True:
-            packet = self._pending or next(self._packets, None)
-            self._pending = None
-            if packet is None:
-                break
-            if packet.dts is None:  # the demuxer's empty flush packet
-                continue
-            if seconds is not None and packet.pts is not None and float(packet.pts * tb) > float(seconds):
-                self._pending = packet
-                return
-            try:
-                if self.copy:
-                    packet.stream = self.out_stream
-                    self.container.mux(packet)
-                else:
-                    for frame in packet.decode():
-                        frame.pts = None
-                        self.container.mux(self.out_stream.encode(frame))
-            except av.error.FFmpegError as exc:
-                _raise_write_error(Path(self.container.name), exc)
-        if not self.copy:
-            self.container.mux(self.out_stream.encode(None))
-        self.input.close()
-        self.input = None
-
-    def close(self) -> None:
-        if self.input is not None:
-            self.input.close()
-            self.input = None

@@ -59,7 +59,8 @@ def write_frames(folder: Path, frames, fmt: str = "png", prefix: str = "f_") -> 
 def write_video(path: Path, frames, fps=24) -> Path:
     from fractions import Fraction
 
-    from relight.video_io import ClipInfo, VideoWriter
+    from relight.video_io import ClipInfo
+    from relight.video_out import VideoWriter
 
     h, w = frames[0].shape[:2]
     writer = VideoWriter(path, ClipInfo(Path(path), "frames", w, h, Fraction(fps), len(frames)))

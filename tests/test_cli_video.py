@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from clip_support import background, person_clip, write_frames, write_video
-from relight import cli_video, video_io
+from relight import cli_video, video_io, video_out
 from relight.cli import main
 from relight.photo import read_photo
 
@@ -106,7 +106,7 @@ def test_resume_after_an_interrupt_writes_only_the_missing_frames_identically(tm
     whole = _folder(tmp_path / "whole")
 
     with monkeypatch.context() as m:
-        _interrupt_after(m, video_io.FrameFolderWriter, "write", 8)
+        _interrupt_after(m, video_out.FrameFolderWriter, "write", 8)
         code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part")
     assert code == cli_video.EXIT_INTERRUPTED
     assert "interrupted" in err and "--resume" in err
@@ -116,12 +116,12 @@ def test_resume_after_an_interrupt_writes_only_the_missing_frames_identically(tm
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part")
     assert code == 2 and "--resume" in err  # without --resume a half-done folder is refused
     written = []
-    original = video_io.FrameFolderWriter.write
-    monkeypatch.setattr(video_io.FrameFolderWriter, "write",
+    original = video_out.FrameFolderWriter.write
+    monkeypatch.setattr(video_out.FrameFolderWriter, "write",
                         lambda self, i, *a: written.append(i) or original(self, i, *a))
     code, out, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "part", "--resume")
     assert code == 0, err
-    assert written == list(range(7, 12)) and "(7 were there already)" in out
+    assert written == list(range(7, 12)) and "relit 5 frames" in out and "(7 were there already)" in out
     part = _folder(tmp_path / "part")
     assert sorted(part) == sorted(whole)
     for name in whole:
@@ -134,7 +134,7 @@ def test_resume_without_a_saved_state_recomputes_from_the_start(tmp_path, capsys
     code, _, err = _run(capsys, src, "--light", "city", "--out", tmp_path / "whole", "--stability", "1")
     assert code == 0, err
     with monkeypatch.context() as m:
-        _interrupt_after(m, video_io.FrameFolderWriter, "write", 5)
+        _interrupt_after(m, video_out.FrameFolderWriter, "write", 5)
         _run(capsys, src, "--light", "city", "--out", tmp_path / "part", "--stability", "1")
     (tmp_path / "part" / cli_video.STATE_FILE).unlink()
     code, _, err = _run(capsys, src, "--light", "city", "--out", tmp_path / "part", "--stability", "1", "--resume")
@@ -152,7 +152,7 @@ def test_a_resumable_video_job_keeps_its_frames_until_the_video_is_complete(tmp_
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "whole.mp4")
     assert code == 0, err
     with monkeypatch.context() as m:
-        _interrupt_after(m, video_io.FrameFolderWriter, "write", 6)
+        _interrupt_after(m, video_out.FrameFolderWriter, "write", 6)
         code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4", "--resume")
     assert code == cli_video.EXIT_INTERRUPTED
     assert not (tmp_path / "out.mp4").exists()
@@ -169,7 +169,7 @@ def test_a_resumable_video_job_keeps_its_frames_until_the_video_is_complete(tmp_
 
 def test_an_interrupted_video_leaves_no_file(tmp_path, capsys, monkeypatch, clip_frames):
     src = write_video(tmp_path / "in.mp4", clip_frames[:6])
-    _interrupt_after(monkeypatch, video_io.VideoWriter, "write", 4)
+    _interrupt_after(monkeypatch, video_out.VideoWriter, "write", 4)
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4")
     assert code == cli_video.EXIT_INTERRUPTED and "no video written" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4"]
@@ -201,7 +201,7 @@ def test_a_full_disk_fails_the_job_with_one_message_and_whole_frames_only(tmp_pa
     assert _leftovers(tmp_path / "out") == []
     monkeypatch.undo()
     src_video = write_video(tmp_path / "in.mp4", clip_frames[:4])
-    monkeypatch.setattr(video_io.VideoWriter, "write", _disk_full)
+    monkeypatch.setattr(video_out.VideoWriter, "write", _disk_full)
     code, _, err = _run(capsys, src_video, "--light", "studio", "--out", tmp_path / "o.mp4")
     assert code == cli_video.EXIT_FAILED and "output disk full" in err
     assert not (tmp_path / "o.mp4").exists() and _leftovers(tmp_path) == []

@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 
 from relight.colour import srgb_decode, srgb_encode
-from relight.video_io import ClipInfo, FrameFolder, FrameFolderWriter, VideoWriter, decode_srgb, encode_srgb8, \
-    frame_number, open_clip
+from relight.video_io import ClipInfo, FrameFolder, decode_srgb, frame_number, open_clip
+from relight.video_out import FrameFolderWriter, VideoWriter, encode_srgb8
 
 
 def _frames(n, h=36, w=48, seed=0):
