@@ -10,7 +10,8 @@ Three measurements, each a `relight video` run in a fresh process (model loading
 * memory: the process's resident set sampled every 0.2 s over a --long-frame clip of
   small frames (160 x 90): flat means no growth per frame (the slope per 1,000 frames).
 
-Prints a Markdown table with the load average before and after (the machine may be shared).
+Prints a Markdown table with the load average before and after (the machine may be shared) and
+each run's CPU time (user + system): what the job itself cost, whatever else ran beside it.
 """
 
 from __future__ import annotations
@@ -58,7 +59,10 @@ def _rss_kib(pid: int) -> int | None:
 
 
 def _run(source: Path, out: Path, quality: str, sample_rss: bool = False):
-    """(wall seconds, [(seconds, RSS KiB)]) of one `relight video` process."""
+    """(wall seconds, [(seconds, RSS KiB)], CPU seconds) of one `relight video` process."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     cmd = [sys.executable, "-m", "relight.cli", "video", str(source), "--light", "studio", "--quality", quality,
            "--out", str(out)]
     env = {**os.environ, "TQDM_DISABLE": "1"}
@@ -75,7 +79,9 @@ def _run(source: Path, out: Path, quality: str, sample_rss: bool = False):
     _, err = proc.communicate()
     if proc.returncode != 0:
         raise SystemExit(f"relight video failed ({proc.returncode}): {err.decode()[-500:]}")
-    return wall, samples
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, samples, cpu
 
 
 def main(argv=None) -> int:
@@ -93,19 +99,21 @@ def main(argv=None) -> int:
         print(f"load average before: {_load()}", file=sys.stderr)
         if "sd" in runs:
             src = _clip(tmp / "sd.mp4", args.frames, 640, 360)
-            wall, _ = _run(src, tmp / "sd_out.mp4", args.quality)
-            rows.append(("640x360", args.frames, wall, f"{args.frames / wall:.1f} frames/s"))
+            wall, _, cpu = _run(src, tmp / "sd_out.mp4", args.quality)
+            rows.append(("640x360", args.frames, wall, f"{args.frames / wall:.1f} frames/s; CPU {cpu:.1f} s "
+                                                        f"({1000 * cpu / args.frames:.0f} ms a frame)"))
             print(rows[-1], _load(), file=sys.stderr)
         if "hd" in runs:
             hd_frames = int(round(args.hd_seconds * 24))
             src = _clip(tmp / "hd.mp4", hd_frames, 1920, 1080)
-            wall, _ = _run(src, tmp / "hd_out.mp4", args.quality)
+            wall, _, cpu = _run(src, tmp / "hd_out.mp4", args.quality)
             rows.append(("1920x1080", hd_frames, wall, f"{wall / args.hd_seconds:.2f} x its duration "
-                                                        f"({hd_frames / wall:.1f} frames/s)"))
+                                                        f"({hd_frames / wall:.1f} frames/s); CPU {cpu:.1f} s "
+                                                        f"({1000 * cpu / hd_frames:.0f} ms a frame)"))
             print(rows[-1], _load(), file=sys.stderr)
         if "memory" in runs:
             src = _clip(tmp / "long.mp4", args.long, 160, 90)
-            wall, samples = _run(src, tmp / "long_out.mp4", args.quality, sample_rss=True)
+            wall, samples, _ = _run(src, tmp / "long_out.mp4", args.quality, sample_rss=True)
             t = np.array([s[0] for s in samples])
             rss = np.array([s[1] for s in samples]) / 1024.0
             # the median RSS of each quarter of the run: flat means no growth per frame
