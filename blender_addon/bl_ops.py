@@ -16,7 +16,7 @@ from . import bl_dials, bl_images, bl_saved, engine, jobs, pipeline, quality, st
 from .bl_dials import compute_relit, schedule_refresh
 from .bl_light import current_dials, light_image_key, target_light
 from .bl_session import (POLL_SECONDS, SYNC_ENV, addon_settings, current_session, editor_image, release_job,
-                         session_of, set_status, source_image, status_of, write_output)
+                         session_of, set_status, source_image, status_of, tell, write_output)
 
 
 def mask_inputs(settings, image) -> dict:
@@ -199,10 +199,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             self.report({"WARNING"}, "Relighting cancelled.")
             set_status(context, "Relighting cancelled.")
             return {"CANCELLED"}
-        message = str(exc) if isinstance(exc, ValueError) else str(engine.user_error(exc))
-        self.report({"ERROR"}, message)
-        set_status(context, message, is_error=True)
-        return {"CANCELLED"}
+        return tell(self, context, str(exc) if isinstance(exc, ValueError) else str(engine.user_error(exc)))
 
     def execute(self, context):
         # synchronous path: tests, scripts and background mode
@@ -326,9 +323,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
         try:
             session = self._session(context)
         except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
-            set_status(context, str(exc), is_error=True)
-            return {"CANCELLED"}
+            return tell(self, context, str(exc))
         if not self.filepath:
             self.filepath = bpy.path.ensure_ext(bpy.path.clean_name(session.source) + "_layers", ".exr")
         context.window_manager.fileselect_add(self)
@@ -344,15 +339,11 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             dials = current_dials(context, session)
             relit = compute_relit(context, session, dials)
             engine.save_layers(path, relit, engine.layers(session.decomposition, *dials[:3]))
-        except (ValueError, OSError) as exc:
-            message = str(exc) if isinstance(exc, ValueError) else \
-                f"Cannot write '{self.filepath}': {exc.strerror or exc}."
-            self.report({"ERROR"}, message)
-            set_status(context, message, is_error=True)  # the panel says it too, where the artist looks
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"Saved the layers of '{session.source}' to {path}.")
-        set_status(context, f"Saved the layers of '{session.source}' to {path}.")
-        return {"FINISHED"}
+        except ValueError as exc:
+            return tell(self, context, str(exc))
+        except OSError as exc:
+            return tell(self, context, f"Cannot write '{self.filepath}': {exc.strerror or exc}.")
+        return tell(self, context, f"Saved the layers of '{session.source}' to {path}.", is_error=False)
 
 
 CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)

@@ -20,7 +20,7 @@ import bpy
 from bpy.props import StringProperty
 
 from . import bl_images, photo_light, state
-from .bl_session import set_status, source_image
+from .bl_session import set_status, source_image, tell
 
 WORLD = "light"   # the World's and its map image's tag (bl_images.OUTPUT_LAYER)
 
@@ -117,14 +117,9 @@ def run_and_report(operator, context, build) -> set:
         photo, session = photo_and_session(context, operator.image_name)
         message = build(context, photo, session)
     except ValueError as exc:
-        operator.report({"ERROR"}, str(exc))
-        set_status(context, str(exc), is_error=True)
-        return {"CANCELLED"}
+        return tell(operator, context, str(exc))
     except OSError as exc:  # the temporary map file (a full disk)
-        message = f"Cannot write the light map: {exc.strerror or exc}."
-        operator.report({"ERROR"}, message)
-        set_status(context, message, is_error=True)
-        return {"CANCELLED"}
+        return tell(operator, context, f"Cannot write the light map: {exc.strerror or exc}.")
     message = f"{message} ({time.perf_counter() - start:.2f} s)"
     operator.report({"INFO"}, message)
     set_status(context, message)

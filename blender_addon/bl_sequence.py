@@ -12,7 +12,7 @@ from relight.clip import DEFAULT_STABILITY
 
 from . import engine, jobs, pipeline, quality, sequence
 from .bl_light import target_light
-from .bl_session import POLL_SECONDS, SYNC_ENV, addon_settings, editor_image, release_job, set_status, status_of
+from .bl_session import POLL_SECONDS, SYNC_ENV, addon_settings, editor_image, release_job, set_status, status_of, tell
 
 SLOT = "sequence"  # its place in state.RUNNING (a sequence and a photo can be relit at once)
 SOURCES = {"SEQUENCE", "MOVIE"}
@@ -97,10 +97,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
             self.report({"WARNING"}, message)
             set_status(context, message)
             return {"CANCELLED"}
-        message = str(error) if isinstance(error, ValueError) else str(engine.user_error(error))
-        self.report({"ERROR"}, message)
-        set_status(context, message, is_error=True)
-        return {"CANCELLED"}
+        return tell(self, context, str(error) if isinstance(error, ValueError) else str(engine.user_error(error)))
 
     def execute(self, context):
         # synchronous path: tests, scripts and background mode

@@ -23,6 +23,14 @@ def set_status(context, message: str, is_error: bool = False) -> None:
     status.message, status.is_error = message, is_error
 
 
+def tell(operator, context, message: str, is_error: bool = True) -> set:
+    """An operator's outcome, said where the artist looks: Blender's info bar and the panel's
+    status line; returns CANCELLED for an error, FINISHED otherwise."""
+    operator.report({"ERROR" if is_error else "INFO"}, message)
+    set_status(context, message, is_error=is_error)
+    return {"CANCELLED"} if is_error else {"FINISHED"}
+
+
 def editor_image(context):
     space = getattr(context, "space_data", None)
     if space is not None and space.type == "IMAGE_EDITOR":
