@@ -12,11 +12,7 @@ REST_SECONDS = 0.3                # a dial untouched this long is at rest: the f
 
 def missing_photo_notice(session: state.PhotoSession) -> str:
     """The lasting panel notice of a session reopened without its photo ('' otherwise)."""
-    if not session.photo_missing:
-        return ""
-    height, width = session.photo.shape[:2]
-    return (f"{session.photo_missing} The saved relight is shown at {width} x {height} and the dials work; "
-            "for full size or Save Layers, point the image at the photo again (Image > Replace) and press Relight.")
+    return state.NOTICES.get(session.photo_id, "") if session.photo_missing else ""
 
 
 def compute_relit(context, session: state.PhotoSession, dials=None):
@@ -84,14 +80,11 @@ def _arm_full_size() -> None:
     bpy.app.timers.register(full_when_resting, first_interval=REST_SECONDS)
 
 
-def start_full_size(session: state.PhotoSession, dials, with_layers: bool = False):
+def start_full_size(session: state.PhotoSession, dials):
     """Relight the full-size photo on a worker; poll_full_size writes it if no dial moved since."""
     generation = session.dial_generation
-    if with_layers:
-        job = jobs.BackgroundJob(lambda: work.layer_buffers(session, dials), label="full-size")
-    else:
-        job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials)},
-                                 label="full-size")
+    job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials)},
+                             label="full-size")
     job.session, job.generation = session, generation
     state.RUNNING["dial"] = job
     if not bpy.app.timers.is_registered(poll_full_size):

@@ -169,13 +169,14 @@ def _wants_alpha(image) -> bool:
     return image.channels == 4 and image.alpha_mode != "NONE"
 
 
-def photo_reader(image):
+def photo_reader(image, reuse: pipeline.PhotoPixels | None = None):
     """A function for the worker thread returning pipeline.PhotoPixels of `image`.
 
     An unmodified 8-bit sRGB file on disk is decoded from the file by the
     worker (Pillow; same codes as Blender reads); anything else (packed,
     painted, float, other colour spaces) is copied out of Blender here, in one
-    foreach_get, and converted by the worker.
+    foreach_get, and converted by the worker. `reuse`: the photo as its last
+    Relight decoded it, shared instead of decoded again when the pixels are the same.
     """
     name = image.name
     if not image.has_data:
@@ -184,7 +185,7 @@ def photo_reader(image):
         path = _plain_file(image, loaded=False)
         if path is not None:
             with_alpha = image.alpha_mode != "NONE"
-            return lambda: pipeline.read_8bit_file(path, None, with_alpha, name)
+            return lambda: pipeline.read_8bit_file(path, None, with_alpha, name, reuse)
     if not has_pixels(image):
         raise ValueError(no_pixels_reason(image))
     width, height = image.size
@@ -194,7 +195,7 @@ def photo_reader(image):
         with_alpha = has_alpha(image)
 
         def read_file():
-            return pipeline.read_8bit_file(path, (height, width), with_alpha, name)
+            return pipeline.read_8bit_file(path, (height, width), with_alpha, name, reuse)
         return read_file
     with_alpha = _wants_alpha(image)
     channels = image.channels
@@ -204,7 +205,7 @@ def photo_reader(image):
 
     def convert():
         return pipeline.photo_from_blender(flat, (height, width, channels), srgb=srgb,
-                                           with_alpha=with_alpha, name=name)
+                                           with_alpha=with_alpha, name=name, reuse=reuse)
     return convert
 
 

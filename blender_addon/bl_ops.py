@@ -14,6 +14,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from . import bl_dials, bl_images, bl_saved, engine, jobs, pipeline, quality, state, work
 from .bl_dials import compute_relit, schedule_refresh
+from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
 from .bl_session import (POLL_SECONDS, SYNC_ENV, addon_settings, current_session, editor_image, release_job,
                          session_of, set_status, source_image, status_of, tell, write_output)
@@ -36,40 +37,6 @@ def mask_inputs(settings, image) -> dict:
             raise ValueError("The photo has no alpha channel to use as the mask.")
         inputs["use_photo_alpha"] = True
     return inputs
-
-
-# ------------------------------------------------------------------ the Relight job
-
-def start_layers(session: state.PhotoSession, dials):
-    """The layers other than relit (albedo, shading, residual, alpha, matte) on a worker,
-    after Relight has shown the relit image; poll_layers writes them one per tick."""
-    job = jobs.BackgroundJob(lambda: work.layer_buffers(session, dials, with_relit=False), label="layers")
-    job.session = session
-    previous = state.RUNNING.get("layers")
-    if previous is not None:
-        previous.cancel()
-    state.RUNNING["layers"] = job
-    if not bpy.app.timers.is_registered(poll_layers):
-        bpy.app.timers.register(poll_layers, first_interval=POLL_SECONDS)
-    return job
-
-
-def poll_layers():
-    job, wait = jobs.finished_job(state.RUNNING, "layers", POLL_SECONDS)
-    if job is None:
-        return wait
-    job_state, session = job.poll(), job.session
-    if job_state is jobs.JobState.FAILED:
-        set_status(bpy.context, str(engine.user_error(job.error)), is_error=True)
-    elif job_state is jobs.JobState.DONE and state.SESSIONS.get(session.photo_id) is session \
-            and bl_images.photo_by_id(session.photo_id) is not None:
-        buffers = job.result
-        for layer in pipeline.layers_in_order(buffers):
-            write_output(session, layer, buffers.pop(layer), session.photo.shape[:2])
-            if buffers:
-                return 0.0  # one image per call: the UI draws in between
-    release_job(job, "layers")
-    return None
 
 
 # ------------------------------------------------------------------ operators
@@ -98,7 +65,11 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         settings = addon_settings(context)
         bl_images.sync_output_names()
         image = source_image(context, self.image_name)
-        read_photo = bl_images.photo_reader(image)  # checks the photo has pixels and a usable size
+        previous = state.SESSIONS.get(bl_images.photo_id(image))
+        if previous is not None and previous.provisional:  # a reopened file's preview: not the full photo
+            previous = None
+        reuse = None if previous is None else pipeline.PhotoPixels(previous.photo, None, previous.digest)
+        read_photo = bl_images.photo_reader(image, reuse)  # checks the photo has pixels and a usable size
         mask = mask_inputs(settings, image)
         model_path = str(pipeline.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
         order = engine.known_sh_order(model_path)
@@ -129,7 +100,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
                     mask=mask, model_path=model_path, relighter=relighter, long_side=long_side,
                     quality=settings.quality, light=light, light_cached=light_cached, light_reader=light_reader,
                     light_key=light_key, rotation=rotation, exposure=settings.exposure,
-                    strength=settings.strength, dials_at_start=self._dial_values(settings))
+                    strength=settings.strength, dials_at_start=self._dial_values(settings), previous=previous)
 
     @staticmethod
     def _dial_values(settings) -> tuple:
@@ -161,6 +132,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         session.source = photo.name
         session.extras["stamp"] = bl_images.photo_stamp(photo)  # Photo Light -> World checks it (bl_photo_world)
         state.SESSIONS[session.photo_id] = session
+        state.NOTICES.pop(session.photo_id, None)  # relit: what a restore said of it no longer holds
         settings = addon_settings(context)
         settings.last_photo_id = session.photo_id
         if session.people:
@@ -172,8 +144,6 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         session = self._result["session"]
         layer = self._pending.pop(0)
         image = write_output(session, layer, self._result["buffers"].pop(layer), session.photo.shape[:2])
-        if layer == "matte":
-            image.alpha_mode = "STRAIGHT"  # shown as a cut-out over Blender's checkerboard
         if layer == "relit":
             space = getattr(context, "space_data", None)
             if space is not None and getattr(space, "type", "") == "IMAGE_EDITOR":
@@ -212,6 +182,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             self._install(context, self._job.result)
             while self._pending:
                 self._write_next(context)
+            write_layers_now(self._result["session"], self._result["dials"])
         except (ValueError, engine.Cancelled) as exc:
             return self._error(context, exc)
         finally:
@@ -313,8 +284,8 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
         if session is None:
             raise ValueError("Relight the photo first: there are no layers to save yet.")
         if session.photo_missing:
-            raise ValueError(f"{session.photo_missing} Saving layers needs the photo at full size: point "
-                             "the image at it again (Image > Replace) and press Relight.")
+            raise ValueError(f"{session.photo_missing} Saving layers needs the photo at full size: "
+                             f"{session.advice}")
         if session.provisional:
             raise ValueError("The photo is still being read after opening the file: save the layers in a moment.")
         return session
@@ -338,7 +309,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
             work.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
             dials = current_dials(context, session)
             relit = compute_relit(context, session, dials)
-            engine.save_layers(path, relit, engine.layers(session.decomposition, *dials[:3]))
+            engine.save_layers(path, relit, engine.LayerMaps(session.decomposition, *dials[:3]))
         except ValueError as exc:
             return tell(self, context, str(exc))
         except OSError as exc:

@@ -6,10 +6,10 @@ import threading
 
 import bpy
 
-from . import bl_dials, bl_images, bl_session, engine, jobs, pipeline, state, work
-from .bl_dials import show_in_editors, start_full_size
+from . import bl_dials, bl_images, bl_layers, bl_session, engine, jobs, pipeline, state, work
+from .bl_dials import show_in_editors
 from .bl_light import current_dials, dials_for
-from .bl_session import POLL_SECONDS, addon_settings, set_status, write_output
+from .bl_session import POLL_SECONDS, addon_settings, set_notice, set_status, write_output
 
 SAVING: list = []  # [(thread, session, failures)] writing decomposition files after a save
 
@@ -113,6 +113,9 @@ def restore_saved(context) -> int:
 
     Without a UI this runs here; with one, the photos are re-read on a worker
     and the outputs written when it is done (a large photo's preview first).
+    A photo that cannot be read gets its result from the saved decomposition
+    alone; a photo with nothing to restore from loses its outputs (Blender kept
+    their names, not their pixels). Either way the panel says so, lastingly.
     """
     blend = bpy.data.filepath
     if not blend:
@@ -133,10 +136,10 @@ def restore_saved(context) -> int:
             plan = _restore_plan(context, image, path)
         except ValueError as exc:
             if _drop_outputs(pid):  # only a photo that had results needs saying
-                set_status(context, str(exc), is_error=True)
+                set_notice(context, pid, str(exc))
             continue
         if plan["missing"]:
-            _restore_without_photo(context, plan)
+            _restore_from_saved(context, plan, plan["missing"])
         else:
             plans.append(plan)
     if not plans:
@@ -161,44 +164,65 @@ def restore_saved(context) -> int:
 def _drop_outputs(pid: str) -> int:
     """Remove a photo's output images that cannot be filled again (Blender keeps their
     names, not their pixels): black images must not pose as results. Returns how many."""
+    bl_layers.cancel_layers(pid)
     outputs = [image for image in bpy.data.images if bl_images.owner_of(image) == pid]
     for image in outputs:
         bpy.data.images.remove(image)
     return len(outputs)
 
 
-def _restore_without_photo(context, plan: dict) -> None:
-    """The photo cannot be read (moved, deleted, not an image): the saved decomposition alone
-    gives every output at the saved preview's size, and the dials keep working on it."""
+FIND_THE_PHOTO = "point the image at the photo again (Image > Replace) and press Relight."
+RELIGHT_THE_NEW_PHOTO = "press Relight to relight the photo as it is now."
+
+
+def _restore_from_saved(context, plan: dict, reason: str, changed: bool = False) -> None:
+    """The photo cannot be read (moved, deleted, not an image) or is not the one relit: the saved
+    decomposition alone gives every output at the saved preview's size (a small photo's own), the
+    dials keep working on it, and the panel says why and what brings the full size back."""
+    pid = plan["meta"]["photo_id"]
     preview = engine.saved_preview(plan["arrays"], plan["meta"])
     if preview is None:  # saved by an add-on that kept no preview of small photos
-        _drop_outputs(plan["meta"]["photo_id"])
-        set_status(context, f"{plan['missing']} Its saved relight has no copy of the photo: "
-                            "point the image at the photo again (Image > Replace) and press Relight.", is_error=True)
+        _drop_outputs(pid)
+        set_notice(context, pid, f"{reason} Its saved relight has no copy of the photo: "
+                                 "point the image at the photo again (Image > Replace) and press Relight.")
         return
-    session = _show_saved_preview(context, plan)
-    session.photo_missing = plan["missing"]
-    buffers = work.layer_buffers(session, plan["dials"])
+    session, dials = state.SESSIONS.get(pid), plan["dials"]
+    if session is not None and session.provisional:  # shown while the photo was read: the dials may have moved
+        try:
+            dials = current_dials(context, session)
+        except ValueError:
+            pass
+    else:
+        session = _show_saved_preview(context, plan)
+    session.photo_missing = reason
+    session.advice = RELIGHT_THE_NEW_PHOTO if changed else FIND_THE_PHOTO
+    buffers = work.layer_buffers(session, dials)  # screen-sized: all at once is small
     for layer in pipeline.layers_in_order(buffers):
-        write_output(session, layer, buffers[layer], preview.size)
-    set_status(context, bl_dials.missing_photo_notice(session), is_error=True)
+        write_output(session, layer, buffers[layer], work.layer_size(session, layer))
+    height, width = session.photo.shape[:2]
+    if changed:
+        set_notice(context, pid, f"{reason} The saved relight of the photo as it was is shown at {width} x "
+                                 f"{height} and the dials work; {session.advice}")
+    else:
+        set_notice(context, pid, f"{reason} The saved relight is shown at {width} x {height} and the dials work; "
+                                 f"for full size or Save Layers, {session.advice}")
 
 
 def _start_restore(plans: list):
-    job = jobs.BackgroundJob(lambda: [work.restore_work(p) for p in plans], label="restore")
+    job = jobs.BackgroundJob(lambda: work.restore_all(plans), label="restore")
     job.plans = plans
     state.RUNNING["restore"] = job
     return job
 
 
-def _show_saved_preview(context, plan: dict) -> None:
+def _show_saved_preview(context, plan: dict):
     """Right after opening: the saved screen-sized photo relit into '<photo>.preview'
     and a provisional session on it, so the result shows and the dials work while
     the worker re-reads the full photo."""
     meta = plan["meta"]
     preview = engine.saved_preview(plan["arrays"], meta)
     if preview is None:
-        return
+        return None
     session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=preview.photo, decomposition=preview,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
@@ -226,20 +250,26 @@ def poll_restore():
 
 def _finish_restore(context, job) -> None:
     state.RUNNING.pop("restore", None)
-    if job.poll() is jobs.JobState.FAILED:
-        set_status(context, str(engine.user_error(job.error)), is_error=True)
+    if job.poll() is jobs.JobState.FAILED:  # restore_all reports per photo: this is a bug's way out
+        for plan in job.plans:
+            _restore_from_saved(context, plan, str(engine.user_error(job.error)))
         return
     if job.poll() is not jobs.JobState.DONE:
         return
     settings = addon_settings(context)
-    for (session, buffers), plan in zip(job.result, job.plans):
+    for outcome, plan in zip(job.result, job.plans):
+        if isinstance(outcome, Exception):
+            _restore_from_saved(context, plan, str(outcome), changed=isinstance(outcome, work.PhotoChanged))
+            continue
+        session, buffers = outcome
         provisional = state.SESSIONS.get(session.photo_id)
         state.SESSIONS[session.photo_id] = session
-        if "albedo" in buffers:
-            for layer in pipeline.layers_in_order(buffers):
-                write_output(session, layer, buffers[layer], session.photo.shape[:2])
-            continue
+        state.NOTICES.pop(session.photo_id, None)
         dials = plan["dials"]
+        if not plan["preview_first"]:  # no UI: every layer at full size, here and now
+            write_output(session, "relit", buffers["relit"], session.photo.shape[:2])
+            bl_layers.write_layers_now(session, dials)
+            continue
         if provisional is not None and provisional.provisional:
             # the dials may have moved on the provisional preview: carry on from there
             # (the full-size layers below use the dials as they are now: no rest timer needed)
@@ -251,12 +281,15 @@ def _finish_restore(context, job) -> None:
             except ValueError as exc:
                 set_status(context, str(exc), is_error=True)
                 continue
-        else:  # no saved preview: show the one just made, then every layer at full size
-            write_output(session, "preview", buffers["relit"], session.preview.size)
+        elif "preview" in buffers:  # no saved preview: show the one just made
+            write_output(session, "preview", buffers["preview"], session.preview.size)
             show_in_editors(session, "preview")
-        start_full_size(session, dials, with_layers=True)
+        # the relit image at full size, then the other layers, one at a time (bl_layers)
+        bl_layers.start_layers(session, dials, with_relit=True)
     if settings.last_photo_id not in state.SESSIONS and job.result:
-        settings.last_photo_id = job.result[0][0].photo_id
+        first = next((outcome for outcome in job.result if not isinstance(outcome, Exception)), None)
+        if first is not None:
+            settings.last_photo_id = first[0].photo_id
 
 
 @bpy.app.handlers.persistent

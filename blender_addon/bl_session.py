@@ -23,6 +23,20 @@ def set_status(context, message: str, is_error: bool = False) -> None:
     status.message, status.is_error = message, is_error
 
 
+def set_notice(context, photo_id: str, message: str) -> None:
+    """A lasting notice about one photo (its saved relight could not be brought back in full): the
+    panel shows it with that photo until the photo is relit, whatever the status line says since."""
+    state.NOTICES[photo_id] = message
+    set_status(context, message, is_error=True)
+
+
+def notice_for(image) -> str:
+    """The lasting notice of the photo `image` is (or is an output of), or ''."""
+    if image is None:
+        return ""
+    return state.NOTICES.get(bl_images.owner_of(image) or bl_images.photo_id(image), "")
+
+
 def tell(operator, context, message: str, is_error: bool = True) -> set:
     """An operator's outcome, said where the artist looks: Blender's info bar and the panel's
     status line; returns CANCELLED for an error, FINISHED otherwise."""
@@ -81,10 +95,13 @@ def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size
     colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
     height, width = size
     try:
-        return bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
-                                    colorspace=colorspace, owner=session.photo_id, layer=layer)
+        image = bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
+                                     colorspace=colorspace, owner=session.photo_id, layer=layer)
     finally:
         pipeline.BUFFERS.give(rgba)
+    if layer == "matte" and image.alpha_mode != "STRAIGHT":
+        image.alpha_mode = "STRAIGHT"  # shown as a cut-out over Blender's checkerboard
+    return image
 
 
 def updates_immediately() -> bool:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import state
+from . import bl_session, state
 
 
 class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
@@ -72,12 +72,30 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
         row.operator("relight_photo.light_to_world", icon="WORLD")
         row.operator("relight_photo.compositing_setup", icon="NODE_COMPOSITING")
 
+        # what reopening could not bring back of this photo: shown as long as it holds
+        notice = bl_session.notice_for(image)
+        if notice:
+            _wrapped_label(layout.box(), context, notice, "ERROR")
         if status.running:
             layout.label(text=f"{status.stage}: {100 * status.progress:.0f}% ({status.elapsed:.1f} s)",
                          icon="SORTTIME")
             layout.label(text="Esc cancels")
-        elif status.message:
-            layout.label(text=status.message, icon="ERROR" if status.is_error else "CHECKMARK")
+        elif status.message and status.message != notice:
+            _wrapped_label(layout, context, status.message, "ERROR" if status.is_error else "CHECKMARK")
+
+
+def _wrapped_label(layout, context, text: str, icon: str) -> None:
+    """`text` as lines that fit the sidebar (a label does not wrap: a long sentence was cut off)."""
+    import textwrap
+
+    region = getattr(context, "region", None)
+    prefs = getattr(context, "preferences", None)
+    scale = prefs.system.ui_scale if prefs is not None else 1.0
+    width = region.width if region is not None else 300
+    chars = max(24, int(width / (7.0 * scale)))  # ~7 px a character at UI scale 1
+    column = layout.column(align=True)
+    for k, line in enumerate(textwrap.wrap(text, chars, break_on_hyphens=False)):
+        column.label(text=line, icon=icon if k == 0 else "BLANK1")
 
 
 CLASSES = (RELIGHT_PHOTO_PT_panel,)

@@ -84,25 +84,30 @@ def _digest(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def _from_codes(codes: np.ndarray, alpha_codes: np.ndarray | None) -> PhotoPixels:
+def _from_codes(codes: np.ndarray, alpha_codes: np.ndarray | None,
+                reuse: PhotoPixels | None = None) -> PhotoPixels:
     # the digest covers the colour codes only, so it does not depend on how the
     # alpha was read (Blender gives every byte image four channels)
-    rgb = srgb_lut()[codes]
+    digest = _digest(codes)
+    # the same pixels as the photo's last decoding (Relight again): its linear copy is shared,
+    # not made twice (288 MB at 24 MP)
+    rgb = reuse.rgb if reuse is not None and reuse.digest == digest else srgb_lut()[codes]
     alpha = None if alpha_codes is None else alpha_codes.astype(np.float32) * np.float32(1.0 / 255.0)
-    return PhotoPixels(rgb, alpha, _digest(codes))
+    return PhotoPixels(rgb, alpha, digest)
 
 
 _8BIT_MODES = {"1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "CMYK", "YCbCr"}
 _ALPHA_MODES = {"LA", "PA", "RGBA"}
 
 
-def read_8bit_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, name: str) -> PhotoPixels:
+def read_8bit_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, name: str,
+                   reuse: PhotoPixels | None = None) -> PhotoPixels:
     """Decode an 8-bit sRGB photo file (worker thread).
 
     `shape` is (H, W) as Blender loaded it, or None when Blender has not
     loaded the image (then the file's own mode says whether it is 8-bit and
-    has alpha)."""
-    from PIL import Image
+    has alpha). `reuse`: the photo as decoded before, shared when its pixels are the same."""
+    from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
@@ -113,18 +118,20 @@ def read_8bit_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, n
                 with_alpha = with_alpha and (im.mode in _ALPHA_MODES or "transparency" in im.info)
             im = im.convert("RGBA" if with_alpha else "RGB")
             codes = np.asarray(im)
+    except UnidentifiedImageError:
+        raise ValueError(f"'{name}' is not an image Blender can read ({os.path.basename(path)}).") from None
     except OSError as exc:
         raise ValueError(f"The photo file of '{name}' cannot be read ({_first_line(exc)}).") from None
     if shape is not None and codes.shape[:2] != tuple(shape):
         raise ValueError(f"The photo file of '{name}' changed on disk since Blender loaded it: "
                          "reload the image (Image > Reload) and relight.")
     if with_alpha:
-        return _from_codes(np.ascontiguousarray(codes[..., :3]), np.ascontiguousarray(codes[..., 3]))
-    return _from_codes(codes, None)
+        return _from_codes(np.ascontiguousarray(codes[..., :3]), np.ascontiguousarray(codes[..., 3]), reuse)
+    return _from_codes(codes, None, reuse)
 
 
 def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: bool, with_alpha: bool,
-                       name: str) -> PhotoPixels:
+                       name: str, reuse: PhotoPixels | None = None) -> PhotoPixels:
     """Pixels copied out of Blender (flat, bottom row first, `shape` = (H, W, C)) as a PhotoPixels.
 
     8-bit sRGB images hold code / 255: the codes are recovered exactly and
@@ -137,7 +144,7 @@ def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: b
     if srgb:
         codes = np.rint(np.clip(rgb, 0.0, 1.0) * np.float32(255.0)).astype(np.uint8)
         alpha_codes = None if alpha is None else np.rint(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
-        return _from_codes(codes, alpha_codes)
+        return _from_codes(codes, alpha_codes, reuse)
     rgb = np.ascontiguousarray(rgb, dtype=np.float32)
     if not np.all(np.isfinite(rgb)):
         raise ValueError(f"The image '{name}' contains NaN or infinite pixels.")
@@ -425,6 +432,25 @@ def blend(relit: np.ndarray, photo: np.ndarray, strength: float) -> np.ndarray:
     out *= np.float32(s)
     out += photo
     return out
+
+
+def blend_into(relit: np.ndarray, photo: np.ndarray, strength: float) -> None:
+    """blend() in place: `relit` [H, W, 3] (a strided view too) becomes
+    photo + strength * (relit - photo), with the same operations in the same order."""
+    s = float(np.clip(strength, 0.0, 1.0))
+    if s == 1.0:
+        return
+    h, w = relit.shape[:2]
+    step = max(1, (1 << 12) // max(1, w))  # rows that stay in cache, one channel at a time
+    for r0 in range(0, h, step):
+        for c in range(3):
+            out, p = relit[r0:r0 + step, :, c], photo[r0:r0 + step, :, c]
+            if s == 0.0:
+                out[...] = p
+                continue
+            out -= p
+            out *= np.float32(s)
+            out += p
 
 
 def layers_in_order(buffers) -> list[str]:

@@ -34,6 +34,7 @@ class PhotoSession:
     people: int = 0             # people the person matte found (AUTO mask), else 0
     provisional: bool = False   # reopening: only the saved preview so far (photo and decomposition at preview size)
     photo_missing: str = ""     # reopened without its photo (why): the saved preview stays, the dials work on it
+    advice: str = ""            # with photo_missing: what brings the full-size photo back, in the artist's words
     extras: dict = field(default_factory=dict)
 
 
@@ -41,6 +42,7 @@ SESSIONS: dict[str, PhotoSession] = {}        # photo id -> session
 LIGHT_SOURCES: dict[tuple, Any] = {}          # (photo id, model, quality) -> Decomposition
 WORLDS: OrderedDict = OrderedDict()           # World node-state hash -> (WorldLight, {order: SH})
 RUNNING: dict[str, Any] = {}                  # "job": the network job; "dial": full size; "restore"
+NOTICES: dict[str, str] = {}                  # photo id -> what reopening could not bring back (bl_session)
 
 
 def remember_world(key: str, value: tuple) -> None:
@@ -55,9 +57,10 @@ def clear() -> None:
 
     pipeline.BUFFERS.clear()
     SESSIONS.clear()
+    NOTICES.clear()
     LIGHT_SOURCES.clear()
     WORLDS.clear()
     for key in list(RUNNING):
         job = RUNNING.pop(key)
-        if hasattr(job, "cancel"):  # "restore_plans" is a list waiting for its worker
+        if hasattr(job, "cancel"):  # "restore_plans", "layers_queue": lists waiting for a worker
             job.cancel()

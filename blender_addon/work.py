@@ -33,27 +33,56 @@ def mask_key(inputs: dict) -> tuple:
     return (inputs["mode"], str(inputs["person"]) if inputs["mode"] == "AUTO" else inputs["name"])
 
 
-def layer_buffers(session: state.PhotoSession, dials, token=None, with_relit: bool = True) -> dict:
-    """Every output layer as a buffer in Blender's layout (worker-safe)."""
-    from relight.decomposition import LAYER_NAMES
-
-    light, rotation, exposure, strength = dials
-    decomposition = session.decomposition
-    buffers = {}
-    if with_relit:
-        buffers["relit"] = engine.relit_rgba(decomposition, light, rotation, exposure, strength)
-    coeffs = engine.coefficients(decomposition, light, rotation)
-    for layer in LAYER_NAMES:
-        if layer == "residual" and not decomposition.has_residual:
-            continue  # black under every light (a model without E): no full-size image for it
-        if token is not None:
-            token.check()
-        # one full-size map at a time, packed at once: a 24 MP map is 288 MB, its buffer 384 MB
-        buffers[layer] = pipeline.to_blender_rgba(decomposition.layer(layer, coeffs, exposure))
+def layer_names(session: state.PhotoSession, with_relit: bool = False) -> list[str]:
+    """The output layers this session gets, in the order they are handed to Blender."""
+    names = ["relit"] if with_relit else []
+    names += ["alpha", "albedo", "shading"]
+    if session.decomposition.has_residual:  # else black under every light (a model without E): no image
+        names.append("residual")
     if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
-        # the photo cut out by the person matte, so the user can check what was found
-        buffers["matte"] = pipeline.to_blender_rgba(session.photo, alpha=session.decomposition.mask)
-    return buffers
+        names.append("matte")
+    return pipeline.layers_in_order(names)
+
+
+def layer_source(session: state.PhotoSession, layer: str):
+    """The decomposition a layer is made from: the photo's own, or for `.matte` (the cut-out that
+    shows what the person matte found, a check) the screen-sized preview of a large photo: a
+    full-size float image costs 384 MB at 24 MP."""
+    if layer == "matte" and session.preview is not None and session.preview.mask is not None:
+        return session.preview
+    return session.decomposition
+
+
+def layer_size(session: state.PhotoSession, layer: str) -> tuple[int, int]:
+    """(H, W) of a layer's image."""
+    return layer_source(session, layer).size
+
+
+def layer_buffer(session: state.PhotoSession, layer: str, dials) -> np.ndarray:
+    """One output layer as a buffer in Blender's layout (worker-safe). Callers make and hand over
+    one layer at a time: a 24 MP map is 288 MB, its buffer 384 MB, its Blender image 384 MB more."""
+    light, rotation, exposure, strength = dials
+    decomposition = layer_source(session, layer)
+    if layer == "relit":
+        return engine.relit_rgba(decomposition, light, rotation, exposure, strength)
+    if layer == "matte":  # the photo cut out by the person matte, so the user can check what was found
+        return pipeline.to_blender_rgba(decomposition.photo, alpha=decomposition.mask)
+    coeffs = engine.coefficients(decomposition, light, rotation)
+    h, w = decomposition.size
+    rgba = pipeline.BUFFERS.take(h * w * 4)
+    view = rgba.reshape(h, w, 4)[::-1]  # Blender's layout: bottom row first
+    if layer == "alpha":  # one channel (96 MB at 24 MP), grey in Blender: packed as it is
+        return pipeline.to_blender_rgba(decomposition.layer(layer, coeffs, exposure), rgba)
+    # made in the buffer itself: no full-size map besides it (288 MB at 24 MP)
+    decomposition.layer(layer, coeffs, exposure, out=view[..., :3])
+    view[..., 3] = 1.0
+    return rgba
+
+
+def layer_buffers(session: state.PhotoSession, dials, with_relit: bool = True) -> dict:
+    """Every output layer as a buffer at once: for a small photo only (a reopened file's saved
+    preview); full-size layers go one at a time (layer_buffer)."""
+    return {layer: layer_buffer(session, layer, dials) for layer in layer_names(session, with_relit)}
 
 
 def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> dict:
@@ -68,9 +97,15 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
         kind, value = light
         light = pipeline.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
             pipeline.hdr_file_light(value, relighter.sh_order)
-    if plan["mask"]["mode"] == "AUTO":
-        progress.enter("Finding the people in the photo", 0.05)
-    mask, people = make_mask(plan["mask"], pixels)
+    previous = plan.get("previous")
+    if previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
+            and plan["mask"]["mode"] == "AUTO":
+        # the same photo and person as its last Relight: the person matte would be the same again
+        mask, people = previous.decomposition.mask, previous.people
+    else:
+        if plan["mask"]["mode"] == "AUTO":
+            progress.enter("Finding the people in the photo", 0.05)
+        mask, people = make_mask(plan["mask"], pixels)
     token.check()
     progress.enter(jobs.NETWORK_STAGE, 0.10)
     network_start = time.monotonic()
@@ -92,10 +127,9 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     progress.enter("Relighting at full size", 0.60)
     dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
     token.check()
-    if plan.get("layers_later"):  # with a UI the relit image first, the other layers after it
-        buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
-    else:
-        buffers = layer_buffers(session, dials, token)
+    # the relit image only: the other layers follow one at a time (bl_layers), so that no more
+    # than one full-size buffer waits for Blender
+    buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
     progress.enter("Preparing the preview", 0.90)
     session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
     progress.enter("Writing the images", 0.95)
@@ -104,12 +138,14 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
 
 
 def restore_work(plan: dict) -> tuple:
-    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition,
-    relight it: (session, buffers); a large photo gets its preview only (the rest follows)."""
+    """Worker: re-read the photo, check it is the one that was relit, rebuild the decomposition:
+    (session, buffers). Without a UI the buffers hold the relit image at full size; with one
+    (plan["preview_first"]) a large photo's relit preview, else nothing: the full-size images
+    follow one at a time (bl_layers)."""
     meta = plan["meta"]
     pixels = plan["reader"]()
     if pixels.digest != meta["digest"]:
-        raise ValueError(f"The photo '{plan['source']}' changed since it was relit: press Relight.")
+        raise PhotoChanged(f"The photo '{plan['source']}' changed since it was relit.")
     mask, people = make_mask(plan["mask"], pixels)
     decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
     session = state.PhotoSession(
@@ -117,9 +153,27 @@ def restore_work(plan: dict) -> tuple:
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
         digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
         saved_to=plan["path"], people=people)
-    if plan["preview_first"] and session.preview is not None:
-        return session, {"relit": engine.relit_rgba(session.preview, *plan["dials"])}
-    return session, layer_buffers(session, plan["dials"])
+    if not plan["preview_first"]:
+        return session, {"relit": engine.relit_rgba(decomposition, *plan["dials"])}
+    if session.preview is not None:
+        return session, {"preview": engine.relit_rgba(session.preview, *plan["dials"])}
+    return session, {}
+
+
+class PhotoChanged(ValueError):
+    """The photo's pixels are not the ones its saved decomposition was made from."""
+
+
+def restore_all(plans: list) -> list:
+    """restore_work for each plan; a plan that fails gives its error instead (ValueError in the
+    artist's words), so one unreadable photo does not stop the others."""
+    out = []
+    for plan in plans:
+        try:
+            out.append(restore_work(plan))
+        except Exception as exc:  # reported per photo on the main thread, never raised here
+            out.append(exc if isinstance(exc, ValueError) else engine.user_error(exc))
+    return out
 
 
 def lights_to_save() -> list:

@@ -56,6 +56,7 @@ class _Compositor:
                  out: np.ndarray, source: np.ndarray, quotient: bool, scale: np.float32):
         self.photo, self.box, self.up, self.alpha, self.mask = photo, box, up, alpha, mask
         self.out, self.source, self.quotient = out, source, quotient
+        self.packed = out.flags.c_contiguous  # else a strided view: written channel by channel
         self.offset = np.float32(DETAIL_EPS) * scale  # eps * 2^EV: exact for whole EV steps
 
     def band(self, tiles) -> None:
@@ -103,22 +104,35 @@ class _Compositor:
             person *= a3
             rest = np.subtract(np.float32(1.0), a3, out=rest_buf[:n])
             target = self.out[y0 + r0:y0 + r1, x0:x1]
-            np.multiply(photo, rest, out=target)
-            target += person
+            if self.packed:
+                np.multiply(photo, rest, out=target)
+                target += person
+            else:  # inner loops along the rows: across a strided pixel they would be 3 values long
+                for c in range(3):
+                    np.multiply(photo[..., c], rest[..., c], out=target[..., c])
+                    target[..., c] += person[..., c]
 
 
 def composite(photo: np.ndarray, box, up: Bilinear, alpha: np.ndarray, mask: np.ndarray | None,
-              source: np.ndarray, quotient: bool, scale: np.float32) -> np.ndarray:
+              source: np.ndarray, quotient: bool, scale: np.float32, out: np.ndarray | None = None) -> np.ndarray:
     """The photo with the person of `source` (working resolution, the crop `box`)
     composited over it, float32 [H, W, 3]; outside the box the photo's values bit for bit.
 
     `source` is the relit person (quotient False) or the detail quotient (True),
     already multiplied by the exposure `scale`; `alpha` is the working-resolution
-    matte, `mask` the user's full-resolution mask (used instead when given)."""
+    matte, `mask` the user's full-resolution mask (used instead when given).
+    `out`: where to write, [H, W, 3] float32, possibly a strided view (the RGB of
+    an RGBA buffer, rows in any order), so a caller that packs the image anyway
+    needs no full-size array besides its own (288 MB at 24 MP); same values."""
     y0, y1, x0, x1 = box
-    out = np.empty_like(photo)
-    out[:y0], out[y1:] = photo[:y0], photo[y1:]
-    out[y0:y1, :x0], out[y0:y1, x1:] = photo[y0:y1, :x0], photo[y0:y1, x1:]
+    if out is None:
+        out = np.empty_like(photo)
+    elif out.shape != photo.shape or out.dtype != np.float32:
+        raise ValueError(f"out must be float32 {photo.shape}, got {out.dtype} {out.shape}")
+    for c in ([slice(None)] if out.flags.c_contiguous else range(3)):
+        o, p = out[..., c], photo[..., c]
+        o[:y0], o[y1:] = p[:y0], p[y1:]
+        o[y0:y1, :x0], o[y0:y1, x1:] = p[y0:y1, :x0], p[y0:y1, x1:]
     compose = _Compositor(photo, box, up, alpha, mask, out, source, quotient, scale)
     bands = _bands(up.rows[0] if not up.identity else None, y1 - y0, x1 - x0)
     if len(bands) > 1 and (os.cpu_count() or 1) > 1:

@@ -144,7 +144,8 @@ class Decomposition:
         out[self._matte] = relit
         return out.reshape(h, w, 3)
 
-    def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True) -> np.ndarray:
+    def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True,
+                out: np.ndarray | None = None) -> np.ndarray:
         """The photo relit by the SH light `coeffs`, linear float32 [H, W, 3] at full resolution.
 
         `coeffs`: SH coefficients [m, 3] (cut or zero-padded to the model's order;
@@ -154,7 +155,8 @@ class Decomposition:
         full-resolution photo by the upsampled quotient relit / photo of working
         resolution (keeps the photo's fine texture); without it the relit person
         is just upsampled. The relit person is >= 0 (negative light clamped;
-        `last_stats` counts it).
+        `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
+        written and returned instead of a new array (relight.composite).
         """
         scale = np.float32(exposure_scale(exposure_ev))
         relit = self.relight_working(coeffs, 0.0)
@@ -169,7 +171,7 @@ class Decomposition:
         # exposure folded into what is upsampled: a power of two for whole EV
         # steps, so +1 EV still doubles the person exactly
         source *= scale
-        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale)
+        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale, out)
 
     def _alpha_strip(self, r0: int, r1: int) -> np.ndarray:
         y0, _, x0, x1 = self.box
@@ -183,14 +185,27 @@ class Decomposition:
         a[a < ALPHA_FLOOR] = 0.0
         return a
 
-    def full_alpha(self) -> np.ndarray:
-        """The matte at full resolution [H, W] (zero outside the crop)."""
-        H, W = self.size
-        out = np.zeros((H, W), np.float32)
+    def full_alpha(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The matte at full resolution [H, W] (zero outside the crop); `out`: see layer()."""
+        out = self._full_out(out, ())
         y0, y1, x0, x1 = self.box
         for r0 in range(0, y1 - y0, STRIP_ROWS):
             r1 = min(r0 + STRIP_ROWS, y1 - y0)
             out[y0 + r0:y0 + r1, x0:x1] = self._alpha_strip(r0, r1)[..., 0]
+        return out
+
+    def _full_out(self, out: np.ndarray | None, channels: tuple) -> np.ndarray:
+        """A full-size float32 array [H, W, *channels], zero outside the crop (the crop is written
+        next): `out` when given (checked), else a new one."""
+        shape = (*self.size, *channels)
+        if out is None:
+            return np.zeros(shape, np.float32)
+        if out.shape != shape or out.dtype != np.float32:
+            raise ValueError(f"out must be float32 {shape}, got {out.dtype} {out.shape}")
+        y0, y1, x0, x1 = self.box
+        for c in range(channels[0]) if channels else [slice(None)]:
+            o = out[..., c]  # channel by channel: a strided view's inner loops run along the rows
+            o[:y0], o[y1:], o[y0:y1, :x0], o[y0:y1, x1:] = 0.0, 0.0, 0.0, 0.0
         return out
 
     def layers(self, coeffs=None, exposure_ev: float = 0.0) -> dict[str, np.ndarray]:
@@ -201,11 +216,13 @@ class Decomposition:
         compositing)."""
         return {name: self.layer(name, coeffs, exposure_ev) for name in LAYER_NAMES}
 
-    def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0) -> np.ndarray:
+    def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
         """One of layers() at full resolution, alone: a caller that packs each map as it comes
-        holds one full-size map at a time (a 24 MP map is 288 MB)."""
+        holds one full-size map at a time (a 24 MP map is 288 MB). `out` ([H, W, 3], alpha
+        [H, W], float32; a strided view too, e.g. channels of an RGBA buffer): written and
+        returned instead of a new array, so such a caller holds none at all."""
         if name == "alpha":
-            return self.full_alpha()
+            return self.full_alpha(out)
         if name not in LAYER_NAMES:
             raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
         if name == "albedo":
@@ -216,7 +233,7 @@ class Decomposition:
         h, w = self.working_size
         small = np.zeros((h * w, 3), np.float32)
         small[self._matte] = values
-        return self._to_full(small.reshape(h, w, 3))
+        return self._to_full(small.reshape(h, w, 3), out)
 
     @property
     def has_residual(self) -> bool:
@@ -224,12 +241,15 @@ class Decomposition:
         model has none): its layer is black under every light."""
         return bool(np.any(self._residual_m))
 
-    def _to_full(self, small: np.ndarray) -> np.ndarray:
-        H, W = self.size
-        out = np.zeros((H, W, small.shape[2]), np.float32)
+    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        channels = small.shape[2]
+        out = self._full_out(out, (channels,))
+        packed = out.flags.c_contiguous
         prepared = self._up.prepare(small)
         y0, y1, x0, x1 = self.box
         for r0 in range(0, y1 - y0, STRIP_ROWS):
             r1 = min(r0 + STRIP_ROWS, y1 - y0)
-            out[y0 + r0:y0 + r1, x0:x1] = self._up.strip(prepared, r0, r1)
+            strip, target = self._up.strip(prepared, r0, r1), out[y0 + r0:y0 + r1, x0:x1]
+            for c in [slice(None)] if packed else range(channels):
+                target[..., c] = strip[..., c]
         return out

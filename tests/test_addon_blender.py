@@ -1028,10 +1028,17 @@ def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, s
         settings.mask_mode = "NETWORK"
 
 
-def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon, settings):
+def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon, settings, monkeypatch):
     import time
     import types
 
+    from blender_addon import bl_layers, work
+
+    events = []  # each layer made, then written, before the next is made: one full-size buffer at a time
+    make, write = work.layer_buffer, bl_layers.write_output
+    monkeypatch.setattr(work, "layer_buffer", lambda s, layer, d: events.append(("make", layer)) or make(s, layer, d))
+    monkeypatch.setattr(bl_layers, "write_output",
+                        lambda s, layer, *a: events.append(("write", layer)) or write(s, layer, *a))
     name = addon["photo"]
     state.SESSIONS.clear()
     for layer in ("relit", "albedo", "shading", "residual", "alpha"):
@@ -1046,11 +1053,12 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
     assert result == {"FINISHED"} and op.reports[-1][1].endswith("; the other layers follow.")
     assert f"{name}.relit" in bpy.data.images and f"{name}.albedo" not in bpy.data.images
     try:
-        state.RUNNING["layers"].wait(60)
-        writes = 0
-        while bl_ops.poll_layers() is not None:  # one image per timer call
-            writes += 1
-        assert writes == 3 and "layers" not in state.RUNNING
+        deadline = time.monotonic() + 60
+        while bl_ops.poll_layers() is not None and time.monotonic() < deadline:  # as Blender's timer calls it
+            time.sleep(0.01)
+        assert "layers" not in state.RUNNING
+        assert events == [(kind, layer) for layer in ("alpha", "albedo", "shading", "residual")
+                          for kind in ("make", "write")]
         run = session(name)
         want = run.decomposition.layers(sh_light("studio", ORDER))
         for layer in ("albedo", "shading", "residual"):
