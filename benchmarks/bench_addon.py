@@ -268,7 +268,7 @@ def main(argv=None) -> int:
     dial_on_preview = time.perf_counter() - td
     run_timer(reopen_probe, bl_saved.poll_restore, "restore: poll")
     photo_read = time.perf_counter() - t
-    run_timer(reopen_probe, bl_dials.poll_full_size, "restore: full-size layers write")
+    run_timer(reopen_probe, bl_ops.poll_layers, "restore: full-size layers, one per call")
     full_back = time.perf_counter() - t
     settings.rotation = math.radians(5.0)
     td = time.perf_counter()

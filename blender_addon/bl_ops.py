@@ -161,10 +161,11 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         self.report({"INFO"}, message)
         if self._dial_values(addon_settings(context)) != self._plan["dials_at_start"]:
             schedule_refresh(context)  # a dial moved while the network ran
-        self._result = None
+        self._result = self._plan = None  # Blender may keep this operator instance (redo): not the photo
         return {"FINISHED"}
 
     def _error(self, context, exc: BaseException) -> set:
+        self._result = self._plan = None
         if isinstance(exc, engine.Cancelled):
             self.report({"WARNING"}, "Relighting cancelled.")
             set_status(context, "Relighting cancelled.")
@@ -179,7 +180,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             if job_state is jobs.JobState.FAILED:
                 raise engine.user_error(self._job.error) \
                     if not isinstance(self._job.error, engine.Cancelled) else self._job.error
-            self._install(context, self._job.result)
+            self._install(context, self._job.take_result())
             while self._pending:
                 self._write_next(context)
             write_layers_now(self._result["session"], self._result["dials"])
@@ -256,7 +257,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
             error = self._job.error
             return self._error(context, error if isinstance(error, engine.Cancelled) else engine.user_error(error))
         try:
-            self._install(context, self._job.result)
+            self._install(context, self._job.take_result())
         except ValueError as exc:
             self._cleanup(context)
             return self._error(context, exc)

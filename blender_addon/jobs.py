@@ -95,6 +95,7 @@ class BackgroundJob:
         except BaseException as exc:  # reported to the main thread, never raised here
             self._error = exc
         finally:
+            self._fn = None  # its closure's inputs (a photo, a session) are not kept by the job
             self.finished_at = time.monotonic()
             self._finished.set()
 
@@ -130,6 +131,14 @@ class BackgroundJob:
         if self.poll() is not JobState.DONE:
             raise RuntimeError(f"{self.label} has no result (state {self.poll().value})")
         return self._result
+
+    def take_result(self) -> Any:
+        """The result, no longer kept by the job: an operator instance that holds its job may
+        outlive the run (Blender keeps the last operators for its redo panel), and a 24 MP
+        result is hundreds of MB."""
+        result = self.result
+        self._result = None
+        return result
 
     @property
     def error(self) -> BaseException | None:
