@@ -3,7 +3,7 @@
     relight image PHOTO (--light HDR_OR_PRESET | --light-from PHOTO2) [--rotate DEG] [--exposure EV]
                   [--mask MASK | --matte person|network] [--person N] [--no-normalize] [--model PATH]
                   [--out OUT.png|OUT.exr]
-                  [--layers] [--quality draft|balanced|best] [--threads N] [--max-pixels N]
+                  [--layers] [--quality draft|balanced|best] [--refine N] [--json] [--threads N] [--max-pixels N]
     relight image DIR --light ... --out OUTDIR
 
 A photo with an alpha channel uses it as the mask unless --mask is given;
@@ -43,6 +43,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                         "(default: PHOTO_relit.png beside the photo)")
     p.add_argument("--layers", action="store_true",
                    help="write a multi-layer EXR (Relit, Albedo, Shading, Residual, Alpha) for Blender")
+    p.add_argument("--json", action="store_true",
+                   help="print what was done to each photo (working size, augmentations, refinement, SH order, "
+                        "residual) as one JSON line; the output file's metadata holds the same")
     p.set_defaults(func=run_image)
     return p
 
@@ -85,6 +88,9 @@ def add_photo_options(p) -> None:
     p.add_argument("--quality", choices=[q.key for q in quality.PRESETS], default=quality.DEFAULT,
                    help="preset of relight/quality.py: model and working resolution ("
                         + ", ".join(f"{q.key} {q.working_size}" for q in quality.PRESETS) + " px)")
+    p.add_argument("--refine", type=bounded_int(0, 100), default=None, metavar="N",
+                   help="iterations refitting the photo's light to its own shading gradients (0: off; default: "
+                        "the preset's, " + ", ".join(f"{q.key} {q.refine}" for q in quality.PRESETS) + ")")
     cores = cores_available()  # more intra-op threads than cores only slows onnxruntime down
     p.add_argument("--threads", type=bounded_int(1, cores, " (the CPU cores available)"), default=None,
                    help=f"onnxruntime threads, 1..{cores} (default: all cores)")
@@ -100,6 +106,27 @@ def open_relighter(args):
 
     model = args.model if args.model is not None else quality.model_path(args.quality)
     return Relighter(model, threads=args.threads, working_size=args.quality)
+
+
+def decompose_options(args) -> dict:
+    """Relighter.decompose's keyword arguments from --quality / --refine / --matte / --person."""
+    from relight import quality
+
+    options = quality.preset(args.quality).decompose_options()
+    if getattr(args, "refine", None) is not None:
+        options["refine"] = args.refine
+    return dict(options, matte=args.matte, person=getattr(args, "person", None))
+
+
+def record(args, relighter, d) -> dict:
+    """What was done to one photo (plain JSON values): the output's metadata and --json line."""
+    stats = d.last_stats
+    out = {"format": "relight-image/1", "model_sha256": relighter.sha256, "quality": args.quality,
+           "exposure_ev": args.exposure, **d.choices}
+    if stats is not None:
+        out["relight"] = {"sh_order": stats.sh_order, "residual": stats.residual,
+                          "negative_clamped": round(stats.fraction, 6)}
+    return out
 
 
 def read_photo_and_mask(photo_path, mask_path, max_pixels):
@@ -133,17 +160,23 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     """Read, decompose, relight and write one photo; nothing is written on failure."""
     from relight.photo import write_image, write_layers_exr
 
+    import json
+
     image, mask = read_photo_and_mask(photo_path, mask_path, args.max_pixels)
-    d = relighter.decompose(image, mask, matte=args.matte, person=args.person)
+    d = relighter.decompose(image, mask, **decompose_options(args))
     relit = d.relight(light, args.exposure)
     stats = d.last_stats
+    done = record(args, relighter, d)
+    metadata = {"relight": json.dumps(done, sort_keys=True)}
+    if args.json:
+        print(json.dumps(dict(done, photo=str(photo_path), output=str(out_path)), sort_keys=True))
     if stats is not None and stats.fraction > NEGATIVE_WARN_FRACTION:
         print(f"relight image: warning: {Path(out_path).name}: negative light (SH ringing) clamped to 0 "
               f"on {stats.fraction:.1%} of the person", file=sys.stderr)
     if args.layers:
         layers = d.layers(light, args.exposure)
-        return write_layers_exr(out_path, relit, layers)
-    return write_image(out_path, relit)
+        return write_layers_exr(out_path, relit, layers, metadata)
+    return write_image(out_path, relit, metadata)
 
 
 # above this share of the person's pixels, clamping is visible: say so (the light is too sharp for the order)
@@ -174,7 +207,8 @@ def target_light(args, relighter) -> np.ndarray:
 
         donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
         usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
-        light_source = relighter.decompose(donor, donor_alpha if usable else None, matte=args.matte)
+        options = dict(decompose_options(args), person=None)
+        light_source = relighter.decompose(donor, donor_alpha if usable else None, **options)
     return _light(light_source, args, relighter)
 
 

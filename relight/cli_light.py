@@ -67,7 +67,7 @@ def _output(out: str) -> Path:
 
 def run_light(args) -> int:
     """Entry point of `relight light` (argparse namespace from register())."""
-    from relight.cli_image import open_relighter, read_photo_and_mask
+    from relight.cli_image import decompose_options, open_relighter, read_photo_and_mask
     from relight.exr import write_exr
     from relight.light_map import irradiance_error, light_map
 
@@ -77,7 +77,7 @@ def run_light(args) -> int:
     out = _output(args.out)
     relighter = open_relighter(args)
     image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
-    decomposition = relighter.decompose(image, mask, matte=args.matte, person=args.person)
+    decomposition = relighter.decompose(image, mask, **decompose_options(args))
     result = light_map(decomposition.light, args.width)
     error = irradiance_error(result.coeffs, result.pixels)
     write_exr(out, {c: result.pixels[..., i] for i, c in enumerate("RGB")})
@@ -89,6 +89,7 @@ def run_light(args) -> int:
             "map": {"width": width, "height": height, "fitted": result.fitted,
                     "coeffs": np.round(result.map_coeffs, 9).tolist(),
                     "irradiance_error": round(error, 6)},
+            "decomposition": decomposition.choices,
         }))
     else:
         print(f"wrote {out} (its irradiance is within {100 * error:.1f}% RMS of the photo's SH light)")

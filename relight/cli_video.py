@@ -208,6 +208,9 @@ def run_video(args) -> int:
     if args.mask is not None:
         raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
                          "matte find the person in each frame")
+    if args.refine:
+        raise ValueError("--refine applies to photos (relight image, relight light): a clip's light is the shot's, "
+                         "held steady over its frames (--stability)")
     clip = open_clip(args.input, args.fps, args.max_pixels)
     info = clip.info
     kind, out, folder, fmt = _plan(args, info)

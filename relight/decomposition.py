@@ -23,6 +23,10 @@ from relight.resample import Bilinear
 __all__ = ["DETAIL_EPS", "DETAIL_MAX", "Decomposition", "RelightStats", "exposure_scale"]
 
 DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
+# the light's bands past the order a relight uses may move a working-resolution value by at
+# most this (linear; an 8-bit output step is >= 1/255 of white at sRGB's steepest): per request,
+# bands a light does not need are not evaluated (docs/TRADEOFFS.md, "Only what the photo needs")
+ORDER_TOLERANCE = 0.25 / 255
 STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
 LAYER_NAMES = ("albedo", "shading", "residual", "alpha")  # Decomposition.layers(), in this order
 
@@ -57,6 +61,8 @@ class RelightStats:
     clamped: int    # pixels with a channel of albedo * (T . L') + E . L' below 0
     pixels: int     # pixels of the matte
     darkest: float  # the most negative channel value before the clamp (0.0 when none)
+    sh_order: int = -1      # the light's order evaluated (bands above moved no value > ORDER_TOLERANCE)
+    residual: bool = True   # whether E . L' was evaluated (False: E is zero on the matte)
 
     @property
     def fraction(self) -> float:
@@ -85,6 +91,7 @@ class Decomposition:
     sh_order: int = 4
     person_matte: object = field(default=None, repr=False)  # relight.matte.PersonMatte when it gave the mask
     network_alpha: np.ndarray | None = field(default=None, repr=False)  # the alpha head's [h, w], as it came
+    choices: dict = field(default_factory=dict)  # what the runtime decided for this photo (output metadata)
 
     def __post_init__(self):
         h, w = self.working_size
@@ -96,6 +103,17 @@ class Decomposition:
         self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
         self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
         inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
+        self._has_residual = bool(np.any(self._residual_m))
+        # per band l, the largest |T_l(x)| (and |E_l(x)|) over the matte: bounds what the light's
+        # band l can add to any pixel (Cauchy-Schwarz), so a request evaluates only the bands it needs
+        bands = [slice(l * l, (l + 1) * (l + 1)) for l in range(self.sh_order + 1)]
+        reach = np.zeros(len(bands))
+        for part in (self._transport_m, self._residual_m) if self._has_residual else (self._transport_m,):
+            if part.shape[0]:
+                albedo_max = 1.0 if part is self._residual_m else max(float(self._albedo_m.max(initial=0.0)), 0.0)
+                reach += albedo_max * np.array([np.sqrt((part[:, b].astype(np.float64) ** 2).sum(axis=1)).max()
+                                                for b in bands])
+        self._band_reach = reach
         self._inside = inside.astype(np.float32)
         self._inside_count = int(np.count_nonzero(inside))
         self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
@@ -119,9 +137,24 @@ class Decomposition:
         L = fit_order(arr.astype(np.float64), sh.num_coeffs(self.sh_order)) * exposure_scale(exposure_ev)
         return L.astype(np.float32)
 
-    def relight_working(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
+    def order_needed(self, light: np.ndarray) -> int:
+        """The smallest SH order k whose dropped bands (k+1 .. the model's order) can move no
+        value of this decomposition's relight by more than ORDER_TOLERANCE under `light`
+        [n, 3] (fitted to the model's order, exposure applied)."""
+        bands = np.array([np.linalg.norm(light[l * l:(l + 1) * (l + 1)], axis=0).max()
+                          for l in range(self.sh_order + 1)])
+        tail = np.cumsum((self._band_reach * bands)[::-1])[::-1]  # tail[l]: bands l.. together
+        for k in range(self.sh_order):
+            if tail[k + 1] <= ORDER_TOLERANCE:
+                return k
+        return self.sh_order
+
+    def relight_working(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0) -> np.ndarray:
         """The relit person at working resolution, [h, w, 3], zero outside the matte:
         max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
+        Only the light's bands this request needs are evaluated (order_needed, judged on the
+        result times `output_scale`: the exposure a caller applies after), and E . L' only when
+        E is not zero; `last_stats` says which.
 
         A radiance is >= 0; negative values are SH truncation ringing (or network
         error), not light: they are set to 0 and counted in `last_stats`
@@ -129,14 +162,18 @@ class Decomposition:
         """
         L = self._light(coeffs, exposure_ev)
         h, w = self.working_size
-        relit = self._albedo_m * (self._transport_m @ L)
-        relit += self._residual_m @ L
+        order = self.order_needed(L * np.float32(output_scale))
+        n = sh.num_coeffs(order)
+        relit = self._albedo_m * (self._transport_m[:, :n] @ L[:n])
+        if self._has_residual:
+            relit += self._residual_m[:, :n] @ L[:n]
         # per-pixel minimum as two column minima: relit.min(axis=1) loops 3 values at a time, 30x slower
         darkest = np.minimum(np.minimum(relit[:, 0], relit[:, 1]), relit[:, 2])
         np.minimum(darkest, np.float32(0.0), out=darkest)
         darkest *= self._inside  # only the person's pixels count, not the grown ring
         self.last_stats = RelightStats(clamped=int(np.count_nonzero(darkest)), pixels=self._inside_count,
-                                       darkest=float(darkest.min()))
+                                       darkest=float(darkest.min(initial=0.0)), sh_order=order,
+                                       residual=self._has_residual)
         np.maximum(relit, np.float32(0.0), out=relit)
         if self._matte.size == h * w:  # matte covers the crop: no scatter needed
             return relit.reshape(h, w, 3)
@@ -159,7 +196,7 @@ class Decomposition:
         written and returned instead of a new array (relight.composite).
         """
         scale = np.float32(exposure_scale(exposure_ev))
-        relit = self.relight_working(coeffs, 0.0)
+        relit = self.relight_working(coeffs, 0.0, output_scale=float(scale))
         quotient = detail and not self._up.identity
         if quotient:
             source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
@@ -227,6 +264,14 @@ class Decomposition:
             raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
         if name == "albedo":
             values = self._albedo_m
+        elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
+            if out is None:
+                return np.zeros((*self.size, 3), np.float32)
+            out = self._full_out(out, (3,))
+            y0, y1, x0, x1 = self.box
+            for c in range(3):
+                out[y0:y1, x0:x1, c] = 0.0
+            return out
         else:
             L = self._light(self.light if coeffs is None else coeffs, exposure_ev)
             values = (self._transport_m if name == "shading" else self._residual_m) @ L
@@ -239,7 +284,7 @@ class Decomposition:
     def has_residual(self) -> bool:
         """False when the residual transport E is zero wherever the matte is (the geometry-first
         model has none): its layer is black under every light."""
-        return bool(np.any(self._residual_m))
+        return self._has_residual
 
     def _to_full(self, small: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         channels = small.shape[2]

@@ -175,11 +175,13 @@ def write_exr(
     *,
     compression: str = "zip",
     half: bool = False,
+    attributes: dict[str, str] | None = None,
 ) -> Path:
     """Write a single-part scanline EXR atomically (temp file + os.replace).
 
     `channels` maps names to [H, W] arrays of one common shape; floats are
     stored as float32 (or float16 when `half`), uint32 stays uint32.
+    `attributes`: string attributes added to the header (e.g. what made the image).
     """
     path = Path(path)
     if compression not in _COMPRESSIONS:
@@ -214,6 +216,10 @@ def write_exr(
         "pxr24": OpenEXR.PXR24_COMPRESSION,
     }
     header = {"compression": codes[compression], "type": OpenEXR.scanlineimage}
+    for key, value in (attributes or {}).items():
+        if not isinstance(key, str) or not key or key in header or not isinstance(value, str):
+            raise ValueError(f"EXR attributes must map new names to strings, got {key!r}: {type(value).__name__}")
+        header[key] = value
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
     with atomic_path(path, ".exr") as tmp:

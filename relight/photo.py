@@ -502,9 +502,11 @@ def _out_dir(path: Path) -> None:
         raise ValueError(f"output folder does not exist: {path.parent}")
 
 
-def write_png(path: str | os.PathLike, linear: np.ndarray) -> Path:
-    """Write linear RGB as an 8-bit sRGB PNG (values clipped to [0, 1]), atomically."""
+def write_png(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
+    """Write linear RGB as an 8-bit sRGB PNG (values clipped to [0, 1]), atomically;
+    `metadata` goes into tEXt chunks."""
     from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
 
     path = Path(path)
     _out_dir(path)
@@ -516,8 +518,11 @@ def write_png(path: str | os.PathLike, linear: np.ndarray) -> Path:
         if not np.all(np.isfinite(strip)):
             raise ValueError("image to write contains NaN or Inf")
         u8[r0:r0 + STRIP_ROWS] = np.rint(srgb_encode(strip.astype(np.float32, copy=False)) * 255.0)
+    info = PngInfo()
+    for key, value in (metadata or {}).items():
+        info.add_text(key, value)
     with atomic_path(path, ".png") as tmp:
-        Image.fromarray(u8, "RGB").save(tmp, format="PNG", compress_level=4)
+        Image.fromarray(u8, "RGB").save(tmp, format="PNG", compress_level=4, pnginfo=info)
     return path
 
 
@@ -527,8 +532,9 @@ def _rgb_channels(prefix: str, image: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{prefix}{c}": np.ascontiguousarray(image[..., i], dtype=np.float32) for i, c in enumerate("RGB")}
 
 
-def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarray | None = None) -> Path:
-    """Write linear RGB (+ optional A) as a float32 EXR, atomically."""
+def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarray | None = None,
+                    metadata: dict[str, str] | None = None) -> Path:
+    """Write linear RGB (+ optional A) as a float32 EXR, atomically; `metadata`: header strings."""
     from relight.exr import write_exr
 
     path = Path(path)
@@ -537,10 +543,11 @@ def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarr
     channels = _rgb_channels("", a)
     if alpha is not None:
         channels["A"] = np.ascontiguousarray(alpha, dtype=np.float32)
-    return write_exr(path, channels)
+    return write_exr(path, channels, attributes=metadata)
 
 
-def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray]) -> Path:
+def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray],
+                     metadata: dict[str, str] | None = None) -> Path:
     """Multi-layer EXR for Blender: render layer `Relight` with passes Relit (RGBA),
     Albedo, Shading, Residual (RGB) and Alpha (A).
 
@@ -566,14 +573,15 @@ def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[st
             raise ValueError(f"{key} layer is {img.shape}, relit image is {relit.shape}")
         channels.update(_rgb_channels(f"{LAYER_NAME}.{pass_name}.", img))
     channels[f"{LAYER_NAME}.Alpha.A"] = np.ascontiguousarray(alpha)
-    return write_exr(path, channels)
+    return write_exr(path, channels, attributes=metadata)
 
 
-def write_image(path: str | os.PathLike, linear: np.ndarray) -> Path:
-    """Write by extension: .png (8-bit sRGB) or .exr (linear float)."""
+def write_image(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
+    """Write by extension: .png (8-bit sRGB) or .exr (linear float); `metadata`: PNG text /
+    EXR header strings."""
     suffix = Path(path).suffix.lower()
     if suffix == ".png":
-        return write_png(path, linear)
+        return write_png(path, linear, metadata)
     if suffix == ".exr":
-        return write_exr_image(path, linear)
+        return write_exr_image(path, linear, metadata=metadata)
     raise ValueError(f"output must end in .png or .exr, got {Path(path).name}")

@@ -26,6 +26,14 @@ class QualityPreset:
     model: str | None    # registry name; None: the registry's default model
     working_size: int    # longest side, in pixels, of the crop the network sees
     description: str
+    augment: tuple = ()  # relight.tta augmentations: [(scale, mirrored)] run and averaged
+    refine: int = 0      # relight.refine iterations on the photo's light (0: off)
+    matte_method: str = "ensemble"  # relight.matte's person segmenter ("selfie": faster)
+
+    def decompose_options(self) -> dict:
+        """Relighter.decompose's keyword arguments for this preset."""
+        return {"working_size": self.working_size, "augment": self.augment, "refine": self.refine,
+                "matte_method": self.matte_method}
 
 
 # Fastest first. From the rule of benchmarks/bench_tradeoffs.py on the held-out set

@@ -143,6 +143,11 @@ class Relighter(ModelSession):
                 raise ValueError(f"the network produced NaN/Inf in {k!r}: model weights are broken")
         return res
 
+    def run_crop(self, crop: np.ndarray, matte: np.ndarray | None) -> dict[str, np.ndarray]:
+        """The network's outputs ([h, w, C] maps, "light" [n, 3]) for a crop already at its working
+        size (linear [h, w, 3]) and its matte ([h, w] or None): relight.tta's augmented runs."""
+        return self._run_image(crop, matte)
+
     def find_person(self, photo: np.ndarray):
         """Crop box (y0, y1, x0, x1) around the person, from a low-resolution pass of
         the matte head; the whole frame when the matte finds nobody."""
@@ -157,7 +162,8 @@ class Relighter(ModelSession):
         return _expand((int(y0 * sy), int(math.ceil(y1 * sy)), int(x0 * sx), int(math.ceil(x1 * sx))), H, W)
 
     def decompose(self, photo, mask=None, working_size: int | str | None = None, *,
-                  matte: str = "person", person: int | None = None) -> Decomposition:
+                  matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
+                  augment=(), refine: int = 0) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
@@ -170,7 +176,13 @@ class Relighter(ModelSession):
         are not photos, such as renders the segmenter was not made for) takes
         the box from a low-resolution pass of the network's alpha head and that
         alpha as the matte (mean IoU 0.49 there). The chosen PersonMatte is kept
-        as `person_matte` on the result.
+        as `person_matte` on the result; `matte_method` is relight.matte's ("ensemble", or
+        "selfie": faster, less exact).
+
+        `augment` ([(scale, mirrored)], relight.tta.AUGMENTATIONS) runs the network again on
+        the crop mirrored and/or resized and averages the answers; `refine` (iterations, 0:
+        off) refits the photo's light to its shading gradients (relight.refine). What was
+        done is recorded in the result's `choices` (the output's metadata).
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
@@ -181,7 +193,7 @@ class Relighter(ModelSession):
         if mask is None and matte == "person":
             from relight.matte import person_matte
 
-            found = person_matte(photo, person)
+            found = person_matte(photo, person, method=matte_method)
             mask = found.alpha
         if mask is not None:
             mask = _check_mask(mask, (H, W))
@@ -197,9 +209,26 @@ class Relighter(ModelSession):
             alpha = small_mask
         else:
             alpha = np.where(out["alpha"][..., 0] < ALPHA_FLOOR, 0.0, out["alpha"][..., 0]).astype(np.float32)
-        return Decomposition(
+        d = Decomposition(
             albedo=np.ascontiguousarray(out["albedo"]), transport=np.ascontiguousarray(out["transport"]),
             residual=np.ascontiguousarray(out["residual"]), light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
             photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found,
             network_alpha=np.ascontiguousarray(out["alpha"][..., 0]))
+        choices = {"working_size": size, "network_input": [h, w], "person_px": max(y1 - y0, x1 - x0),
+                   "matte": "mask" if found is None and mask is not None else
+                   (f"person ({matte_method})" if found is not None else "network")}
+        if augment:
+            from relight import tta
+
+            d = tta.augment(self, d, tuple(augment))
+        choices["augment"] = [[float(s), bool(m)] for s, m in augment]
+        if refine:
+            from relight.refine import refine as refine_light
+
+            d, report = refine_light(d, refine)
+            choices["refine"] = report.as_dict()
+        else:
+            choices["refine"] = {"iterations": 0, "stopped": "off"}
+        d.choices = choices
+        return d

@@ -1,0 +1,241 @@
+"""Speed for accuracy (issue 26): each candidate preset's held-out accuracy against its time on
+a 512 x 512 photo, the Pareto front, and the presets a stated rule picks from it.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_quality.py --data HELD_OUT_DIR \\
+        [--pairs 48] [--size 512] [--threads 2] [--repeats 5] [--doc docs/TRADEOFFS.md]
+
+A candidate is a working size, test-time augmentations (relight.tta: the photo mirrored,
+and at 0.75x / 1.25x the size), refinement iterations (relight.refine) and the person
+segmenter's method (relight.matte: the ensemble, or the selfie model alone). Accuracy:
+every held-out pair (scene, light a -> light b) decomposed at that setting with the true
+alpha as mask (so the segmenter does not enter it) and relit to light b, against the
+path-traced image b over the interior pixels: PSNR and scale-invariant PSNR
+(model.metrics), the worst pair's change against the network alone at the trained size,
+and the share of that baseline's gain over identity (the photo as it is) that is kept; exposure-matched
+identity (the photo scaled by the true lights' DC ratio) is printed as an oracle. Time:
+segmenter + decomposition + augmentations + refinement + one full-size relight of the
+bundled astronaut photo resized to --size, median of --repeats with the candidates
+alternated (a load drifting on a shared machine shifts them alike: compare ratios).
+
+The rule (the table quality.py follows): Draft = the fastest front point that keeps >= 90%
+of the baseline's gain over identity; Balanced = the network alone at its
+trained size; Best = the most accurate front point within 3 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_tradeoffs import pareto_front, replace_section  # noqa: E402
+
+TRAINED_SIZE = 128     # the shipped network's training crops: the baseline ("network alone")
+DRAFT_SHARE = 0.9      # Draft keeps this share of the baseline's gain over identity
+BEST_SECONDS = 3.0
+SAMPLE_KEYS = ("input_linear", "alpha", "target_light", "target_image", "light")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    working_size: int
+    augment: tuple = ()
+    refine: int = 0
+    matte_method: str = "ensemble"
+
+    @property
+    def label(self) -> str:
+        parts = [f"{self.working_size} px"]
+        if self.augment:
+            parts.append("mirror" if self.augment == ((1.0, True),) else f"{len(self.augment) + 1} runs")
+        if self.refine:
+            parts.append(f"refine {self.refine}")
+        if self.matte_method != "ensemble":
+            parts.append(f"{self.matte_method} matte")
+        return ", ".join(parts)
+
+
+def candidates() -> list[Candidate]:
+    from relight import tta
+
+    mirror = ((1.0, True),)
+    out = [Candidate(s) for s in (64, 80, 96, 112, 128, 160)]
+    out += [Candidate(s, matte_method="selfie") for s in (64, 80, 96)]
+    out += [Candidate(TRAINED_SIZE, mirror), Candidate(TRAINED_SIZE, tta.AUGMENTATIONS),
+            Candidate(TRAINED_SIZE, refine=2), Candidate(TRAINED_SIZE, refine=8),
+            Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8),
+            Candidate(160, tta.AUGMENTATIONS, 8)]
+    return out
+
+
+def decompose(relighter, photo, candidate: Candidate, mask=None):
+    """The decomposition a candidate gives (relight.runtime does the same for a preset)."""
+    return relighter.decompose(photo, mask=mask, working_size=candidate.working_size,
+                               matte_method=candidate.matte_method, augment=candidate.augment,
+                               refine=candidate.refine)
+
+
+def _hwc(chw) -> np.ndarray:
+    return np.ascontiguousarray(np.moveaxis(np.asarray(chw, dtype=np.float32), 0, -1))
+
+
+def load_pairs(data, count: int, per_scene: int = 4) -> list[dict]:
+    from model.data import EvaluationPairs, find_scenes, held_out_light_names
+
+    pairs = EvaluationPairs(find_scenes(data), 256, 4, held_out=held_out_light_names(),
+                            max_pairs_per_scene=per_scene)
+    out = []
+    for i in range(min(count, len(pairs))):
+        item = pairs[i]
+        s = {k: (item[k].numpy() if hasattr(item[k], "numpy") else np.asarray(item[k])) for k in SAMPLE_KEYS}
+        out.append({"photo": _hwc(s["input_linear"]), "alpha": _hwc(s["alpha"])[..., 0],
+                    "target": _hwc(s["target_image"]), "light_b": s["target_light"].astype(np.float64),
+                    "light_a": s["light"].astype(np.float64)})
+    return out
+
+
+def score(pred, pair) -> tuple[float, float]:
+    from model import metrics
+    from model.metrics import interior_weight
+
+    w = interior_weight(pair["alpha"])
+    return (metrics.psnr(pred, pair["target"], w), metrics.scale_invariant_psnr(pred, pair["target"], w))
+
+
+def accuracy(relighter, pairs, cands) -> dict[Candidate, np.ndarray]:
+    """{candidate: [pairs, 2] (PSNR, SI PSNR)}, plus "identity" (the photo as it is) and
+    "exposure-matched identity" (scaled per channel by the true lights' DC ratio: an oracle)."""
+    out = {c: [] for c in cands}
+    out["identity"], out["exposure-matched identity"] = [], []
+    for pair in pairs:
+        gain = pair["light_b"][0] / np.where(pair["light_a"][0] > 0, pair["light_a"][0], 1.0)
+        out["identity"].append(score(pair["photo"], pair))
+        out["exposure-matched identity"].append(score(pair["photo"] * gain.astype(np.float32), pair))
+        for c in cands:
+            d = decompose(relighter, pair["photo"], c, mask=pair["alpha"])
+            out[c].append(score(d.relight(pair["light_b"]), pair))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def timings(model_path, cands, size: int, threads: int, repeats: int) -> dict[Candidate, float]:
+    from relight import photo as photo_io
+    from relight.light import sh_light
+    from relight.resample import resize_linear
+    from relight.runtime import Relighter
+
+    image = resize_linear(photo_io.read_photo(ROOT / "relight" / "data" / "examples" / "astronaut.jpg")[0],
+                          size, size)
+    relighter = Relighter(model_path, threads=threads)
+    light = sh_light("sunset", relighter.sh_order)
+
+    def run(c):
+        decompose(relighter, image, c).relight(light)
+
+    for c in cands:
+        run(c)  # warm-up: sessions, caches
+    times = {c: [] for c in cands}
+    for _ in range(repeats):
+        for c in cands:
+            t = time.perf_counter()
+            run(c)
+            times[c].append(time.perf_counter() - t)
+    return {c: statistics.median(v) * 1e3 for c, v in times.items()}
+
+
+def rows_from(acc, ms, cands) -> list[dict]:
+    baseline = next(c for c in cands if c == Candidate(TRAINED_SIZE))
+    base, identity = acc[baseline], acc["identity"]
+    base_gain = base[:, 0].mean() - identity[:, 0].mean()
+    rows = []
+    for c in cands:
+        a = acc[c]
+        diff = a[:, 0] - base[:, 0]
+        rows.append({"candidate": c, "label": c.label, "ms": ms[c], "psnr": float(a[:, 0].mean()),
+                     "si_psnr": float(a[:, 1].mean()), "worst": float(diff.min()),
+                     "vs_base": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(diff.size)),
+                     "si_vs_base": float((a[:, 1] - base[:, 1]).mean()),
+                     "share": float((a[:, 0].mean() - identity[:, 0].mean()) / base_gain) if base_gain > 0
+                     else float("nan")})
+    front = pareto_front([r["ms"] for r in rows], [-r["psnr"] for r in rows])
+    for r, f in zip(rows, front):
+        r["front"] = f
+    return rows
+
+
+def propose(rows: list[dict]) -> dict[str, dict]:
+    """The rule of the module docstring, applied to the rows."""
+    front = sorted((r for r in rows if r["front"]), key=lambda r: r["ms"])
+    draft = next((r for r in front if r["share"] >= DRAFT_SHARE), None)
+    balanced = next(r for r in rows if r["candidate"] == Candidate(TRAINED_SIZE))
+    within = [r for r in front if r["ms"] <= BEST_SECONDS * 1e3]
+    best = max(within, key=lambda r: (r["psnr"], -r["ms"])) if within else None
+    return {"draft": draft, "balanced": balanced, "best": best}
+
+
+def markdown(rows, chosen, acc, info: str) -> str:
+    lines = [info, "",
+             "| candidate | ms (512 px photo) | PSNR | SI PSNR | PSNR vs network alone (paired mean +- SE) "
+             "| SI vs network alone | worst pair | share of gain over identity | front |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: r["ms"]):
+        lines.append(f"| {r['label']} | {r['ms']:.0f} | {r['psnr']:.2f} | {r['si_psnr']:.2f} | "
+                     f"{r['vs_base']:+.2f} +- {r['se']:.2f} | {r['si_vs_base']:+.2f} | {r['worst']:+.2f} | "
+                     f"{r['share']:.2f} | {'*' if r['front'] else ''} |")
+    for name in ("identity", "exposure-matched identity"):
+        a = acc[name]
+        lines.append(f"| {name} | | {a[:, 0].mean():.2f} | {a[:, 1].mean():.2f} | | | | | |")
+    lines.append("")
+    for key, r in chosen.items():
+        lines.append(f"- {key}: " + (f"{r['label']} ({r['ms']:.0f} ms, {r['psnr']:.2f} dB, SI {r['si_psnr']:.2f})"
+                                     if r else "none meets the rule"))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--data", required=True)
+    p.add_argument("--model", default=None, help="ONNX file (default: the registry's default model)")
+    p.add_argument("--pairs", type=int, default=96)
+    p.add_argument("--per-scene", type=int, default=4, help="pairs (light a -> light b) per scene at most")
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--doc", default=None, help="write the table into this markdown file's bench_quality section")
+    args = p.parse_args(argv)
+    from relight.runtime import Relighter
+
+    cands = candidates()
+    pairs = load_pairs(args.data, args.pairs, args.per_scene)
+    if not pairs:
+        print(f"error: no held-out pairs in {args.data}", file=sys.stderr)
+        return 2
+    acc = accuracy(Relighter(args.model, threads=args.threads), pairs, cands)
+    ms = timings(args.model, cands, args.size, args.threads, args.repeats)
+    rows = rows_from(acc, ms, cands)
+    chosen = propose(rows)
+    info = (f"{len(pairs)} held-out pairs of {args.data}; time on a {args.size}x{args.size} photo, "
+            f"{args.threads} threads, median of {args.repeats}, load average {os.getloadavg()[0]:.1f}, "
+            f"{datetime.date.today()}")
+    text = markdown(rows, chosen, acc, info)
+    print(text)
+    if args.doc:
+        from relight.fileio import atomic_write_text
+
+        doc = Path(args.doc)
+        atomic_write_text(doc, replace_section(doc.read_text() if doc.exists() else "", "quality", text))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,177 @@
+"""Per-photo refinement of the light (relight.refine) and test-time augmentation (relight.tta)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from relight import refine as rf
+from relight import sh, tta
+from relight.decomposition import Decomposition
+
+ORDER = 4
+SIZE = 64
+
+
+def sphere(size: int = SIZE):
+    """Normals [s, s, 3] and disk [s, s] of a sphere seen by the photo camera (looking along
+    +Y, X right, Z up: image rows go down -Z)."""
+    v, u = np.meshgrid(np.linspace(1, -1, size), np.linspace(-1, 1, size), indexing="ij")
+    r2 = u * u + v * v
+    disk = r2 < 0.95
+    normal = np.stack([u, -np.sqrt(np.clip(1 - r2, 0, 1)), v], axis=-1)
+    return normal, disk
+
+
+def lambertian_transport(normal: np.ndarray, order: int = ORDER) -> np.ndarray:
+    lobe = sh.clamped_cosine_coeffs(order) / np.pi
+    per_coeff = np.concatenate([np.full(2 * l + 1, lobe[l]) for l in range(order + 1)])
+    return (sh.sh_basis(normal, order) * per_coeff).astype(np.float32)
+
+
+def lobe_light(direction, colour, ambient, order: int = ORDER) -> np.ndarray:
+    """SH of a smooth coloured lobe toward `direction` plus a grey ambient term [n, 3]."""
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    light = np.outer(sh.sh_basis(d, order) * np.repeat(np.exp(-0.3 * np.arange(order + 1) ** 2),
+                                                        2 * np.arange(order + 1) + 1), colour) * 3.0
+    light[0] += ambient
+    return light
+
+
+def synthetic(light_true, light_start):
+    """A decomposition of a two-albedo sphere lit by light_true, whose transport is right and
+    whose light estimate is light_start (the network's situation, with exact geometry)."""
+    normal, disk = sphere()
+    transport = lambertian_transport(normal) * disk[..., None]
+    albedo = np.where(np.arange(SIZE)[None, :, None] < SIZE // 2, [0.6, 0.45, 0.35], [0.25, 0.3, 0.5])
+    albedo = np.broadcast_to(albedo, (SIZE, SIZE, 3)).astype(np.float32)
+    photo = (albedo * np.maximum(transport @ light_true, 0.0) * disk[..., None]).astype(np.float32)
+    alpha = disk.astype(np.float32)
+    d = Decomposition(albedo=albedo, transport=transport, residual=np.zeros_like(transport),
+                      light=light_start.astype(np.float32), alpha=alpha, box=(0, SIZE, 0, SIZE),
+                      working_size=(SIZE, SIZE), photo=photo, photo_working=photo, sh_order=ORDER,
+                      network_alpha=alpha)
+    d = dataclasses.replace(d, albedo=rf.consistent_albedo(d, transport, light_start.astype(np.float32)))
+    return d, albedo, transport, disk
+
+
+def test_mirror_signs_are_the_parity_of_each_basis_function_in_x():
+    signs = tta.mirror_x(ORDER)
+    rng = np.random.default_rng(1)
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    np.testing.assert_allclose(sh.sh_basis(dirs * [-1, 1, 1], ORDER), sh.sh_basis(dirs, ORDER) * signs, atol=1e-12)
+    # band 1 is (y, z, x) up to constants: only the x function is odd
+    assert signs[:4].tolist() == [1, 1, 1, -1]
+    # a light from camera-right mirrored comes from camera-left
+    right = lobe_light([1, 0, 0], [1, 1, 1], 0.0)
+    np.testing.assert_allclose(right * signs[:, None], lobe_light([-1, 0, 0], [1, 1, 1], 0.0), atol=1e-12)
+
+
+def test_refinement_lowers_the_photo_residual_monotonically_and_recovers_the_light():
+    light_true = lobe_light([0.8, -1.0, 0.6], [1.0, 0.85, 0.7], 0.3)
+    # the estimate: the same light turned 50 degrees about Z (DC, the colour and level, right)
+    light_start = sh.rotate(light_true, sh.z_rotation(50.0))
+    d, albedo, transport, disk = synthetic(light_true, light_start)
+    # exact transport: a weak pull toward the start lets the photo decide
+    refined, report = rf.refine(d, 12, ridge=0.03)
+    assert report.iterations >= 2
+    residuals = np.array(report.residuals)
+    assert np.all(np.diff(residuals) <= 0), residuals
+    assert residuals[-1] < 0.5 * residuals[0]
+    # the DC (colour and level) is kept: log-gradients cannot see it
+    np.testing.assert_allclose(refined.light[0], light_start[0], rtol=1e-6)
+    # the seen bands (0-2: the Lambertian lobe filters band 3 out, band 4 to 1/16) move toward the truth
+    seen = slice(1, 9)
+    before = np.linalg.norm(light_start[seen] - light_true[seen])
+    after = np.linalg.norm(refined.light[seen] - light_true[seen])
+    assert after < 0.25 * before, (before, after)
+    # and relighting to another light gets closer to the truth
+    light_b = lobe_light([-1.0, -0.3, 0.2], [0.7, 0.8, 1.0], 0.2)
+    truth = albedo * np.maximum(transport @ light_b, 0.0)
+    inside = disk & (d.alpha > 0)
+
+    def error(decomposition):
+        return float(np.mean((decomposition.relight_working(light_b) - truth)[inside] ** 2))
+
+    assert error(refined) < 0.5 * error(d)
+
+
+def test_refinement_off_and_bad_iterations():
+    light = lobe_light([0, -1, 0], [1, 1, 1], 0.2)
+    d, *_ = synthetic(light, light)
+    same, report = rf.refine(d, 0)
+    assert same is d and report.stopped == "off" and report.as_dict()["iterations"] == 0
+    for bad in (-1, 1.5, "3", None):
+        with pytest.raises(ValueError, match="iterations"):
+            rf.refine_light(d.transport, d.photo_working, d.alpha, d.light, bad)
+
+
+def test_refinement_keeps_a_right_light():
+    """Started at the truth, the fit has nothing to correct: only the albedo edge, which the
+    Cauchy loss all but ignores, pulls at it, so the light moves by under 2% of the error of
+    a light turned 50 degrees, and the objective does not rise."""
+    light = lobe_light([0.5, -1, 0.4], [1, 0.9, 0.8], 0.3)
+    d, *_ = synthetic(light, light)
+    refined, report = rf.refine(d, 8)
+    assert report.residuals[-1] <= report.residuals[0]
+    seen = slice(1, 9)
+    turned = np.linalg.norm(sh.rotate(light, sh.z_rotation(50.0))[seen] - light[seen])
+    assert np.linalg.norm(refined.light[seen] - light[seen]) < 0.02 * turned
+
+
+@pytest.mark.parametrize("kind", ["black", "white", "single colour", "backlit", "tiny matte"])
+def test_refinement_and_augmentation_stay_finite_on_extreme_photos(kind):
+    light = lobe_light([0.2, -1, 0.3], [1, 1, 1], 0.3)
+    d, albedo, transport, disk = synthetic(light, light)
+    photo = d.photo_working.copy()
+    alpha = d.alpha
+    if kind == "black":
+        photo[:] = 0.0
+    elif kind == "white":
+        photo[:] = 1.0
+    elif kind == "single colour":
+        photo[:] = [0.4, 0.1, 0.05]
+    elif kind == "backlit":  # the light behind the person: the seen side is lit only by the ambient
+        back = lobe_light([0, 1, 0], [1, 1, 1], 0.01)
+        photo = (albedo * np.maximum(transport @ back, 0.0) * disk[..., None]).astype(np.float32)
+    elif kind == "tiny matte":
+        alpha = np.zeros_like(alpha)
+        alpha[30:33, 30:33] = 1.0
+    d = dataclasses.replace(d, photo=photo, photo_working=photo, alpha=alpha, network_alpha=alpha)
+    refined, report = rf.refine(d, 8)
+    assert np.all(np.isfinite(refined.light)) and np.all(np.isfinite(refined.albedo))
+    assert np.all(np.isfinite(report.residuals))
+    assert all(b <= a for a, b in zip(report.residuals, report.residuals[1:]))
+    relit = refined.relight(lobe_light([1, -1, 0], [1, 1, 1], 0.2))
+    assert np.all(np.isfinite(relit)) and relit.min() >= 0.0
+    if kind == "tiny matte":
+        assert report.stopped == "no pixels" and refined is d
+
+
+def test_average_of_a_run_with_its_own_mirror_image_is_mirror_symmetric():
+    """Averaging a decomposition with its mirrored twin (as the network would answer a
+    mirrored photo if it were equivariant) gives back the same transport and light: the
+    flip back and the coefficient signs are right."""
+    light = lobe_light([0.6, -1, 0.2], [1, 0.9, 0.8], 0.3)
+    d, *_ = synthetic(light, light)
+    signs = tta.mirror_x(ORDER)
+    twin = tta._Run(np.ascontiguousarray(d.transport[:, ::-1] * signs), d.light * signs[:, None], ORDER,
+                    d.working_size)
+    averaged = tta.average(d, [(twin, True)])
+    np.testing.assert_allclose(averaged.transport, d.transport, atol=1e-6)
+    np.testing.assert_allclose(averaged.light, d.light, atol=1e-6)
+    # a twin made without the signs is not the same photo: the average would differ
+    wrong = tta._Run(np.ascontiguousarray(d.transport[:, ::-1]), d.light, ORDER, d.working_size)
+    assert np.abs(tta.average(d, [(wrong, True)]).light - d.light).max() > 1e-2
+
+
+def test_augment_refuses_bad_augmentations():
+    light = lobe_light([0, -1, 0], [1, 1, 1], 0.2)
+    d, *_ = synthetic(light, light)
+    for bad in ([(1.0,)], [(0.1, True)], [(1.0, "yes")], [("1", True)], [1.0]):
+        with pytest.raises(ValueError, match="augmentations"):
+            tta.augment(None, d, bad)
