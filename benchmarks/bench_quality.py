@@ -58,7 +58,9 @@ class Candidate:
     def label(self) -> str:
         parts = [f"{self.working_size} px"]
         if self.augment:
-            parts.append("mirror" if self.augment == ((1.0, True),) else f"{len(self.augment) + 1} runs")
+            mirrored = any(m for _, m in self.augment)
+            parts.append("mirror" if self.augment == ((1.0, True),) else
+                         f"{len(self.augment) + 1} runs{'' if mirrored else ' (scales)'}")
         if self.refine:
             parts.append(f"refine {self.refine}")
         if self.matte_method != "ensemble":
@@ -70,12 +72,13 @@ def candidates() -> list[Candidate]:
     from relight import tta
 
     mirror = ((1.0, True),)
+    scales = ((1.25, False), (0.75, False))
     out = [Candidate(s) for s in (64, 80, 96, 112, 128, 160)]
     out += [Candidate(s, matte_method="selfie") for s in (64, 80, 96)]
     out += [Candidate(TRAINED_SIZE, mirror), Candidate(TRAINED_SIZE, tta.AUGMENTATIONS),
             Candidate(TRAINED_SIZE, refine=2), Candidate(TRAINED_SIZE, refine=8),
-            Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8),
-            Candidate(160, tta.AUGMENTATIONS, 8)]
+            Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, scales, 8),
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8)]
     return out
 
 

@@ -221,7 +221,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         elapsed = time.monotonic() - self._started
         plan = self._plan
         in_network = plan is not None and progress.stage.startswith(jobs.NETWORK_STAGE)
-        expected = engine.expected_seconds(plan["model_path"], plan["long_side"]) if in_network else None
+        expected = engine.expected_seconds(plan["model_path"], plan["long_side"],
+                                           **quality.network_options(plan["quality"])) if in_network else None
         network_share = 0.45 if plan is None or plan["light_reader"] is None else 0.30
         status = status_of(context)
         status.stage, status.progress, status.elapsed = \

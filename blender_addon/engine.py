@@ -99,8 +99,9 @@ def known_sh_order(model_path: str) -> int | None:
 
 
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
-              cancel: CancelToken | None = None):
-    """Run the network once (the slow step; called on the worker thread).
+              cancel: CancelToken | None = None, augment=(), refine: int = 0):
+    """Run the network (the slow step; called on the worker thread): once, or once per
+    augmentation of the quality preset, and refine the light when it says so.
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
     CancelToken.cancel() terminates, so Esc stops even a running network pass.
@@ -114,7 +115,8 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     try:
         # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
         # NETWORK (and another photo's light) passes None for the network's own alpha
-        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network")
+        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
+                                            augment=augment, refine=refine)
     except Exception:
         if cancel is not None and cancel.cancelled:
             cancel.stopped_inference = True  # onnxruntime gave up the run it was in
@@ -123,7 +125,7 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     finally:
         if cancel is not None:
             del relighter.run  # the class's own method again
-    _SECONDS[(str(relighter.model_path), working_size)] = time.monotonic() - start
+    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine)] = time.monotonic() - start
     return decomposition
 
 
@@ -281,9 +283,9 @@ def saved_preview(arrays: dict, meta: dict):
                                  arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
 
 
-def expected_seconds(model_path: str, working_size: int) -> float | None:
-    """How long the last run of this model at this size took, if there was one."""
-    return _SECONDS.get((str(Path(model_path)), working_size))
+def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0) -> float | None:
+    """How long the last run of this model at this size (and test-time work) took, if there was one."""
+    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine))
 
 
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:

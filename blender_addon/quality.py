@@ -21,3 +21,10 @@ def preset(key: str) -> core_quality.QualityPreset:
 def enum_items() -> list[tuple[str, str, str]]:
     """(identifier, name, description) triples for a bpy EnumProperty, fastest first."""
     return [(p.key.upper(), p.label, p.description) for p in core_quality.PRESETS]
+
+
+def network_options(key: str) -> dict:
+    """The preset's test-time work beyond its working size: Relighter.decompose's `augment`
+    (mirrored / rescaled runs averaged) and `refine` (light refinement iterations)."""
+    p = core_quality.preset(key)
+    return {"augment": p.augment, "refine": p.refine}

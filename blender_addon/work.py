@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from . import engine, jobs, pipeline, state
+from . import engine, jobs, pipeline, quality, state
 
 PREVIEW_LONG_SIDE = 1024  # px: the screen-sized preview shown while a dial moves on a large photo
 
@@ -109,13 +109,14 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     token.check()
     progress.enter(jobs.NETWORK_STAGE, 0.10)
     network_start = time.monotonic()
-    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token)
+    options = quality.network_options(plan["quality"])
+    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token, **options)
     light_decomposition = None
     if plan["light_reader"] is not None:
         progress.enter("Estimating the light of the other photo", 0.45)
         other = plan["light_reader"]()
         pipeline.check_photo_content(other.rgb)
-        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token)
+        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token, **options)
         light = light_decomposition
     elif light is None:
         light = plan["light_cached"]

@@ -1068,3 +1068,24 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
         if bpy.app.timers.is_registered(bl_ops.poll_layers):
             bpy.app.timers.unregister(bl_ops.poll_layers)
         state.RUNNING.pop("layers", None)
+
+
+def test_the_quality_preset_decides_the_networks_test_time_work(addon, settings):
+    """Best runs the preset's augmentations (and refinement, which a network with a residual E
+    skips: its albedo is not photo-consistent); Draft runs the network once."""
+    from relight import quality
+
+    name = addon["photo"]
+    settings.quality = "BEST"
+    try:
+        assert relight(name) == {"FINISHED"}
+        best = quality.preset("best")
+        choices = session(name).decomposition.choices
+        assert choices["augment"] == [[float(s), bool(m)] for s, m in best.augment]
+        assert session(name).decomposition.has_residual  # the tiny random paper-layout network
+        assert choices["refine"]["stopped"] == "off"
+        assert choices["working_size"] == best.working_size
+    finally:
+        settings.quality = "DRAFT"
+    assert relight(name) == {"FINISHED"}
+    assert session(name).decomposition.choices["augment"] == []
