@@ -142,16 +142,16 @@ NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image
              "or use a photo where a person is clearly visible.")
 
 
-def person_matte(photo: np.ndarray, person: int) -> tuple[np.ndarray, int]:
+def person_matte(photo: np.ndarray, person: int, method: str = "ensemble") -> tuple[np.ndarray, int]:
     """(soft alpha [H, W], how many people the photo shows) for person `person`
-    (1 = the largest), from relight.matte; errors in the artist's words."""
+    (1 = the largest), from relight.matte (`method`: its segmenter); errors in the artist's words."""
     import re
 
     from relight.matte import NoPersonError
     from relight.matte import person_matte as find
 
     try:
-        found = find(photo, person)
+        found = find(photo, person, method=method)
     except NoPersonError:
         raise ValueError(NO_PERSON) from None
     except ValueError as exc:

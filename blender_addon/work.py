@@ -19,10 +19,11 @@ from . import engine, jobs, pipeline, quality, state
 PREVIEW_LONG_SIDE = 1024  # px: the screen-sized preview shown while a dial moves on a large photo
 
 
-def make_mask(inputs: dict, pixels: pipeline.PhotoPixels) -> tuple:
-    """(mask or None, people found or 0) on the worker: AUTO runs the person matte."""
+def make_mask(inputs: dict, pixels: pipeline.PhotoPixels, quality_key: str) -> tuple:
+    """(mask or None, people found or 0) on the worker: AUTO runs the person matte the
+    quality preset names."""
     if inputs["mode"] == "AUTO":
-        return engine.person_matte(pixels.rgb, inputs["person"])
+        return engine.person_matte(pixels.rgb, inputs["person"], quality.preset(quality_key).matte_method)
     alpha = pixels.alpha if inputs["use_photo_alpha"] else None
     return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
                                 inputs["name"]), 0
@@ -99,13 +100,14 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
             pipeline.hdr_file_light(value, relighter.sh_order)
     previous = plan.get("previous")
     if previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
-            and plan["mask"]["mode"] == "AUTO":
-        # the same photo and person as its last Relight: the person matte would be the same again
+            and plan["mask"]["mode"] == "AUTO" \
+            and quality.preset(previous.quality).matte_method == quality.preset(plan["quality"]).matte_method:
+        # the same photo, person and segmenter as its last Relight: the person matte would be the same again
         mask, people = previous.decomposition.mask, previous.people
     else:
         if plan["mask"]["mode"] == "AUTO":
             progress.enter("Finding the people in the photo", 0.05)
-        mask, people = make_mask(plan["mask"], pixels)
+        mask, people = make_mask(plan["mask"], pixels, plan["quality"])
     token.check()
     progress.enter(jobs.NETWORK_STAGE, 0.10)
     network_start = time.monotonic()
@@ -147,7 +149,7 @@ def restore_work(plan: dict) -> tuple:
     pixels = plan["reader"]()
     if pixels.digest != meta["digest"]:
         raise PhotoChanged(f"The photo '{plan['source']}' changed since it was relit.")
-    mask, people = make_mask(plan["mask"], pixels)
+    mask, people = make_mask(plan["mask"], pixels, meta["quality"])  # the matte it was relit with
     decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
     session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,

@@ -16,6 +16,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from relight.tta import AUGMENTATIONS
+
 __all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset", "working_sizes"]
 
 
@@ -36,20 +38,23 @@ class QualityPreset:
                 "matte_method": self.matte_method}
 
 
-# Fastest first. From the rule of benchmarks/bench_tradeoffs.py on the held-out set
-# (docs/TRADEOFFS.md, 2026-11-22): Draft = fastest Pareto point, Balanced = fastest Pareto
-# point within 0.5 dB of the best, Best = best interior PSNR. Measured with the one shipped
-# model, the geometry-first network (trained on 128 px crops): 20.5-21.3 dB at every working
-# size from 96 to 224 px, no trend (1 thread, 64 pairs, 256 px crops); @96 21.02 dB in 9.8
-# ms, @128 20.75 dB in 14.2 ms, @144 21.31 dB in 16.1 ms. The rule gives Draft = Balanced =
-# 96 px; since the sizes differ by no more than the spread between checkpoints, Balanced is
-# the size the network was trained at. The detail transfer brings back the photo's own fine
-# texture at full resolution whatever the size.
+# Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set
+# (docs/TRADEOFFS.md, "Speed for accuracy", 2026-11-25; 96 pairs, paired against the network
+# alone at its trained size): Balanced = the network once at 128 px, the size it was trained
+# at (20.71 dB, SI 24.52); Best = the most accurate front point within 3 s: 160 px, the
+# network run six times (the crop mirrored and at 0.75x / 1.25x) and averaged, then the
+# light refined for 8 iterations (+0.60 +- 0.24 dB, SI +1.08); Draft = the fastest front
+# point within 0.5 dB of Balanced: 80 px with the selfie segmenter alone (-0.45 +- 0.24 dB;
+# its matte is less exact: mean IoU 0.944 against 0.97, docs/MATTE.md).
 PRESETS: tuple[QualityPreset, ...] = (
-    QualityPreset("draft", "Draft", "geometry", 96, "Fastest: the network sees the person at 96 px"),
+    QualityPreset("draft", "Draft", "geometry", 80,
+                  "Fastest: the network sees the person at 80 px; a quicker, rougher person matte",
+                  matte_method="selfie"),
     QualityPreset("balanced", "Balanced", "geometry", 128,
-                  "The network sees the person at 128 px, the size it was trained at"),
-    QualityPreset("best", "Best", "geometry", 144, "The network sees the person at 144 px"),
+                  "The network sees the person once at 128 px, the size it was trained at"),
+    QualityPreset("best", "Best", "geometry", 160,
+                  "Slowest: six network runs (mirrored, three sizes) averaged, then the photo's light "
+                  "refined to its shading", augment=AUGMENTATIONS, refine=8),
 )
 DEFAULT = "balanced"
 
