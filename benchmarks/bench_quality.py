@@ -17,9 +17,12 @@ segmenter + decomposition + augmentations + refinement + one full-size relight o
 bundled astronaut photo resized to --size, median of --repeats with the candidates
 alternated (a load drifting on a shared machine shifts them alike: compare ratios).
 
-The rule (the table quality.py follows): Draft = the fastest front point that keeps >= 90%
-of the baseline's gain over identity; Balanced = the network alone at its
-trained size; Best = the most accurate front point within 3 s.
+The rule (the table quality.py follows): Draft = the fastest front point within 0.5 dB of
+the baseline (paired mean; issue 26 asked for >= 90% of the baseline's gain over
+exposure-matched identity, but the shipped network does not beat that oracle, and its gain
+over plain identity, ~0.1 dB, is inside the pairs' noise, so a share of it decides nothing);
+Balanced = the network alone at its trained size; Best = the most accurate front point
+within 3 s.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_tradeoffs import pareto_front, replace_section  # noqa: E402
 
 TRAINED_SIZE = 128     # the shipped network's training crops: the baseline ("network alone")
-DRAFT_SHARE = 0.9      # Draft keeps this share of the baseline's gain over identity
+DRAFT_DB = 0.5         # Draft: at most this much below the baseline (paired mean PSNR)
 BEST_SECONDS = 3.0
 SAMPLE_KEYS = ("input_linear", "alpha", "target_light", "target_image", "light")
 
@@ -179,7 +182,7 @@ def rows_from(acc, ms, cands) -> list[dict]:
 def propose(rows: list[dict]) -> dict[str, dict]:
     """The rule of the module docstring, applied to the rows."""
     front = sorted((r for r in rows if r["front"]), key=lambda r: r["ms"])
-    draft = next((r for r in front if r["share"] >= DRAFT_SHARE), None)
+    draft = next((r for r in front if r["vs_base"] >= -DRAFT_DB), None)
     balanced = next(r for r in rows if r["candidate"] == Candidate(TRAINED_SIZE))
     within = [r for r in front if r["ms"] <= BEST_SECONDS * 1e3]
     best = max(within, key=lambda r: (r["psnr"], -r["ms"])) if within else None
@@ -214,6 +217,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--accuracy-cache", default=None, metavar="NPZ",
+                   help="reuse the accuracy of an earlier run from this file (written when missing): "
+                        "re-time on a quiet machine without recomputing it")
     p.add_argument("--doc", default=None, help="write the table into this markdown file's bench_quality section")
     args = p.parse_args(argv)
     from relight.runtime import Relighter
@@ -223,7 +229,19 @@ def main(argv=None) -> int:
     if not pairs:
         print(f"error: no held-out pairs in {args.data}", file=sys.stderr)
         return 2
-    acc = accuracy(Relighter(args.model, threads=args.threads), pairs, cands)
+    cache = Path(args.accuracy_cache) if args.accuracy_cache else None
+    keys = {c.label: c for c in cands}
+    if cache is not None and cache.is_file():
+        with np.load(cache, allow_pickle=False) as z:
+            acc = {keys.get(k, k): z[k] for k in z.files}
+        missing = [c.label for c in cands if c not in acc]
+        if missing:
+            print(f"error: {cache} lacks {', '.join(missing)}: delete it to recompute", file=sys.stderr)
+            return 2
+    else:
+        acc = accuracy(Relighter(args.model, threads=args.threads), pairs, cands)
+        if cache is not None:
+            np.savez(cache, **{(k.label if isinstance(k, Candidate) else k): v for k, v in acc.items()})
     ms = timings(args.model, cands, args.size, args.threads, args.repeats)
     rows = rows_from(acc, ms, cands)
     chosen = propose(rows)

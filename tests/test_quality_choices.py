@@ -188,7 +188,7 @@ def test_preset_rule_follows_a_brute_force_front():
         fast = [r for r in front if r["ms"] <= bq.BEST_SECONDS * 1e3]
         if fast:
             assert chosen["best"]["psnr"] == max(r["psnr"] for r in fast)
-        keeping = [r for r in front if r["share"] >= bq.DRAFT_SHARE]
+        keeping = [r for r in front if r["vs_base"] >= -bq.DRAFT_DB]
         assert (chosen["draft"] is None) == (not keeping)
         if keeping:
             assert chosen["draft"]["ms"] == min(r["ms"] for r in keeping)
