@@ -200,3 +200,25 @@ def test_presets_are_monotone_in_work():
         work_a = (a.working_size, len(a.augment), a.refine)
         work_b = (b.working_size, len(b.augment), b.refine)
         assert work_a <= work_b and work_a != work_b
+
+
+@pytest.mark.parametrize("kind", ["black", "white", "single colour", "backlit"])
+def test_best_stays_finite_on_extreme_photos(kind):
+    """The shipped network with Best's augmentations and refinement on photos with no shading
+    to read: finite outputs, a non-negative relit person, an objective that never rose."""
+    h, w = 96, 64
+    y, x = np.mgrid[0:h, 0:w]
+    person = (((x - w / 2) / (w / 4)) ** 2 + ((y - h / 2) / (h / 2.4)) ** 2 <= 1).astype(np.float32)
+    photo = {"black": np.zeros((h, w, 3)), "white": np.ones((h, w, 3)),
+             "single colour": np.broadcast_to([0.4, 0.1, 0.05], (h, w, 3)),
+             # lit from behind: a bright rim at the person's edge, the rest near black
+             "backlit": np.where((np.abs(x - w / 2) > w / 4 - 3)[..., None], 0.9, 0.01) * np.ones((h, w, 3)),
+             }[kind].astype(np.float32)
+    best = quality.preset("best")
+    d = Relighter(threads=2).decompose(photo, mask=person, **dict(best.decompose_options(), matte="person"))
+    assert all(np.all(np.isfinite(a)) for a in (d.albedo, d.transport, d.light))
+    report = d.choices["refine"]
+    if report["iterations"]:
+        assert report["residual_after"] <= report["residual_before"]
+    relit = d.relight(np.asarray([[1.0, 0.9, 0.8]] + [[0.2, 0.2, 0.2]] * 24, np.float32))
+    assert np.all(np.isfinite(relit)) and relit.min() >= 0.0
