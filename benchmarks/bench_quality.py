@@ -208,6 +208,36 @@ def markdown(rows, chosen, acc, info: str) -> str:
     return "\n".join(lines)
 
 
+def plot(rows: list[dict], chosen: dict, out: Path) -> Path:
+    """Time against PSNR (and SI PSNR), the front joined, the chosen presets named."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    from relight.fileio import atomic_path
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, title in ((axes[0], "psnr", "relit PSNR (dB)"), (axes[1], "si_psnr", "scale-invariant PSNR (dB)")):
+        for r in rows:
+            ax.scatter(r["ms"], r[key], s=22, color="C0" if r["front"] else "0.6", zorder=3)
+        front = sorted((r for r in rows if r["front"]), key=lambda r: r["ms"])
+        ax.plot([r["ms"] for r in front], [r[key] for r in front], color="C0", lw=1)
+        for name, r in chosen.items():
+            if r is not None:
+                ax.annotate(f"{name}: {r['label']}", (r["ms"], r[key]), fontsize=7, xytext=(4, -10),
+                            textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_xlabel("ms on a 512 x 512 photo (segmenter to relit image)")
+        ax.set_ylabel(title)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(out, ".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True)
@@ -221,6 +251,7 @@ def main(argv=None) -> int:
                    help="reuse the accuracy of an earlier run from this file (written when missing): "
                         "re-time on a quiet machine without recomputing it")
     p.add_argument("--doc", default=None, help="write the table into this markdown file's bench_quality section")
+    p.add_argument("--plot", default=None, help="write the front as a PNG plot here")
     args = p.parse_args(argv)
     from relight.runtime import Relighter
 
@@ -250,6 +281,8 @@ def main(argv=None) -> int:
             f"{datetime.date.today()}")
     text = markdown(rows, chosen, acc, info)
     print(text)
+    if args.plot:
+        plot(rows, chosen, Path(args.plot))
     if args.doc:
         from relight.fileio import atomic_write_text
 
