@@ -51,7 +51,7 @@ def _build(index: int, seed: int, options, work: Path):
                           render_sky=lambda p: passes.render_sky_equirect(p, lights.SKY_SIZE, work))
     baked = bake_scene(sample, passes.thread_count())
     spec = build_blender_scene(scene, sample, baked)
-    channels = render_buffers(scene, sample, spec, baked, work, {})
+    channels, _ = render_buffers(scene, sample, spec, baked, work)
     return scene, sample, channels
 
 

@@ -115,13 +115,18 @@ def _clip_scene(clip: int, seed: int, options: _BaseOptions, render_sky):
     if _LAST.get("key") == key:
         return _LAST["sample"], False
     _LAST.clear()
-    _LAST.update(key=key, sample=scene_module.sample_scene(clip, seed, options, render_sky=render_sky))
+    _LAST.update(key=key, sample=scene_module.draw_scene(clip, seed, options, render_sky=render_sky))
     return _LAST["sample"], True
 
 
 def sample_frame(index: int, seed: int, options: SceneOptions, render_sky=None) -> ClipSample:
     """The scene of clip index // F with its person posed for frame index % F (no bpy)."""
-    options.validate()
+    scene_module.check_request(index, seed, options)
+    return draw_frame(index, seed, options, render_sky)
+
+
+def draw_frame(index: int, seed: int, options: SceneOptions, render_sky=None) -> ClipSample:
+    """sample_frame for a request already checked (farm.scene.check_request)."""
     clip, frame = clip_frame(index, options.clip_frames)
     base, drawn = _clip_scene(clip, seed, options.scene_options(), render_sky)
     rotation, angle = motion_transform(options.motion, frame, options.clip_frames)
@@ -143,4 +148,4 @@ def sample_frame(index: int, seed: int, options: SceneOptions, render_sky=None) 
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
     """Render frame index % F of clip index // F as scene `index`; returns its JSON path."""
-    return scene_module.render_scene(index, seed, options, out_dir, sample_fn=sample_frame)
+    return scene_module.render_scene(index, seed, options, out_dir, sample_fn=draw_frame)

@@ -3,7 +3,7 @@
     sample_scene(index, seed, options)  -> SceneSample   numpy: body, pose, clothes, camera, lights
     bake_scene(sample)                  -> SceneBake     numpy + embree: per-vertex SH transport
     build_blender_scene(scene, ...)                      bpy: meshes, AOVs, materials, camera
-    render_buffers(scene, ...)          -> channels      Cycles: geometry pass, one image per light
+    render_buffers(scene, ...)          -> channels, timings   Cycles: geometry pass, one image per light
 
 `render_scene` runs them in a bpy process (the bpy module, or Blender's own
 Python), resetting Blender to factory settings first. Every random choice is
@@ -150,11 +150,14 @@ class SceneSample:
         }
 
 
-def _check_index_and_seed(index, seed) -> None:
+def check_request(index, seed, options: SceneOptions) -> None:
+    """The one check of a scene request, made by the public entries (sample_scene,
+    render_scene) before any work: index and seed non-negative integers, options in range."""
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
         raise ValueError(f"scene index must be a non-negative integer, got {index!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    options.validate()
 
 
 def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
@@ -163,10 +166,14 @@ def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) 
     `render_sky(params) -> [H, W, 3]` renders a procedural sky when the light
     pool draws one (render_scene passes Cycles' Sky Texture).
     """
+    check_request(index, seed, options)
+    return draw_scene(index, seed, options, render_sky)
+
+
+def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
+    """sample_scene for a request already checked (check_request)."""
     from farm import appearance, bodies, camera, lights, poses
 
-    _check_index_and_seed(index, seed)
-    options.validate()
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
 
@@ -312,12 +319,14 @@ def _transport_blocks(options: SceneOptions) -> int:
     return (sh.num_coeffs(options.sh_order) + 2) // 3
 
 
-def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir: Path, timings: dict) -> dict:
+def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir: Path) -> tuple[dict, dict]:
     """Cycles' geometry pass, the PRT images from the baked transport, one path-traced
-    image per light; returns the scene's channels (relight.dataset names)."""
+    image per light; returns the scene's channels (relight.dataset names) and the
+    seconds of these stages (geometry_pass, path_trace, path_trace_render_calls)."""
     from farm import passes
 
     options = sample.options
+    timings: dict = {}
     t0 = time.perf_counter()
     geo = passes.render_geometry(scene, spec, work_dir, samples=GEOMETRY_SAMPLES)
     timings["geometry_pass"] = round(time.perf_counter() - t0, 4)
@@ -358,18 +367,18 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
             path_trace_seconds.append(round(pt.seconds, 4))
         timings["path_trace"] = round(time.perf_counter() - t0, 4)
     timings["path_trace_render_calls"] = path_trace_seconds
-    return channels
+    return channels, timings
 
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *, sample_fn=None) -> Path:
     """Sample, bake, build and render scene `index`; returns the finished JSON path.
 
-    `sample_fn` (same signature as sample_scene, which it defaults to) draws the
-    scene: farm.clips passes one that poses a clip's person for one frame."""
+    `sample_fn` (same signature as draw_scene, which it defaults to; called with
+    the request checked here) draws the scene: farm.clips passes one that poses a
+    clip's person for one frame."""
     from farm import lights, passes
 
-    _check_index_and_seed(index, seed)
-    options.validate()
+    check_request(index, seed, options)
     threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
     out_dir = Path(out_dir)
     t_total = time.perf_counter()
@@ -380,7 +389,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
     work = passes.work_directory(out_dir)
     work_dir = Path(work.name)
     try:
-        sample = (sample_fn or sample_scene)(
+        sample = (sample_fn or draw_scene)(
             index, seed, options,
             render_sky=lambda params: passes.render_sky_equirect(params, lights.SKY_SIZE, work_dir),
         )
@@ -392,21 +401,23 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
         t0 = time.perf_counter()
         spec = build_blender_scene(scene, sample, baked)
         timings["scene_build"] = round(time.perf_counter() - t0, 4)
-        channels = render_buffers(scene, sample, spec, baked, work_dir, timings)
+        channels, render_timings = render_buffers(scene, sample, spec, baked, work_dir)
+        timings.update(render_timings)
     finally:
         work.cleanup()
 
     asked = frozenset(options.passes)
     skipped = [name for name in ("prt", "pt") if name not in asked]
+    record, versions = sample.record(), _versions()
+    timings["total_before_write"] = round(time.perf_counter() - t_total, 4)
     meta = {
-        **sample.record(),
+        **record,
         "bake": baked.record,
         "passes": {"asked": sorted(asked), "skipped": skipped},
-        "versions": _versions(),
+        "versions": versions,
         "timings": timings,
     }
     stem = dataset.scene_stem(out_dir, index)
-    timings["total_before_write"] = round(time.perf_counter() - t_total, 4)
     _, json_path = dataset.write_scene(stem, channels, meta)
     return json_path
 
