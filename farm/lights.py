@@ -34,7 +34,11 @@ def light_pool(kind: str) -> list[str]:
 
 
 @dataclass
-class Light:
+class SampledLight:
+    """One light the farm drew for a scene: its map (what Cycles' World shows) and its SH
+    in the camera frame (what the sidecar records). The runtime's light, SH coefficients
+    only, is relight.light's."""
+
     name: str
     source: str  # "blender", "bundled" or "sky"
     rotation_deg: float
@@ -79,7 +83,7 @@ def sample_light(
     order: int,
     world_to_camera: np.ndarray,
     render_sky=None,
-) -> Light:
+) -> SampledLight:
     """Draw a map (or sky), a rotation and a reference radiance; compute its SH.
 
     `render_sky(params) -> pixels [H, W, 3]` renders the procedural sky
@@ -101,7 +105,7 @@ def sample_light(
     # the map recipe (relight.light): project at order max(N, 8), rotate about Z, normalise
     coeffs, scale = map_light(pixels, max(order, 8), rotation, target)
     coeffs = sh.rotate(coeffs, world_to_camera)
-    return Light(
+    return SampledLight(
         name=name,
         source=source,
         rotation_deg=rotation,

@@ -94,7 +94,7 @@ class SceneSample:
     parts: list  # farm.appearance.Part, in scene order
     look: dict  # the appearance record
     camera: object  # farm.camera.Camera
-    lights: list  # farm.lights.Light
+    lights: list  # farm.lights.SampledLight
     timings: dict = field(default_factory=dict)
 
     @property
