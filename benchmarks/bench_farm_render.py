@@ -43,10 +43,10 @@ import numpy as np
 
 def _build(index: int, seed: int, options, work: Path):
     """A farm scene in Blender: reset, sample, bake, build, geometry pass (farm.scene's steps)."""
-    from farm import lights, passes
+    from farm import blender_scene, lights, passes
     from farm.scene import bake_scene, build_blender_scene, render_buffers, sample_scene
 
-    scene = passes.reset_scene()
+    scene = blender_scene.reset_scene()
     sample = sample_scene(index, seed, options,
                           render_sky=lambda p: passes.render_sky_equirect(p, lights.SKY_SIZE, work))
     baked = bake_scene(sample, passes.thread_count())
@@ -56,9 +56,9 @@ def _build(index: int, seed: int, options, work: Path):
 
 
 def _set_light(scene, light, name: str, automatic_map: bool) -> None:
-    from farm import passes
+    from farm import blender_scene
 
-    passes.set_environment_world(scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=name)
+    blender_scene.set_environment_world(scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=name)
     if automatic_map:
         # Before Cycles first syncs this World: the pre-fix farm's setting.
         scene.world.cycles.sampling_method = "AUTOMATIC"
@@ -142,7 +142,7 @@ REFERENCE_SEED = 7919
 
 
 def bench_spp(args) -> None:
-    from farm import passes
+    from farm import blender_scene, passes
     from farm.options import SceneOptions
 
     counts = [int(c) for c in args.counts.split(",")]
@@ -160,7 +160,7 @@ def bench_spp(args) -> None:
         scene.cycles.seed = 0
         for m in maps:
             if m != "automatic":
-                passes.IMPORTANCE_MAP_OVERSAMPLING = int(m)
+                blender_scene.IMPORTANCE_MAP_OVERSAMPLING = int(m)
             _set_light(scene, sample.lights[0], f"spp_{m}", automatic_map=m == "automatic")
             t0 = time.perf_counter()
             passes.render_path_traced(scene, work, "first", counts[0], False)

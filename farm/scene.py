@@ -281,19 +281,19 @@ def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
 def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
     """Meshes with per-vertex normal, depth and transport attributes routed to AOVs, their
     materials, the camera and the first light's World; returns the AovSpec."""
-    from farm import camera, materials, passes
+    from farm import blender_scene, camera, materials, passes
 
     options = sample.options
     cam = sample.camera
     cam_vertices, cam_normals = sample.camera_mesh()
     offsets = sample.offsets
     passes.configure_film(scene, (options.resolution, options.resolution))
-    passes.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
+    blender_scene.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
     attribute_names = ["normal", "depth"]
     if baked.transport is not None:
         attribute_names += [f"t{i}" for i in range(_transport_blocks(options))]
-    spec = passes.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
-    passes.register_aovs(scene.view_layers[0], spec)
+    spec = blender_scene.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
+    blender_scene.register_aovs(scene.view_layers[0], spec)
     for i, part in enumerate(sample.parts):
         lo, hi = offsets[i], offsets[i + 1]
         attrs = {
@@ -302,16 +302,16 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
             "rest": part.rest,
         }
         if baked.transport is not None:
-            for k, block in enumerate(passes.pack_vectors(baked.transport[lo:hi])):
+            for k, block in enumerate(blender_scene.pack_vectors(baked.transport[lo:hi])):
                 attrs[f"t{k}"] = block
-        obj = passes.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
+        obj = blender_scene.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
         mat, base_socket, params_socket = materials.build_material(part.name, part.material)
-        passes.add_attribute_aovs(mat, attribute_names)
-        passes.add_socket_aov(mat, "albedo", base_socket)
-        passes.add_socket_aov(mat, "material", params_socket)
+        blender_scene.add_attribute_aovs(mat, attribute_names)
+        blender_scene.add_socket_aov(mat, "albedo", base_socket)
+        blender_scene.add_socket_aov(mat, "material", params_socket)
         obj.data.materials.append(mat)
     first = sample.lights[0]
-    passes.set_environment_world(scene, None, first.rotation_deg, first.scale, pixels=first.pixels, name="light0")
+    blender_scene.set_environment_world(scene, None, first.rotation_deg, first.scale, pixels=first.pixels, name="light0")
     return spec
 
 
@@ -323,7 +323,7 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
     """Cycles' geometry pass, the PRT images from the baked transport, one path-traced
     image per light; returns the scene's channels (relight.dataset names) and the
     seconds of these stages (geometry_pass, path_trace, path_trace_render_calls)."""
-    from farm import passes
+    from farm import blender_scene, passes
 
     options = sample.options
     timings: dict = {}
@@ -358,7 +358,7 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
         t0 = time.perf_counter()
         for k, light in enumerate(sample.lights):
             if k > 0:
-                passes.set_environment_world(
+                blender_scene.set_environment_world(
                     scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=f"light{k}"
                 )
             pt = passes.render_path_traced(scene, work_dir, f"light{k}", options.samples, options.denoise,
@@ -376,7 +376,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
     `sample_fn` (same signature as draw_scene, which it defaults to; called with
     the request checked here) draws the scene: farm.clips passes one that poses a
     clip's person for one frame."""
-    from farm import lights, passes
+    from farm import blender_scene, lights, passes
 
     check_request(index, seed, options)
     threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
@@ -384,7 +384,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
     t_total = time.perf_counter()
 
     t0 = time.perf_counter()
-    scene = passes.reset_scene()
+    scene = blender_scene.reset_scene()
     timings = {"reset": round(time.perf_counter() - t0, 4)}
     work = passes.work_directory(out_dir)
     work_dir = Path(work.name)

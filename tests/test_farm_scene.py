@@ -209,9 +209,9 @@ def test_camera_frames_every_vertex():
 
 def test_sky_light_is_rendered_from_blender_sky_texture(tmp_path):
     """The procedural sky: finite, the sun above the horizon (L_1,0 > 0 with an upright camera)."""
-    from farm import passes
+    from farm import blender_scene, passes
 
-    passes.reset_scene()
+    blender_scene.reset_scene()
     rng = np.random.default_rng(2)
     light = lights.sample_light(
         rng, [lights.SKY], 4, np.eye(3), lambda p: passes.render_sky_equirect(p, lights.SKY_SIZE, tmp_path)

@@ -211,9 +211,9 @@ def _cycles_sphere_scene(tmp_path, meshes, order, directions, materials=None, re
     The camera frame is then the world frame (rows right=X, forward=Y, up=Z).
     """
     bpy = pytest.importorskip("bpy")
-    from farm import passes
+    from farm import blender_scene, passes
 
-    scene = passes.reset_scene()
+    scene = blender_scene.reset_scene()
     passes.configure_film(scene, (resolution, resolution))
     v = np.concatenate([m[0] for m in meshes])
     offsets = np.cumsum([0] + [len(m[0]) for m in meshes])
@@ -224,24 +224,24 @@ def _cycles_sphere_scene(tmp_path, meshes, order, directions, materials=None, re
         kwargs = {"view_point": np.array([0.0, -3.0, 0.0]), "materials": materials}
     T = bake.bake_transport(v, f, n, order, directions, rng=np.random.default_rng(0), **kwargs).transport
     names = [f"t{i}" for i in range((sh.num_coeffs(order) + 2) // 3)]
-    spec = passes.AovSpec(names, ["albedo"])
-    passes.register_aovs(scene.view_layers[0], spec)
+    spec = blender_scene.AovSpec(names, ["albedo"])
+    blender_scene.register_aovs(scene.view_layers[0], spec)
     mats = []
     for i, (mv, mf, mn, params) in enumerate(meshes):
-        blocks = passes.pack_vectors(T[offsets[i]:offsets[i + 1]])
-        obj = passes.mesh_object(f"m{i}", mv, mf, mn, dict(zip(names, blocks)), scene=scene)
+        blocks = blender_scene.pack_vectors(T[offsets[i]:offsets[i + 1]])
+        obj = blender_scene.mesh_object(f"m{i}", mv, mf, mn, dict(zip(names, blocks)), scene=scene)
         mat = bpy.data.materials.new(f"mat{i}")
         bsdf = mat.node_tree.nodes["Principled BSDF"]
         for key, value in params.items():
             bsdf.inputs[key].default_value = value
-        passes.add_attribute_aovs(mat, names)
+        blender_scene.add_attribute_aovs(mat, names)
         rgb = mat.node_tree.nodes.new("ShaderNodeRGB")
         rgb.outputs[0].default_value = tuple(params["Base Color"])
         mat.node_tree.links.new(rgb.outputs[0], bsdf.inputs["Base Color"])
-        passes.add_socket_aov(mat, "albedo", rgb.outputs[0])
+        blender_scene.add_socket_aov(mat, "albedo", rgb.outputs[0])
         obj.data.materials.append(mat)
         mats.append(mat)
-    passes.camera_object(np.array([0.0, -3.0, 0.0]), np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), 50.0,
+    blender_scene.camera_object(np.array([0.0, -3.0, 0.0]), np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), 50.0,
                          scene=scene)
     return scene, spec, names
 
@@ -262,13 +262,14 @@ def test_cycles_under_one_sh_basis_function_matches_baked_transport(tmp_path, k)
     second order: < 1e-3 of |T|); the mean absolute error must stay below
     twice the noise plus the bound.
     """
+    from cycles_support import sh_world
     from farm import passes
 
     sphere = icosphere(4, radius=0.5) + (LAMBERT_WHITE,)
     blocker = icosphere(3, radius=0.35, centre=(0.75, 0.1, 0.2)) + (LAMBERT_WHITE,)
     directions = 1024
     scene, spec, names = _cycles_sphere_scene(tmp_path, [sphere, blocker], 2, directions)
-    passes.sh_world(scene, k)
+    sh_world(scene, k)
     scene.world.cycles.sampling_method = "NONE"  # negative emission: no importance map
     geo = passes.render_geometry(scene, spec, tmp_path, samples=4)
     t_pix = np.concatenate([geo.aovs[n] for n in names], axis=-1)[..., k]
@@ -288,7 +289,7 @@ def test_cycles_under_one_sh_basis_function_matches_baked_transport(tmp_path, k)
 
 
 def _hdr_scene(tmp_path, material, rotation_deg):
-    from farm import passes
+    from farm import blender_scene, passes
     from relight import presets
     from relight.envmap import load_equirect
 
@@ -301,7 +302,7 @@ def _hdr_scene(tmp_path, material, rotation_deg):
                                     np.full(count, 2.0 * material["Specular IOR Level"]))
     scene, spec, names = _cycles_sphere_scene(tmp_path, [sphere], order, 512, materials=mats)
     pixels = load_equirect(presets.preset_path("bridge")).pixels
-    passes.set_environment_world(scene, None, rotation_deg, 1.0, pixels=pixels)
+    blender_scene.set_environment_world(scene, None, rotation_deg, 1.0, pixels=pixels)
     geo = passes.render_geometry(scene, spec, tmp_path, samples=4)
     images = []
     for seed in (0, 1):
@@ -392,11 +393,12 @@ def test_specular_sphere_departs_from_albedo_times_shading(tmp_path):
 @pytest.mark.parametrize("prefilter", ["fast", "accurate"])
 def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
     """The farm option reaches Cycles: OIDN with that guide prefilter, a finite image."""
+    from cycles_support import sh_world
     from farm import passes
 
     sphere = icosphere(2, radius=0.5) + (LAMBERT_WHITE,)
     scene, _, _ = _cycles_sphere_scene(tmp_path, [sphere], 1, 64, resolution=16)
-    passes.sh_world(scene, 0)
+    sh_world(scene, 0)
     pt = passes.render_path_traced(scene, tmp_path, "pt", samples=2, denoise=True, prefilter=prefilter)
     assert scene.cycles.use_denoising and scene.cycles.denoiser == "OPENIMAGEDENOISE"
     assert scene.cycles.denoising_prefilter == prefilter.upper()
@@ -406,7 +408,7 @@ def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
 def test_each_light_gets_a_fresh_world_with_an_importance_map_scaled_to_its_resolution(tmp_path):
     """Cycles reads the map settings only when it first syncs a World, so each light
     needs its own World; the old one is freed (no pile-up over a worker's scenes)."""
-    from farm import passes
+    from farm import blender_scene
     import bpy
 
     sphere = icosphere(1, radius=0.5) + (LAMBERT_WHITE,)
@@ -414,10 +416,10 @@ def test_each_light_gets_a_fresh_world_with_an_importance_map_scaled_to_its_reso
     before = len(bpy.data.worlds)
     for width in (256, 64, 32):
         pixels = np.ones((width // 2, width, 3), np.float32)
-        passes.set_environment_world(scene, None, 0.0, 1.0, pixels=pixels, name=f"light{width}")
+        blender_scene.set_environment_world(scene, None, 0.0, 1.0, pixels=pixels, name=f"light{width}")
         world = scene.world
         assert world.name.startswith(f"light{width}")
         assert world.cycles.sampling_method == "MANUAL"
-        assert world.cycles.sample_map_resolution == max(width * passes.IMPORTANCE_MAP_OVERSAMPLING, 64)
+        assert world.cycles.sample_map_resolution == max(width * blender_scene.IMPORTANCE_MAP_OVERSAMPLING, 64)
     assert len(bpy.data.worlds) <= before + 1
-    assert passes.importance_map_resolution(20000) == 8192  # Cycles' upper bound for the setting
+    assert blender_scene.importance_map_resolution(20000) == 8192  # Cycles' upper bound for the setting
