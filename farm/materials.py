@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from farm.appearance import print_image
+from farm.prints import print_image
 
 
 def _node_math(nodes, links, op, a, b=None):

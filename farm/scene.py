@@ -241,7 +241,7 @@ class SceneBake:
 def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
     """Bake the transport of the vertices that can reach a pixel (rays in the camera frame:
     they are invariant under the rigid change of frame)."""
-    from farm import appearance, bake
+    from farm import bake, material_specs
 
     options = sample.options
     record = {"directions": options.bake_directions, "specular": "skipped"}
@@ -251,7 +251,7 @@ def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
     _, faces, _ = sample.mesh()
     cam_vertices, cam_normals = sample.camera_mesh()
     parts = sample.parts
-    specular_needed = not all(appearance.is_diffuse(p.material) for p in parts)
+    specular_needed = not all(material_specs.is_diffuse(p.material) for p in parts)
     use_specular = options.specular == "on" or (options.specular == "auto" and specular_needed)
     materials = None
     view_point = None

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from farm import appearance, bodies, garments, hair, summary
+from farm import appearance, bodies, garments, hair, prints, summary
 from farm import faces as face_details
 
 
@@ -133,12 +133,12 @@ def test_face_regions_sit_on_the_mouth_brows_and_nails(body):
 
 
 def test_print_image_is_crisp_in_the_recorded_colours():
-    spec = appearance.sample_print(np.random.default_rng(4), {"torso_y": 0.0, "chest": np.zeros(3), "back_z": 0.1},
-                                   [0.5, 0.5, 0.5])
+    spec = prints.sample_print(np.random.default_rng(4), {"torso_y": 0.0, "chest": np.zeros(3), "back_z": 0.1},
+                               [0.5, 0.5, 0.5])
     for kind in ("logo", "text", "number"):
         spec = dict(spec, kind=kind, shapes=2, text="A7")
-        img = appearance.print_image(spec)
-        assert np.array_equal(img, appearance.print_image(spec))
+        img = prints.print_image(spec)
+        assert np.array_equal(img, prints.print_image(spec))
         alpha = img[..., 3]
         assert set(np.unique(alpha)) == {0.0, 1.0}
         colours = {tuple(c) for c in img[alpha == 1.0, :3]}

@@ -106,13 +106,13 @@ def test_different_index_gives_different_scene_and_specular_off_is_recorded(mode
 
 @pytest.mark.anny
 def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
-    from farm import appearance
+    from farm import appearance, material_specs
 
     body = bodies.build_body(bodies.BodyParams(0.3, 0.8, 0.5, 0.5, 0.5, 0.5), None)
     parts, record = appearance.dress(body, np.random.default_rng(0), diffuse_only=True)
-    assert record["diffuse_only"] and all(appearance.is_diffuse(p.material) for p in parts)
+    assert record["diffuse_only"] and all(material_specs.is_diffuse(p.material) for p in parts)
     parts, _ = appearance.dress(body, np.random.default_rng(0), diffuse_only=False)
-    assert not any(appearance.is_diffuse(p.material) for p in parts)
+    assert not any(material_specs.is_diffuse(p.material) for p in parts)
     names = [p.name for p in parts]
     assert names[0] == "body" and "top" in names and "bottom" in names
     for p in parts:
