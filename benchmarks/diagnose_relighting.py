@@ -25,8 +25,10 @@ import torch
 
 from model import metrics
 from model.data import EvaluationPairs, _network_input, find_scenes, held_out_light_names
-from model.evaluate import Predictor, _hwc, _numpy_sample, exposure_ratio, render_np, with_metric_weight
-from model.evaluate import shading_np as _shading_np
+from model.evaluate import numpy_sample
+from model.pair_metrics import channels_last, exposure_ratio, render_np, with_metric_weight
+from model.pair_metrics import shading_np as _shading_np
+from model.predictor import Predictor
 from relight import sh
 
 # a denominator below this is "no light reaches the pixel": the photo-consistent albedo is undefined
@@ -35,7 +37,7 @@ MAX_ALBEDO = 2.0  # photo-consistent albedo clip: above it the pixel is unexplai
 
 
 def shading(transport: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """T . L [H, W, 3] (model.evaluate.shading_np for a non-T* network)."""
+    """T . L [H, W, 3] (model.pair_metrics.shading_np for a non-T* network)."""
     return _shading_np(transport, light, False)
 
 
@@ -48,8 +50,8 @@ def photo_consistent_relight(image_a, transport, residual, light_a, light_b) -> 
 
 def variants(pred: dict, sample: dict) -> dict[str, np.ndarray]:
     """Relit images [H, W, 3] by name; pred and sample hold [C, H, W] maps and [n, 3] lights."""
-    t, e, rho = pred["transport"], pred["residual"], _hwc(pred["albedo"])
-    image_a, light_b = _hwc(sample["image"]), sample["target_light"]
+    t, e, rho = pred["transport"], pred["residual"], channels_last(pred["albedo"])
+    image_a, light_b = channels_last(sample["image"]), sample["target_light"]
     light = np.asarray(pred["light"], np.float64)
     # a light with mean luminance <= 0 (an untrained network) has no reference scale: kept as is
     reference = sh.normalize_reference(light)[0] if sh.mean_luminance(light) > 0 else light
@@ -88,10 +90,10 @@ def main(argv=None) -> int:
     scores: dict[str, list[float]] = {}
     dc_ratios = []  # predicted / true light DC per channel: the light's level and colour error
     for i in range(n):
-        sample = with_metric_weight(_numpy_sample(pairs[i]), "interior")
+        sample = with_metric_weight(numpy_sample(pairs[i]), "interior")
         x = _network_input(sample["image"], None) if args.unmasked else sample["input"]
         pred = {k: v[0] for k, v in predictor(np.ascontiguousarray(x[None], dtype=np.float32)).items()}
-        weight, target = _hwc(sample["metric_weight"]), _hwc(sample["target_image"])
+        weight, target = channels_last(sample["metric_weight"]), channels_last(sample["target_image"])
         for name, relit in variants(pred, sample).items():
             scores.setdefault(name, []).append(metrics.psnr(relit, target, weight))
         true_dc = sample["light"][0]

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from model import metrics
+from model.report_cli import run_report
 from relight import photo as photo_io
 from relight import sh
 from relight.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
@@ -196,15 +197,12 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.add_argument("--tile", type=int, default=TILE, help=f"contact-sheet tile side in px (default {TILE})")
     args = p.parse_args(argv)
-    try:
-        results = evaluate_photos(args.model, Path(args.photos), args.out, quality=args.quality,
-                                  threads=args.threads, tile=args.tile)
-    except ValueError as exc:
-        print(f"model.evaluate_photos: error: {exc}", file=sys.stderr)
-        return 2
-    print((Path(args.out) / "photos.md").read_text(encoding="utf-8"), end="")
-    print(f"{len(results)} photos; wrote {args.out}/photos.md, photos.json, contact_sheet.png")
-    return 0
+    return run_report(
+        "model.evaluate_photos",
+        lambda: evaluate_photos(args.model, Path(args.photos), args.out, quality=args.quality,
+                                threads=args.threads, tile=args.tile),
+        Path(args.out) / "photos.md",
+        lambda results: f"{len(results)} photos; wrote {args.out}/photos.md, photos.json, contact_sheet.png")
 
 
 if __name__ == "__main__":

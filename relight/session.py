@@ -5,7 +5,7 @@ entry or the .sha256 file beside it (relight.models) and only then hands the
 bytes to onnxruntime, so nothing unchecked is ever loaded; the person matte's
 networks use it directly. `ModelSession` adds the checks of a relighting
 network (its metadata and its input/output names) and runs it; the runtime's
-Relighter and model.evaluate.Predictor both use it.
+Relighter and model.predictor.Predictor both use it.
 """
 
 from __future__ import annotations

@@ -62,13 +62,13 @@ def test_photo_consistent_albedo_absorbs_an_albedo_error_but_not_a_light_error()
 
 
 def test_exposure_matched_identity_matches_model_evaluate():
-    from model import evaluate
+    from model import pair_metrics
 
     sample, pred = _scene(2)
     sample["alpha"] = np.ones((1, 6, 5))
     sample["input_linear"] = sample["image"]
     mine = dr.variants(pred, sample)["identity, exposure-matched"]
-    theirs = evaluate.baseline_identity(sample, exposure_matched=True)["relighting/image"]
+    theirs = pair_metrics.baseline_identity(sample, exposure_matched=True)["relighting/image"]
     assert metrics.psnr(mine, np.moveaxis(sample["target_image"], 0, -1)) == pytest.approx(theirs["psnr"], abs=1e-9)
 
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from model import evaluate, metrics
+from model import evaluate, geometry_diagnostics, metrics, pair_metrics, predictor
 
 
 def _sample(seed=0, n=9, h=4, w=5):
@@ -26,8 +26,8 @@ def _sample(seed=0, n=9, h=4, w=5):
 
 def test_perfect_prediction_scores_zero_error():
     sample, pred = _sample()
-    scores = evaluate.evaluate_prediction(pred, sample, tstar=False)
-    assert set(scores) == {f"{s}/{m}" for s in ("reconstruction", "relighting") for m in evaluate.MAPS}
+    scores = pair_metrics.evaluate_prediction(pred, sample, tstar=False)
+    assert set(scores) == {f"{s}/{m}" for s in ("reconstruction", "relighting") for m in pair_metrics.MAPS}
     for key, m in scores.items():
         if key.endswith("shading"):
             continue  # GT shading is T.L (no E); the prediction's shading is T.L too
@@ -40,9 +40,9 @@ def test_identity_baselines_hand_values():
     ratio = sample["target_light"][0] / sample["light"][0]  # per channel: 0.5, 2, 0.5
     # an input that is exactly the target divided by the per-channel L00 ratio
     sample["input_linear"] = sample["target_image"] / ratio[:, None, None]
-    matched = evaluate.baseline_identity(sample, exposure_matched=True)["relighting/image"]
+    matched = pair_metrics.baseline_identity(sample, exposure_matched=True)["relighting/image"]
     assert matched["l1"] < 1e-12
-    plain = evaluate.baseline_identity(sample, exposure_matched=False)["relighting/image"]
+    plain = pair_metrics.baseline_identity(sample, exposure_matched=False)["relighting/image"]
     mask = sample["alpha"][0] > 0
     want = np.abs(sample["input_linear"] - sample["target_image"])[:, mask].mean()
     assert plain["l1"] == pytest.approx(want, rel=1e-12)
@@ -57,8 +57,8 @@ def test_gain_fitted_diagnostic_removes_exactly_a_colour_cast():
                                                (sample["light"], sample["target_light"]))
     cast = np.array([2.0, 0.5, 1.25])
     pred = dict(pred, albedo=sample["albedo"] * cast[:, None, None])
-    plain = evaluate.evaluate_prediction(pred, sample, tstar=False)
-    fitted = evaluate.gain_fitted(pred, sample, tstar=False)
+    plain = pair_metrics.evaluate_prediction(pred, sample, tstar=False)
+    fitted = pair_metrics.gain_fitted(pred, sample, tstar=False)
     assert plain["relighting/image"]["psnr"] < 30 and plain["relighting/albedo"]["psnr"] < 30
     # a pure per-channel cast is removed to float64 rounding (PSNR capped at 100 dB)
     assert fitted["relighting/image"]["psnr"] > 90 and fitted["relighting/albedo"]["psnr"] > 90
@@ -69,7 +69,7 @@ def test_gain_fitted_diagnostic_removes_exactly_a_colour_cast():
     # a structural error (noise) is not removed: gains fit, but the error stays
     rng = np.random.default_rng(9)
     noisy = dict(pred, albedo=sample["albedo"] * (1 + 0.3 * rng.normal(size=sample["albedo"].shape)))
-    assert evaluate.gain_fitted(noisy, sample, tstar=False)["relighting/albedo"]["psnr"] < 40
+    assert pair_metrics.gain_fitted(noisy, sample, tstar=False)["relighting/albedo"]["psnr"] < 40
     # an all-zero channel keeps gain 1 instead of dividing by zero
     assert metrics.fit_channel_gains(np.zeros((2, 2, 3)), np.ones((2, 2, 3))).tolist() == [1.0, 1.0, 1.0]
 
@@ -80,7 +80,7 @@ def test_table_and_contact_sheet_layout():
     # L1 x100 with 2 decimals, L2 x100 with 3, PSNR and scale-invariant PSNR, missing maps as "-"
     assert "| ours | reconstruction | - | - | - | - | - | - | - | - | 1.23 | 0.050 | 33.00 | 35.50 |" in md
     header = next(line for line in md.splitlines() if line.startswith("| method"))
-    assert header.count("|") - 1 == 2 + 4 * len(evaluate.MAPS) and "image SI PSNR" in header
+    assert header.count("|") - 1 == 2 + 4 * len(pair_metrics.MAPS) and "image SI PSNR" in header
     sheet = evaluate.contact_sheet([[np.zeros((4, 6, 3)), np.ones((4, 6, 3))]] * 2)
     assert sheet.shape == (2 * 6, 2 * 8, 3) and sheet.dtype == np.uint8
     assert sheet[0, 0].tolist() == [0, 0, 0] and sheet[0, 8].tolist() == [255, 255, 255]
@@ -122,7 +122,7 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     rows = {line.split("|")[1].strip() for line in md.splitlines() if "| relighting |" in line}
     ke_name = "baseline (ke/model.safetensors)"
     assert rows == {"ours", "identity", "identity, exposure-matched", evaluate.ORACLE_ROW, evaluate.GAIN_ROW,
-                    "small", ke_name, *evaluate.BREAKDOWN_ROWS}
+                    "small", ke_name, *geometry_diagnostics.BREAKDOWN_ROWS}
     record = json.loads((tmp_path / "all" / "evaluation.json").read_text())
     assert record["baselines"] == {"small": str(small), ke_name: str(ke)}
     together = record["methods"]
@@ -233,12 +233,12 @@ def test_evaluate_photos_needs_no_torch():
 def test_oracle_prt_misses_exactly_the_residual():
     """The oracle (GT albedo and T, no E) is off by exactly E.L: its error is the residual's."""
     sample, pred = _sample(seed=3)
-    got = evaluate.oracle_prt(sample)
-    mask = evaluate._hwc(sample["alpha"])
+    got = pair_metrics.oracle_prt(sample)
+    mask = pair_metrics.channels_last(sample["alpha"])
     for setting, light, image in (("reconstruction", "light", "image"),
                                   ("relighting", "target_light", "target_image")):
-        gt = evaluate._hwc(sample[image])
-        residual = evaluate.shading_np(pred["residual"], sample[light], False)
+        gt = pair_metrics.channels_last(sample[image])
+        residual = pair_metrics.shading_np(pred["residual"], sample[light], False)
         want = metrics.all_metrics(gt - residual, gt, mask)
         assert got[f"{setting}/image"]["l1"] == pytest.approx(want["l1"], rel=1e-12)
         assert got[f"{setting}/image"]["l1"] > 1e-3
@@ -247,8 +247,8 @@ def test_oracle_prt_misses_exactly_the_residual():
 def test_interior_mask_drops_partly_covered_pixels():
     sample, _ = _sample(seed=4)
     sample["alpha"][0, 1, 1] = 0.5
-    weighted = evaluate.with_metric_weight(dict(sample), "alpha")["metric_weight"]
-    interior = evaluate.with_metric_weight(dict(sample), "interior")["metric_weight"]
+    weighted = pair_metrics.with_metric_weight(dict(sample), "alpha")["metric_weight"]
+    interior = pair_metrics.with_metric_weight(dict(sample), "interior")["metric_weight"]
     assert weighted[0, 1, 1] == 0.5 and interior[0, 1, 1] == 0.0 and interior[0, 0, 0] == 0.0
     assert interior.sum() == sample["alpha"].size - 2
     # an error only on the half-covered pixel counts under "alpha", not under "interior"
@@ -257,12 +257,12 @@ def test_interior_mask_drops_partly_covered_pixels():
     bad["input_linear"] = sample["target_image"].copy()
     bad["input_linear"][:, 1, 1] += 1.0
     bad["light"] = bad["target_light"]
-    assert evaluate.baseline_identity(evaluate.with_metric_weight(dict(bad), "interior"), False)[
+    assert pair_metrics.baseline_identity(pair_metrics.with_metric_weight(dict(bad), "interior"), False)[
         "relighting/image"]["l1"] == 0.0
-    assert evaluate.baseline_identity(evaluate.with_metric_weight(dict(bad), "alpha"), False)[
+    assert pair_metrics.baseline_identity(pair_metrics.with_metric_weight(dict(bad), "alpha"), False)[
         "relighting/image"]["l1"] > 0.0
     with pytest.raises(ValueError, match="mask"):
-        evaluate.with_metric_weight(dict(sample), "edges")
+        pair_metrics.with_metric_weight(dict(sample), "edges")
 
 
 def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
@@ -271,14 +271,14 @@ def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
 
     path, _, _ = export_random_model(tmp_path / "m.onnx", seed=1, sh_order=2, width=4, depth=2)
     x = np.random.default_rng(0).uniform(-1, 1, (1, 3, 32, 32)).astype(np.float32)
-    predictor = evaluate.Predictor(path)
-    assert predictor.order == 2 and not predictor.tstar
+    model = predictor.Predictor(path)
+    assert model.order == 2 and not model.tstar
     want = ModelSession(path).run(x)
-    got = predictor(x)
-    for k in evaluate.OUTPUTS:
+    got = model(x)
+    for k in predictor.OUTPUTS:
         np.testing.assert_array_equal(got[k], want[k])
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
     with pytest.raises(ValueError, match="SHA-256 mismatch"):
-        evaluate.Predictor(path)
+        predictor.Predictor(path)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, evaluate, physics, train
+from model import data, geometry_diagnostics, pair_metrics, physics, train
 from model.checkpoint import load_model, save_model
 from model.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
 from model.synthetic import write_analytic_dataset
@@ -146,10 +146,10 @@ def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dat
     """Perfect transport and light: no normal, visibility or light error; a turned one: large."""
     pairs = data.EvaluationPairs(data.find_scenes(dataset), 32, 4, padding=2,
                                  held_out=frozenset(presets.HELD_OUT))
-    sample = evaluate.with_metric_weight({k: (v.numpy() if isinstance(v, torch.Tensor) else v)
+    sample = pair_metrics.with_metric_weight({k: (v.numpy() if isinstance(v, torch.Tensor) else v)
                                           for k, v in pairs[0].items()}, "interior")
     truth = {"transport": sample["transport"], "light": sample["light"], "albedo": sample["albedo"]}
-    m = evaluate.geometry_metrics(truth, sample)
+    m = geometry_diagnostics.geometry_metrics(truth, sample)
     # a light turned half way round moves over the spheres, and the truth moves it as the GT does
     assert m["light_motion"] == m["light_motion_gt"] > 0.2
     # the analytic scenes' T is the unoccluded lobe of their normal: band 1 gives it back, to
@@ -161,7 +161,7 @@ def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dat
 
     turn = sh_np.rotation_matrix(sh_np.z_rotation(90.0), 4)
     turned = np.einsum("kn,nhw->khw", turn, sample["transport"])
-    m90 = evaluate.geometry_metrics({"transport": turned, "light": sample["light"] * 2,
+    m90 = geometry_diagnostics.geometry_metrics({"transport": turned, "light": sample["light"] * 2,
                                      "albedo": sample["albedo"]}, sample)
     assert 20.0 < m90["normal_mean_deg"] <= 180.0
     assert m90["light_rel_l2"] == pytest.approx(1.0)

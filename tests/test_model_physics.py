@@ -38,7 +38,7 @@ def test_lobe_transport_equals_lambert_transport_times_visibility():
     assert np.abs(t.permute(0, 2, 3, 1).numpy() - expected).max() < 1e-12
     # and the inverse maps recover what went in
     assert np.abs(physics.visibility_from_transport(t).numpy() - vis.transpose(0, 3, 1, 2)).max() < 1e-12
-    from model.evaluate import transport_normal  # the evaluation reads normals off any model's T so
+    from model.geometry_diagnostics import transport_normal  # the evaluation reads normals off any model's T so
 
     back = np.stack([transport_normal(t[i].numpy()) for i in range(2)])
     assert np.abs(back - normals).max() < 1e-6

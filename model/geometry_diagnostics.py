@@ -1,0 +1,149 @@
+"""Geometry and light diagnostics of a prediction against the farm's buffers: normals and
+visibility read off any model's T, the input light's error, how a turned light moves over
+the person, and where the relit error comes from (parts swapped for the truth, physics
+ceilings); the tables of docs/EVALUATION.md."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from model import metrics
+from model.pair_metrics import channels_last, metric_weight, shading_np
+from model.physics import UNOCCLUDED_DC  # T_00 of an unoccluded white Lambertian point
+
+QUOTIENT_FLOOR = 0.25  # model.geometry's `reliable` default
+
+
+def transport_normal(transport: np.ndarray) -> np.ndarray:
+    """Unit band-1 direction of T [n, H, W] -> [H, W, 3]: the (bent) normal of a lobe
+    (Y_{1,-1} ~ y, Y_{1,0} ~ z, Y_{1,1} ~ x); any model's T has one."""
+    d = np.stack([transport[3], transport[1], transport[2]], axis=-1).astype(np.float64)
+    return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+
+
+def transport_visibility(transport: np.ndarray) -> np.ndarray:
+    """T_00 relative to an unoccluded point, [H, W], clamped to [0, 1]."""
+    return np.clip(transport[0] / UNOCCLUDED_DC, 0.0, 1.0)
+
+
+MOTION_AZIMUTHS = (0.0, 180.0)  # a directional light turned half way round (relight.sh.directional_light)
+
+
+def light_motion(albedo: np.ndarray, transport: np.ndarray, residual: np.ndarray | None, weight: np.ndarray,
+                 order: int) -> float:
+    """metrics.spatial_change of albedo * (T . L) + E . L between a directional light at
+    MOTION_AZIMUTHS[0] and [1]: how visibly a turned light moves over the person."""
+    from relight.sh import directional_light
+
+    imgs = []
+    for az in MOTION_AZIMUTHS:
+        L = directional_light(az, order)
+        img = channels_last(albedo) * shading_np(transport, L, False)
+        if residual is not None:
+            img = img + shading_np(residual, L, False)
+        imgs.append(np.maximum(img, 0.0))
+    return metrics.spatial_change(imgs[0], imgs[1], channels_last(weight))
+
+
+def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
+    """Normal angle (degrees; from T's band 1, against the farm's normal pass),
+    visibility L1 (T_00 ratio against the baked T's), and the input light's error
+    (|L - L_true| / |L_true| over all coefficients) on the metric's pixels."""
+    w = metric_weight(sample)[0] > 0.5
+    if not w.any():
+        return {}
+    gt_n = channels_last(sample["normal"]).astype(np.float64)
+    cos = np.clip((transport_normal(pred["transport"]) * gt_n).sum(-1), -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos))[w]
+    vis = np.abs(transport_visibility(pred["transport"]) - transport_visibility(sample["transport"]))[w]
+    light, true = np.asarray(pred["light"], np.float64), np.asarray(sample["light"], np.float64)
+    order = int(round(np.sqrt(light.shape[0]))) - 1
+    weight = metric_weight(sample)
+    return {"normal_mean_deg": float(angle.mean()), "normal_median_deg": float(np.median(angle)),
+            "visibility_l1": float(vis.mean()),
+            "light_rel_l2": float(np.linalg.norm(light - true) / max(np.linalg.norm(true), 1e-12)),
+            "light_motion": light_motion(pred["albedo"], pred["transport"], pred.get("residual"), weight, order),
+            "light_motion_gt": light_motion(sample["albedo"], sample["transport"], None, weight, order)}
+
+
+BREAKDOWN_ROWS = (
+    "true albedo x our shading",
+    "our albedo x true shading",
+    "ours with the true input light (quotient)",
+    "physics: quotient, true normals, true input light",
+    "physics: true albedo x Lambert of true normals",
+    "physics: true albedo x lobe of true normal and visibility",
+)
+
+
+def error_breakdown(pred: dict, sample: dict, order: int) -> dict[str, dict[str, float]]:
+    """Relit-image metrics with parts of the prediction replaced by the truth, and the
+    physics ceilings (rows of docs/EVALUATION.md's breakdown table):
+
+    * true albedo x our shading; our albedo x true shading (T_gt . L_b);
+    * ours with the true input light: quotient photo * (T . L_b) / (T . L_a,true);
+    * quotient with true normals (unoccluded lobe) and the true input light;
+    * true albedo x unoccluded Lambert of the true normals (order `order`);
+    * true albedo x lobe of the true normal and visibility (the parametric ceiling).
+    """
+    from relight.prt import lambert_transport
+
+    mask = channels_last(metric_weight(sample))
+    gt = channels_last(sample["target_image"])
+    photo = channels_last(sample["input_linear"])
+    la, lb = sample["light"], sample["target_light"]
+    albedo_gt = channels_last(sample["albedo"])
+    normal_gt = channels_last(sample["normal"]).astype(np.float64)
+    on = np.linalg.norm(normal_gt, axis=-1) > 0.5
+    normal_gt = np.where(on[..., None], normal_gt, np.array([0.0, -1.0, 0.0]))
+    lambert = np.moveaxis(lambert_transport(normal_gt, order), -1, 0)
+    lobe = lambert * transport_visibility(sample["transport"])[None]
+
+    def quotient(transport):
+        # the input shading floored at a quarter of its mean over the person (as the
+        # geometry-first model's reliability rule): where a lobe sees no light but the
+        # photo does (interreflection), an unfloored ratio would explode
+        shade_a = shading_np(transport, la, False)
+        floor = QUOTIENT_FLOOR * max(float((shade_a * mask).sum() / max(mask.sum() * 3, 1e-8)), 1e-6)
+        return photo * shading_np(transport, lb, False) / np.maximum(shade_a, floor)
+
+    images = (
+        albedo_gt * shading_np(pred["transport"], lb, False),
+        channels_last(pred["albedo"]) * shading_np(sample["transport"], lb, False),
+        quotient(pred["transport"]),
+        quotient(lambert),
+        albedo_gt * shading_np(lambert, lb, False),
+        albedo_gt * shading_np(lobe, lb, False),
+    )
+    return {name: {"relighting/image": metrics.all_metrics(img, gt, mask)}
+            for name, img in zip(BREAKDOWN_ROWS, images)}
+
+
+def parametric_transport_error(sample: dict, order: int) -> float:
+    """|T_lobe(true n, true v) - T_baked| / |T_baked| on the metric's pixels."""
+    from relight.prt import lambert_transport
+
+    w = metric_weight(sample)[0] > 0.5
+    normal_gt = channels_last(sample["normal"]).astype(np.float64)
+    ok = w & (np.linalg.norm(normal_gt, axis=-1) > 0.5)
+    if not ok.any():
+        return float("nan")
+    lobe = lambert_transport(normal_gt[ok], order) * transport_visibility(sample["transport"])[ok][:, None]
+    baked = np.moveaxis(sample["transport"], 0, -1)[ok]
+    return float(np.linalg.norm(lobe - baked) / max(np.linalg.norm(baked), 1e-12))
+
+
+def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
+    lines = ["| method | normal mean (deg) | normal median (deg) | visibility L1 | input light rel. L2 | "
+             "light motion 0->180 deg (GT renders) |",
+             "|---|---|---|---|---|---|"]
+    for method, m in results.items():
+        lines.append(f"| {method} | {m['normal_mean_deg']:.1f} | {m['normal_median_deg']:.1f} | "
+                     f"{m['visibility_l1']:.3f} | {m['light_rel_l2']:.3f} | "
+                     f"{m['light_motion']:.3f} ({m['light_motion_gt']:.3f}) |")
+    lines += ["", f"Parametric ceiling: the lobe of the true normal and visibility reproduces the baked T "
+                  f"to a relative L2 error of {ceiling:.3f}.",
+              "Light motion: model.metrics.spatial_change of the person relit by a directional light "
+              "(relight.sh.directional_light) at 0 and at 180 degrees, after per-channel gains; in brackets "
+              "the same for the ground truth, albedo * (T . L) from the farm's buffers."]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,59 @@
+"""A model under evaluation: a torch checkpoint or an ONNX file, run on [B, 3, H, W] float32
+inputs, with the outputs of docs/ARCHITECTURE.md ("Network I/O")."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+OUTPUTS = ("albedo", "transport", "residual", "light", "alpha")
+
+
+class Predictor:
+    """Runs a checkpoint (torch, eval mode) or an ONNX file on [B,3,H,W] float32 inputs.
+
+    An ONNX file opens through relight.session.ModelSession, as in the runtime: its
+    SHA-256 (registry or .sha256 file beside it), metadata and graph names are checked."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ValueError(f"model not found: {self.path}")
+        if self.path.suffix == ".onnx":
+            from relight.session import ModelSession
+            from relight.sh import num_coeffs
+
+            self.session = ModelSession(self.path)
+            self.n_coeffs = num_coeffs(self.session.sh_order)
+            t = self.session.output_channels("transport")
+            # the T* ablation exports 3n transport channels (docs/model.md)
+            self.tstar = self.n_coeffs > 1 and t == 3 * self.n_coeffs
+            self.model = None
+        elif self.path.suffix == ".safetensors":
+            from model.checkpoint import load_model
+
+            self.model = load_model(self.path)
+            self.tstar = self.model.tstar
+            self.n_coeffs = self.model.n
+        else:
+            raise ValueError(f"model must be a .safetensors checkpoint or an .onnx file, got {self.path.name}")
+
+    @property
+    def order(self) -> int | None:
+        return None if self.n_coeffs is None else int(round(self.n_coeffs ** 0.5)) - 1
+
+    def __call__(self, image: np.ndarray) -> dict[str, np.ndarray]:
+        if self.model is not None:
+            x = torch.from_numpy(image)
+            self.model.check_input(x)
+            with torch.no_grad():
+                out = self.model(x)
+            return {k: out[k].numpy() for k in OUTPUTS}
+        try:
+            out = self.session.run(image)
+        except Exception as exc:  # onnxruntime raises its own types (e.g. a size the graph rejects)
+            raise ValueError(f"{self.path.name} failed on an input of shape {image.shape}: {exc}") from None
+        return {k: out[k] for k in OUTPUTS}
