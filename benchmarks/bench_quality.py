@@ -97,7 +97,8 @@ def _hwc(chw) -> np.ndarray:
 
 
 def load_pairs(data, count: int, per_scene: int = 4) -> list[dict]:
-    from model.data import EvaluationPairs, find_scenes, held_out_light_names
+    from model.data import EvaluationPairs
+    from model.data_splits import find_scenes, held_out_light_names
 
     pairs = EvaluationPairs(find_scenes(data), 256, 4, held_out=held_out_light_names(),
                             max_pairs_per_scene=per_scene)

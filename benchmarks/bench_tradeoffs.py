@@ -139,7 +139,8 @@ def network_points(models: dict[str, Path], data, sizes, *, eval_size: int | Non
                    repeats: int = 5, max_pairs: int = 64, max_pairs_per_scene: int = 4,
                    held_out_only: bool = False) -> tuple[dict, list[dict]]:
     """(info, rows): one row per (model, working size) with time and relighting error."""
-    from model.data import EvaluationPairs, find_scenes, held_out_light_names
+    from model.data import EvaluationPairs
+    from model.data_splits import find_scenes, held_out_light_names
     from relight.dataset import read_scene
     from relight.runtime import Relighter
 
@@ -227,7 +228,7 @@ def sh_order_points(data, orders, *, repeat: int = 7, max_scenes: int = 64,
     megapixel (timed on `timing_pixels` pixels, scaled to 10^6)."""
     from bench_adaptive_order import relight_ms
 
-    from model.data import find_scenes
+    from model.data_splits import find_scenes
     from relight.dataset import has_transport, read_scene, read_sidecar, traced_lights
 
     paths = find_scenes(data)[:max_scenes]

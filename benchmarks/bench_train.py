@@ -172,7 +172,9 @@ def main() -> None:
         print(f"| {name} | {params / 1e6:.1f} | {gflop:.1f} | {ips:.3f} | {ips / base:.2f} | {infer:.3f} |",
               flush=True)
     if args.data:
-        from model.data import TrainingScenes, find_scenes, preset_training_lights
+        from model.data import TrainingScenes
+        from model.data_augment import preset_training_lights
+        from model.data_splits import find_scenes
         from relight import presets
 
         ds = TrainingScenes(find_scenes(args.data), args.size, 4, extra_lights=preset_training_lights(4),

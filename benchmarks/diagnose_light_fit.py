@@ -30,7 +30,8 @@ sys.path.insert(0, str(ROOT))
 
 from model import metrics, physics  # noqa: E402
 from model.checkpoint import load_model  # noqa: E402
-from model.data import EvaluationPairs, find_scenes, held_out_light_names  # noqa: E402
+from model.data import EvaluationPairs  # noqa: E402
+from model.data_splits import find_scenes, held_out_light_names  # noqa: E402
 from model.geometry import REFERENCE_LUMINANCE, mean_luminance  # noqa: E402
 
 

@@ -24,7 +24,8 @@ import numpy as np
 import torch
 
 from model import metrics
-from model.data import EvaluationPairs, _network_input, find_scenes, held_out_light_names
+from model.data import EvaluationPairs, network_input
+from model.data_splits import find_scenes, held_out_light_names
 from model.evaluate import numpy_sample
 from model.pair_metrics import channels_last, exposure_ratio, render_np, with_metric_weight
 from model.pair_metrics import shading_np as _shading_np
@@ -91,7 +92,7 @@ def main(argv=None) -> int:
     dc_ratios = []  # predicted / true light DC per channel: the light's level and colour error
     for i in range(n):
         sample = with_metric_weight(numpy_sample(pairs[i]), "interior")
-        x = _network_input(sample["image"], None) if args.unmasked else sample["input"]
+        x = network_input(sample["image"], None) if args.unmasked else sample["input"]
         pred = {k: v[0] for k, v in predictor(np.ascontiguousarray(x[None], dtype=np.float32)).items()}
         weight, target = channels_last(sample["metric_weight"]), channels_last(sample["target_image"])
         for name, relit in variants(pred, sample).items():

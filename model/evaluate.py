@@ -31,7 +31,8 @@ from relight.sheet import contact_sheet as _contact_sheet
 from relight.sheet import write_sheet
 from relight.fileio import atomic_write_text
 
-from model.data import EvaluationPairs, find_scenes, held_out_light_names
+from model.data import EvaluationPairs
+from model.data_splits import find_scenes, held_out_light_names
 from model.geometry_diagnostics import error_breakdown, geometry_metrics, geometry_table, parametric_transport_error
 from model.pair_metrics import (MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction,
                                 gain_fitted, oracle_prt, render_np, shading_np, with_metric_weight)

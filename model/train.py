@@ -21,8 +21,10 @@ import torch
 
 from model.checkpoint import build_network, load_model, save_model
 from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS, geometry_losses
-from model.data import (DEFAULT_PADDING, EvaluationPairs, PackedScenes, TrainingScenes, find_scenes,
-                        held_out_light_names, pack_scenes, preset_training_lights, split_by_body)
+from model.data import EvaluationPairs, TrainingScenes
+from model.data_augment import preset_training_lights
+from model.data_crops import DEFAULT_PADDING, PackedScenes, pack_scenes
+from model.data_splits import find_scenes, held_out_light_names, split_by_body
 from model.losses import LossWeights, relight_losses
 from model.network import PRESETS, RelightNet
 from model import sh_torch

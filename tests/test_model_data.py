@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from model import data
+from model import data, data_augment, data_crops, data_splits
 from model.synthetic import GLOSS, write_analytic_dataset
 from relight import presets
 from relight.colour import LUMINANCE_WEIGHTS
@@ -28,34 +28,34 @@ def scenes(tmp_path_factory):
 def test_crop_box_is_a_padded_square_around_the_mask():
     alpha = np.zeros((20, 30))
     alpha[5:9, 10:20] = 1.0  # bbox 4 x 10
-    top, left, side = data.crop_box(alpha, padding=2)
+    top, left, side = data_crops.crop_box(alpha, padding=2)
     assert side == 14 and left == 8 and top == 5 + 2 - 2 - 5  # centred vertically: (14 - 8) // 2 = 3 above
     with pytest.raises(ValueError, match="empty alpha"):
-        data.crop_box(np.zeros((4, 4)), 1)
+        data_crops.crop_box(np.zeros((4, 4)), 1)
 
 
 def test_crop_resize_zero_extends_and_is_linear():
     rng = np.random.default_rng(0)
     planes = rng.uniform(size=(10, 10, 2)).astype(np.float32)
-    out = data.crop_resize(planes, (-2, -2, 12), 12)  # no resize: exact copy with a zero border
+    out = data_crops.crop_resize(planes, (-2, -2, 12), 12)  # no resize: exact copy with a zero border
     assert out.shape == (2, 12, 12)
     np.testing.assert_array_equal(out[:, 2:, 2:], planes.transpose(2, 0, 1))
     assert not out[:, :2].any() and not out[:, :, :2].any()
     # resizing is linear: resize(a + 2b) = resize(a) + 2 resize(b) (float32 round-off)
     a, b = planes[..., :1], planes[..., 1:]
-    lhs = data.crop_resize(a + 2 * b, (0, 0, 10), 4)
-    rhs = data.crop_resize(a, (0, 0, 10), 4) + 2 * data.crop_resize(b, (0, 0, 10), 4)
+    lhs = data_crops.crop_resize(a + 2 * b, (0, 0, 10), 4)
+    rhs = data_crops.crop_resize(a, (0, 0, 10), 4) + 2 * data_crops.crop_resize(b, (0, 0, 10), 4)
     np.testing.assert_allclose(lhs, rhs, rtol=1e-5, atol=1e-6)
 
 
 def test_split_by_body_is_deterministic_and_disjoint(scenes):
-    train, val = data.split_by_body(scenes, 0.25, seed=3)
-    assert (train, val) == data.split_by_body(scenes, 0.25, seed=3)
+    train, val = data_splits.split_by_body(scenes, 0.25, seed=3)
+    assert (train, val) == data_splits.split_by_body(scenes, 0.25, seed=3)
     assert len(val) == 1 and len(train) == 3 and not set(train) & set(val)
-    bodies = lambda ps: {data.body_key(json.loads(p.read_text())) for p in ps}
+    bodies = lambda ps: {data_splits.body_key(json.loads(p.read_text())) for p in ps}
     assert not bodies(train) & bodies(val)
     with pytest.raises(ValueError):
-        data.split_by_body(scenes, 1.0)
+        data_splits.split_by_body(scenes, 1.0)
 
 
 def test_training_samples_never_use_held_out_lights(scenes):
@@ -73,9 +73,9 @@ def test_training_samples_never_use_held_out_lights(scenes):
 
 
 def test_preset_light_bank_excludes_held_out_maps():
-    names = [name for name, _ in data.preset_training_lights(2)]
+    names = [name for name, _ in data_augment.preset_training_lights(2)]
     assert names and not set(names) & HELD_OUT
-    assert all(light.shape == (9, 3) for _, light in data.preset_training_lights(2)[:1])
+    assert all(light.shape == (9, 3) for _, light in data_augment.preset_training_lights(2)[:1])
 
 
 def test_training_sample_ranges_physics_and_determinism(scenes):
@@ -106,7 +106,7 @@ def test_training_sample_ranges_physics_and_determinism(scenes):
 
 def test_light_tint_keeps_luminance_and_varies_colour():
     rng = np.random.default_rng(3)
-    tints = np.array([data.random_light_tint(rng, 0.3) for _ in range(200)])
+    tints = np.array([data_augment.random_light_tint(rng, 0.3) for _ in range(200)])
     # float32 factors: luminance 1 to float32 rounding
     np.testing.assert_allclose(tints @ LUMINANCE_WEIGHTS, 1.0, atol=1e-6)
     assert (tints > 0).all()
@@ -145,7 +145,7 @@ def test_reference_radiance_of_extra_lights():
     base = np.random.default_rng(1).normal(size=(9, 3)) * 0.3
     base[0] += 3.0  # a positive mean light
     for _ in range(5):
-        light = data.random_reference_light(base, rng)
+        light = data_augment.random_reference_light(base, rng)
         # float32 storage of the scaled light: relative error ~1e-7
         assert 0.7 - 1e-6 <= sh.mean_luminance(light) <= 0.9 + 1e-6
         # a Z rotation keeps band energies: |L_l| unchanged up to the scale
@@ -165,9 +165,9 @@ def test_evaluation_pairs_target_held_out_lights(scenes):
 
 def test_missing_dataset_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="no finished scenes"):
-        data.find_scenes(tmp_path)
+        data_splits.find_scenes(tmp_path)
     with pytest.raises(ValueError, match="does not exist"):
-        data.find_scenes(tmp_path / "nope")
+        data_splits.find_scenes(tmp_path / "nope")
 
 
 def test_mirror_signs_match_the_sh_basis_and_keep_shading():
@@ -176,7 +176,7 @@ def test_mirror_signs_match_the_sh_basis_and_keep_shading():
     rng = np.random.default_rng(0)
     dirs = rng.normal(size=(50, 3))
     mirrored = dirs * [-1.0, 1.0, 1.0]
-    signs = data.mirror_signs(4)
+    signs = data_augment.mirror_signs(4)
     np.testing.assert_allclose(sh.sh_basis(mirrored, 4), sh.sh_basis(dirs, 4) * signs, rtol=1e-12, atol=1e-12)
     assert signs[:4].tolist() == [1, 1, 1, -1]  # Y00, y, z unchanged; x flips
 
@@ -186,7 +186,7 @@ def test_flipped_samples_are_mirror_images(scenes):
     plain = data.TrainingScenes(scenes, 32, 4, flip_prob=0.0, **kw)
     flipped = data.TrainingScenes(scenes, 32, 4, flip_prob=1.0, **kw)
     a, b = plain.item(2, 5), flipped.item(2, 5)  # same seed: same lights and background
-    signs = torch.from_numpy(data.mirror_signs(4))
+    signs = torch.from_numpy(data_augment.mirror_signs(4))
     torch.testing.assert_close(b["input"], a["input"].flip(-1))
     torch.testing.assert_close(b["transport"], a["transport"].flip(-1) * signs[:, None, None])
     torch.testing.assert_close(b["light"], a["light"] * signs[:, None])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, geometry_diagnostics, pair_metrics, physics, train
+from model import data, data_crops, data_splits, geometry_diagnostics, pair_metrics, physics, train
 from model.checkpoint import load_model, save_model
 from model.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
 from model.synthetic import write_analytic_dataset
@@ -65,7 +65,7 @@ def test_a_batch_item_does_not_depend_on_the_others():
 def test_loss_falls_on_one_batch_and_every_geometry_term_learns(dataset):
     """200 Adam steps on two analytic samples: normals, visibility, albedo and the
     relit image each at least halve (measured: total 2.6 -> 0.25)."""
-    ds = data.TrainingScenes(data.find_scenes(dataset), 16, 4, padding=1, extra_lights=[],
+    ds = data.TrainingScenes(data_splits.find_scenes(dataset), 16, 4, padding=1, extra_lights=[],
                              held_out=frozenset(presets.HELD_OUT))
     batch = torch.utils.data.default_collate([ds.item(0, 0), ds.item(1, 0)])
     batch = {k: v for k, v in batch.items() if isinstance(v, torch.Tensor)}
@@ -105,12 +105,12 @@ def test_checkpoint_round_trip_and_train_cli(dataset, tmp_path):
 
 
 def test_pack_holds_the_same_crops_as_the_scene_files(dataset, tmp_path):
-    paths = data.find_scenes(dataset)
+    paths = data_splits.find_scenes(dataset)
     held = frozenset(presets.HELD_OUT)
-    pack = data.pack_scenes(paths, tmp_path / "p.npz", 16, 4, padding=1, held_out=held)
-    packed = data.PackedScenes(pack, paths, 16, 4, padding=1)
+    pack = data_crops.pack_scenes(paths, tmp_path / "p.npz", 16, 4, padding=1, held_out=held)
+    packed = data_crops.PackedScenes(pack, paths, 16, 4, padding=1)
     for i, path in enumerate(paths):
-        direct = data.load_cropped(path, 16, 4, 1, held)
+        direct = data_crops.load_cropped(path, 16, 4, 1, held)
         got = packed(i)
         # float16 storage: relative error <= 2^-11 of each value
         for name in ("alpha", "albedo", "transport", "normal"):
@@ -119,7 +119,7 @@ def test_pack_holds_the_same_crops_as_the_scene_files(dataset, tmp_path):
         assert [np.asarray(l).tolist() for l in got.lights] == [np.asarray(l).tolist() for l in direct.lights]
         assert got.light_names == direct.light_names and got.held_out == direct.held_out
     with pytest.raises(ValueError, match="other scenes or crop settings"):
-        data.PackedScenes(pack, paths, 32, 4, padding=1)
+        data_crops.PackedScenes(pack, paths, 32, 4, padding=1)
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -144,7 +144,7 @@ def test_onnx_export_matches_torch_and_the_runtime_relights_with_it(tmp_path):
 
 def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dataset):
     """Perfect transport and light: no normal, visibility or light error; a turned one: large."""
-    pairs = data.EvaluationPairs(data.find_scenes(dataset), 32, 4, padding=2,
+    pairs = data.EvaluationPairs(data_splits.find_scenes(dataset), 32, 4, padding=2,
                                  held_out=frozenset(presets.HELD_OUT))
     sample = pair_metrics.with_metric_weight({k: (v.numpy() if isinstance(v, torch.Tensor) else v)
                                           for k, v in pairs[0].items()}, "interior")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, evaluate, train
+from model import data, data_splits, evaluate, train
 from model.checkpoint import load_model
 from model.losses import LossWeights, relight_losses
 from model.network import RelightNet
@@ -30,7 +30,7 @@ def test_tiny_model_overfits_one_batch(dataset, one_thread):
     Measured 13.57 -> 0.40 (2.9%). Transport converges slowest (0.54 -> 0.22): the
     11 render terms pull T towards whatever matches T . L; each term must at least halve.
     """
-    ds = data.TrainingScenes(data.find_scenes(dataset), 16, 2, padding=1, extra_lights=[],
+    ds = data.TrainingScenes(data_splits.find_scenes(dataset), 16, 2, padding=1, extra_lights=[],
                              held_out=frozenset(presets.HELD_OUT))
     batch = torch.utils.data.default_collate([ds.item(0, 0), ds.item(1, 0)])
     batch = {k: v for k, v in batch.items() if isinstance(v, torch.Tensor)}

@@ -1,0 +1,84 @@
+"""Random draws of the training augmentation (model.data.TrainingScenes): backgrounds,
+extra lights at a reference radiance, light tints, and the signs of a mirrored photo's SH.
+Every draw comes from the Generator passed in."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from model.data_splits import held_out_light_names
+from relight.colour import LUMINANCE_WEIGHTS
+from relight.light import rotate_and_normalise
+
+REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range
+
+
+MIRROR_X = np.array([-1.0, 1.0, 1.0], dtype=np.float32)  # a mirrored photo's normals: x flips
+
+
+def mirror_signs(order: int) -> np.ndarray:
+    """Per-coefficient signs s with Y_k(-x, y, z) = s_k Y_k(x, y, z).
+
+    Mirroring x maps azimuth phi -> pi - phi: cos(m phi) terms (m > 0) gain
+    (-1)^m, sin(|m| phi) terms (m < 0) gain (-1)^(|m|+1), zonal terms stay.
+    A horizontally flipped photo has transport s * T and light s * L, and
+    (s T) . (s L) = T . L: an exact augmentation.
+    """
+    signs = []
+    for l in range(order + 1):
+        for m in range(-l, l + 1):
+            signs.append(1.0 if m == 0 else (-1.0) ** (abs(m) + (1 if m < 0 else 0)))
+    return np.asarray(signs, dtype=np.float32)
+
+
+def random_background(rng: np.random.Generator, size: int) -> np.ndarray:
+    """A linear RGB background [3, S, S]: flat colour, smooth noise or a gradient."""
+    kind = rng.integers(3)
+    if kind == 0:
+        colour = rng.uniform(0.0, 1.0, 3) ** 2.2
+        return np.broadcast_to(colour[:, None, None], (3, size, size)).astype(np.float32)
+    if kind == 1:
+        cells = int(rng.integers(2, 9))
+        coarse = torch.from_numpy(rng.uniform(0.0, 1.0, (1, 3, cells, cells)).astype(np.float32))
+        smooth = F.interpolate(coarse, size=(size, size), mode="bicubic", align_corners=False)
+        return (smooth[0].clamp(0.0, 1.0) ** 2.2).numpy()
+    a, b = rng.uniform(0.0, 1.0, (2, 3)) ** 2.2
+    angle = rng.uniform(0, 2 * math.pi)
+    yy, xx = np.mgrid[0:size, 0:size] / max(size - 1, 1)
+    t = np.clip(0.5 + (xx - 0.5) * math.cos(angle) + (yy - 0.5) * math.sin(angle), 0.0, 1.0)
+    return (a[:, None, None] * (1 - t) + b[:, None, None] * t).astype(np.float32)
+
+
+def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Rotate an SH light [n, 3] about Z at random, scale to a reference radiance in [0.7, 0.9]."""
+    rotation = rng.uniform(0.0, 360.0)
+    target = rng.uniform(*REFERENCE_RADIANCE)
+    scaled, _ = rotate_and_normalise(base, rotation, target)  # relight.light's recipe for maps
+    return scaled.astype(np.float32)
+
+
+def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
+    """Per-channel factors exp(N(0, sigma^2)) rescaled to Rec.709 luminance 1.
+
+    Multiplying a light by it changes the light's colour, never its reference
+    radiance; the image under it is multiplied by the same factors.
+    """
+    tint = np.exp(rng.normal(0.0, sigma, 3))
+    return (tint / float(LUMINANCE_WEIGHTS @ tint)).astype(np.float32)
+
+
+def preset_training_lights(order: int) -> list[tuple[str, np.ndarray]]:
+    """SH [n, 3] of every bundled HDR preset that is not held out."""
+    from relight import presets
+    from relight.light import sh_light
+
+    held_out = held_out_light_names()
+    out = []
+    for name in presets.training_presets():
+        assert name.lower() not in held_out, f"relight.presets offered held-out map {name}"
+        out.append((name.lower(), np.asarray(sh_light(name, order, normalize=False), dtype=np.float32)))
+    return out

@@ -1,0 +1,65 @@
+"""Which scenes and lights may train: the held-out light maps, the body split, and the
+finished scenes of a dataset folder (relight.dataset)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from relight.dataset import light_map_name, list_finished_scenes, read_sidecar
+
+
+def held_out_light_names() -> frozenset[str]:
+    """Names of the HDR maps reserved for evaluation (relight.presets.HELD_OUT)."""
+    from relight import presets
+
+    return frozenset(str(n).lower() for n in presets.HELD_OUT)
+
+
+light_name = light_map_name  # the HDR map a scene light came from (relight.dataset)
+
+
+def is_held_out(light: dict, held_out: frozenset[str]) -> bool:
+    return light_name(light) in held_out or str(light.get("name", "")).lower() in held_out
+
+
+def body_key(meta: dict) -> str:
+    """Identity of the scene's body (clothed model), used for the body split."""
+    body = meta.get("body")
+    if isinstance(body, dict) and "id" in body:
+        return str(body["id"])
+    if body is None:
+        return f"scene-{meta.get('index')}"
+    return json.dumps(body, sort_keys=True, default=str)
+
+
+def split_by_body(json_paths: list[Path], val_fraction: float, seed: int = 0) -> tuple[list[Path], list[Path]]:
+    """Deterministic body split: a body goes to validation when its hash falls below val_fraction.
+
+    With at least two bodies, both sides get at least one body.
+    """
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    keys = {p: body_key(read_sidecar(p)) for p in json_paths}
+
+    def rank(key: str) -> float:
+        digest = hashlib.sha256(f"{seed}:{key}".encode()).digest()
+        return int.from_bytes(digest[:8], "big") / 2.0**64
+
+    bodies = sorted(set(keys.values()), key=rank)
+    n_val = int(round(val_fraction * len(bodies)))
+    if val_fraction > 0 and len(bodies) >= 2:
+        n_val = min(max(n_val, 1), len(bodies) - 1)
+    val_bodies = set(bodies[:n_val])
+    train = [p for p in json_paths if keys[p] not in val_bodies]
+    val = [p for p in json_paths if keys[p] in val_bodies]
+    return train, val
+
+
+def find_scenes(folder) -> list[Path]:
+    """Finished scenes of a dataset folder (ValueError when there are none)."""
+    paths = list_finished_scenes(folder)
+    if not paths:
+        raise ValueError(f"no finished scenes (scene_NNNNNN.json + .exr) in {folder}")
+    return paths
