@@ -110,7 +110,7 @@ class TrainingScenes(torch.utils.data.Dataset):
         return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
 
     def __getitem__(self, i: int) -> dict:
-        """Sample i of epoch 0; training takes other epochs through model.train.EpochIndexed."""
+        """Sample i of epoch 0; training takes other epochs through model.train_data.EpochIndexed."""
         return self.item(i, 0)
 
     def item(self, i: int, epoch: int) -> dict:

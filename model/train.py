@@ -6,6 +6,8 @@ AdamW, lr 5e-5 (the paper's). Writes to --out:
   checkpoints/last.ckpt   Lightning state for --resume (loaded with weights_only=True)
   model.safetensors/.json final weights + config (model.checkpoint), seed and args recorded
   metrics.csv (CSV logger under logs/)
+The LightningModule is model.train_module.RelightModule, the LightningDataModule
+model.train_data.SceneDataModule; this module is the command line.
 """
 
 from __future__ import annotations
@@ -16,50 +18,18 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
+import lightning as L
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import CSVLogger
 
-from model.checkpoint import build_network, load_model, save_model
-from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS, geometry_losses
-from model.data import EvaluationPairs, TrainingScenes
-from model.data_augment import preset_training_lights
-from model.data_crops import DEFAULT_PADDING, PackedScenes, pack_scenes
-from model.data_splits import find_scenes, held_out_light_names, split_by_body
-from model.losses import LossWeights, relight_losses
-from model.network import PRESETS, RelightNet
-from model import sh_torch
-
-
-class EpochShuffleSampler(torch.utils.data.Sampler):
-    """Shuffles per epoch and yields epoch * N + i, so each item's augmentation seed is
-    fixed by (seed, epoch, i) whatever the number of workers or a resume in between."""
-
-    def __init__(self, n: int, seed: int):
-        self.n, self.seed, self.epoch = n, seed, 0
-
-    def set_epoch(self, epoch: int) -> None:  # Lightning calls this at every epoch start
-        self.epoch = epoch
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __iter__(self):
-        order = np.random.default_rng([self.seed, self.epoch]).permutation(self.n)
-        return iter((self.epoch * self.n + order).tolist())
-
-
-class EpochIndexed(torch.utils.data.Dataset):
-    """Maps the sampler's epoch * N + i back to item i with augmentation epoch `epoch`."""
-
-    def __init__(self, dataset: TrainingScenes):
-        self.dataset = dataset
-
-    def __len__(self) -> int:
-        return len(self.dataset)
-
-    def __getitem__(self, k: int) -> dict:
-        n = len(self.dataset)
-        return self.dataset.item(k % n, epoch=k // n)
+from model.checkpoint import load_model, save_model
+from model.data_crops import DEFAULT_PADDING
+from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS
+from model.losses import LossWeights
+from model.network import PRESETS
+from model.train_data import SceneDataModule
+from model.train_module import RelightModule
 
 
 def build_model_config(args) -> dict:
@@ -81,21 +51,6 @@ def build_model_config(args) -> dict:
     return dict(sh_order=args.order, **layout,
                 with_residual=not (args.no_residual or lambertian), with_matte=not args.no_matte,
                 decomposition=not (args.no_decomposition or lambertian), tstar=args.tstar)
-
-
-def lr_factor(step: int, total: int, warmup: int, schedule: str, floor: float = 0.05) -> float:
-    """Multiplier of the base learning rate at `step`: linear warm-up, then constant or cosine to `floor`.
-
-    A short CPU budget needs a decaying rate: the last steps at a small rate are
-    where the loss settles (constant AdamW rates plateau at the noise level).
-    """
-    if warmup > 0 and step < warmup:
-        return (step + 1) / warmup
-    if schedule == "constant":
-        return 1.0
-    span = max(1, total - warmup)
-    t = min(1.0, (step - warmup) / span)
-    return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
 def loss_weights_from_args(args) -> dict:
@@ -120,73 +75,6 @@ def loss_weights_from_args(args) -> dict:
     if args.no_log_loss and not geometry:
         weights["log"] = 0.0
     return weights
-
-
-def make_lightning_module(model_config: dict, weights: dict, lr: float, weight_decay: float,
-                          schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
-    import lightning as L
-
-    class RelightModule(L.LightningModule):
-        def __init__(self, model_config: dict, weights: dict, lr: float, weight_decay: float,
-                     schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
-            super().__init__()
-            self.save_hyperparameters()  # plain dicts and floats: loadable with weights_only=True
-            self.model = build_network(model_config)
-            self.geometry = model_config.get("arch") == GEOMETRY
-            self.weights = dict(weights) if self.geometry else LossWeights.from_dict(weights)
-
-        def forward(self, image):
-            return self.model(image)
-
-        def _losses(self, batch):
-            pred = self.model(batch["input"])
-            pred = {k: v.float() for k, v in pred.items()}
-            # under AMP, autocast would run the rendering einsums in float16: keep losses in float32
-            with torch.autocast(device_type=self.device.type, enabled=False):
-                if self.geometry:
-                    return pred, geometry_losses(pred, batch, self.weights)
-                return pred, relight_losses(pred, batch, self.weights, decomposition=self.model.decomposition,
-                                            tstar=self.model.tstar)
-
-        def training_step(self, batch, batch_idx):
-            _, terms = self._losses(batch)
-            if not torch.isfinite(terms["total"]):
-                if str(self.trainer.precision).startswith("16"):
-                    return None  # an fp16 overflow: skip this batch (Lightning skips the step)
-                raise FloatingPointError(f"non-finite training loss at step {self.global_step}: "
-                                         + ", ".join(f"{k}={float(v):.3g}" for k, v in terms.items()))
-            self.log_dict({f"train/{k}": v for k, v in terms.items()}, batch_size=batch["input"].shape[0])
-            self.log("loss", terms["total"], prog_bar=True, logger=False, batch_size=batch["input"].shape[0])
-            return terms["total"]
-
-        def validation_step(self, batch, batch_idx):
-            pred, terms = self._losses(batch)
-            b = batch["input"].shape[0]
-            self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=b)
-            w = batch["alpha"]
-            recon = render_prediction(pred, pred["light"], self.model.tstar)
-            relit = render_prediction(pred, batch["target_light"], self.model.tstar)
-            for name, img, gt in (("psnr_image", recon, batch["image"]), ("psnr_relight", relit, batch["target_image"])):
-                mse = ((img - gt) ** 2 * w).sum() / (w.sum() * 3).clamp_min(1e-8)
-                self.log(f"val/{name}", -10.0 * torch.log10(mse.clamp_min(1e-10)), batch_size=b,
-                         prog_bar=name == "psnr_relight")
-
-        def configure_optimizers(self):
-            opt = torch.optim.AdamW(self.model.parameters(), lr=self.hparams.lr,
-                                    weight_decay=self.hparams.weight_decay)
-            hp = self.hparams
-            sched = torch.optim.lr_scheduler.LambdaLR(
-                opt, lambda step: lr_factor(step, hp.total_steps, hp.warmup, hp.schedule))
-            return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-
-    return RelightModule(model_config, weights, lr, weight_decay, schedule, warmup, total_steps)
-
-
-def render_prediction(pred: dict, light: torch.Tensor, tstar: bool) -> torch.Tensor:
-    """albedo * (T . L) + E . L, or T* . L for the T* ablation."""
-    if tstar:
-        return sh_torch.shading_tstar(pred["transport"], light)
-    return sh_torch.render(pred["albedo"], pred["transport"], pred["residual"], light)
 
 
 def parse_args(argv=None):
@@ -271,22 +159,8 @@ def parse_args(argv=None):
     return args
 
 
-def first_scenes(folders, limit: int | None = None) -> list[Path]:
-    """Finished scenes of `folders` in order (each folder's by index), the first `limit` of them."""
-    scenes = [path for folder in folders for path in find_scenes(folder)]
-    if limit is None:
-        return scenes
-    if not 1 <= limit <= len(scenes):
-        raise ValueError(f"--max-scenes {limit}: the data has {len(scenes)} finished scenes")
-    return scenes[:limit]
-
-
 def train(args) -> Path:
     """Run training; returns the final weights path."""
-    import lightning as L
-    from lightning.pytorch.callbacks import ModelCheckpoint
-    from lightning.pytorch.loggers import CSVLogger
-
     warnings.filterwarnings("ignore", ".*does not have many workers.*")
     warnings.filterwarnings("ignore", ".*number of training batches.*")
     warnings.filterwarnings("ignore", ".*LeafSpec.*")  # lightning 2.6 vs torch 2.13 internals
@@ -296,39 +170,20 @@ def train(args) -> Path:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
-    scenes = first_scenes(args.data, args.max_scenes)
-    train_paths, val_paths = split_by_body(scenes, args.val_fraction, seed=args.seed)
-    held_out = held_out_light_names()
-    extra = [] if args.no_presets else preset_training_lights(args.order)
-    pack = None
-    if args.pack:
-        pack = Path(args.pack)
-        try:
-            PackedScenes(pack, train_paths, args.size, args.order, args.padding)
-        except (OSError, ValueError, KeyError):  # missing, stale or unreadable: make it again
-            pack_scenes(train_paths, pack, args.size, args.order, args.padding, held_out)
-    train_set = TrainingScenes(train_paths, args.size, args.order, padding=args.padding, extra_lights=extra, pack=pack,
-                               extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob,
-                               flip_prob=args.flip_prob, light_tint=args.light_tint,
-                               exposure_jitter=args.exposure_jitter, capture=args.capture,
-                               lambertian=args.lambertian, seed=args.seed, held_out=held_out,
-                               cache_size=args.cache_scenes)
-    loader_kw = dict(num_workers=args.workers, persistent_workers=args.workers > 0)
-    train_loader = torch.utils.data.DataLoader(EpochIndexed(train_set), batch_size=args.batch,
-                                               sampler=EpochShuffleSampler(len(train_set), args.seed),
-                                               drop_last=len(train_set) >= args.batch, **loader_kw)
-    val_loader = None
-    if val_paths:
-        try:
-            val_set = EvaluationPairs(val_paths, args.size, args.order, padding=args.padding, held_out=held_out)
-            val_loader = torch.utils.data.DataLoader(val_set, batch_size=args.batch, shuffle=False, **loader_kw)
-        except ValueError as exc:  # validation scenes without two path-traced lights
-            print(f"model.train: no validation ({exc})", file=sys.stderr)
+    data = SceneDataModule(
+        args.data, size=args.size, order=args.order, batch=args.batch, seed=args.seed, max_scenes=args.max_scenes,
+        val_fraction=args.val_fraction, padding=args.padding, workers=args.workers, cache_scenes=args.cache_scenes,
+        pack=args.pack, presets=not args.no_presets,
+        augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
+                     light_tint=args.light_tint, exposure_jitter=args.exposure_jitter, capture=args.capture,
+                     lambertian=args.lambertian))
+    # the Trainer's validation settings depend on whether there are validation pairs
+    data.prepare_data()
+    data.setup("fit")
 
     weights = loss_weights_from_args(args)
-    model_config = build_model_config(args)
-    module = make_lightning_module(model_config, weights, args.lr, args.weight_decay,
-                                   args.lr_schedule, args.warmup, args.steps)
+    module = RelightModule(build_model_config(args), weights, args.lr, args.weight_decay,
+                           args.lr_schedule, args.warmup, args.steps)
     if args.init:
         start = load_model(args.init)
         if start.config() != module.model.config():
@@ -347,9 +202,9 @@ def train(args) -> Path:
         precision="16-mixed" if cuda else "32-true", callbacks=[checkpoint],
         logger=CSVLogger(out, name="logs"), enable_progress_bar=not args.quiet,
         enable_model_summary=False, log_every_n_steps=min(10, args.steps),
-        val_check_interval=args.val_every if val_loader is not None else None,
+        val_check_interval=args.val_every if data.has_validation else None,
         check_val_every_n_epoch=None, num_sanity_val_steps=0, deterministic=False,
-        limit_val_batches=1.0 if val_loader is not None else 0,
+        limit_val_batches=1.0 if data.has_validation else 0,
     )
     resume_from = None
     if args.resume:
@@ -357,12 +212,13 @@ def train(args) -> Path:
         if not last.is_file():
             raise ValueError(f"--resume: no checkpoint at {last}")
         resume_from = str(last)
-    trainer.fit(module, train_loader, val_loader, ckpt_path=resume_from, weights_only=True)
+    trainer.fit(module, datamodule=data, ckpt_path=resume_from, weights_only=True)
     trainer.save_checkpoint(ckpt_dir / "last.ckpt", weights_only=False)  # full state, for --resume
 
     record = {"seed": args.seed, "steps": int(trainer.global_step),
               "loss_weights": weights,
-              "data": [str(d) for d in args.data], "train_scenes": len(train_paths), "val_scenes": len(val_paths), "lambertian": args.lambertian,
+              "data": [str(d) for d in args.data], "train_scenes": len(data.train_paths),
+              "val_scenes": len(data.val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
     return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, data_splits, evaluate, train
+from model import data, data_splits, evaluate, train, train_data, train_module
 from model.checkpoint import load_model
 from model.losses import LossWeights, relight_losses
 from model.network import RelightNet
@@ -129,11 +129,11 @@ def test_cli_errors_are_one_line(dataset, tmp_path, capsys):
 
 
 def test_max_scenes_takes_the_first_scenes_in_folder_then_index_order(dataset, tmp_path, capsys):
-    every = train.first_scenes([dataset])
+    every = train_data.first_scenes([dataset])
     assert [p.name for p in every] == sorted(p.name for p in dataset.glob("scene_*.json"))
-    assert train.first_scenes([dataset], 3) == every[:3]
+    assert train_data.first_scenes([dataset], 3) == every[:3]
     # two folders: the first's scenes come first, whatever their indices
-    assert train.first_scenes([dataset, dataset], 6) == every + every[:2]
+    assert train_data.first_scenes([dataset, dataset], 6) == every + every[:2]
     assert _run_train(dataset, tmp_path / "ok", 1, "--max-scenes", "3") == 0
     record = json.loads((tmp_path / "ok" / "model.json").read_text())["training"]
     assert record["train_scenes"] + record["val_scenes"] == 3 and record["args"]["max_scenes"] == 3
@@ -145,7 +145,7 @@ def test_max_scenes_takes_the_first_scenes_in_folder_then_index_order(dataset, t
 
 
 def test_sampler_reshuffles_per_epoch_and_encodes_the_epoch():
-    sampler = train.EpochShuffleSampler(5, seed=1)
+    sampler = train_data.EpochShuffleSampler(5, seed=1)
     first = list(sampler)
     assert sorted(first) == list(range(5))
     sampler.set_epoch(3)
@@ -155,7 +155,7 @@ def test_sampler_reshuffles_per_epoch_and_encodes_the_epoch():
 
 
 def test_lr_factor_warms_up_then_decays_by_cosine_to_the_floor():
-    f = train.lr_factor
+    f = train_module.lr_factor
     assert [f(s, 100, 4, "cosine") for s in range(4)] == [0.25, 0.5, 0.75, 1.0]
     assert f(4, 100, 4, "cosine") == pytest.approx(1.0)
     # halfway through the decay the cosine is at the mean of 1 and the floor
@@ -202,9 +202,9 @@ def test_photo_like_capture_is_off_by_default_and_can_be_turned_on(monkeypatch, 
         seen["capture"] = kwargs["capture"]
         raise Stop
 
-    monkeypatch.setattr(train, "TrainingScenes", fake_scenes)
-    monkeypatch.setattr(train, "first_scenes", lambda folders, limit=None: ["a.json", "b.json", "c.json"])
-    monkeypatch.setattr(train, "split_by_body", lambda scenes, fraction, seed: (scenes[:2], scenes[2:]))
+    monkeypatch.setattr(train_data, "TrainingScenes", fake_scenes)
+    monkeypatch.setattr(train_data, "first_scenes", lambda folders, limit=None: ["a.json", "b.json", "c.json"])
+    monkeypatch.setattr(train_data, "split_by_body", lambda scenes, fraction, seed: (scenes[:2], scenes[2:]))
     for flags, expected in (([], False), (["--capture"], True), (["--no-capture"], False)):
         args = train.parse_args(["--data", "d", "--out", str(tmp_path), "--preset", "geo-small", "--size", "32",
                                  "--threads", "1", *flags])
