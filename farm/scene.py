@@ -376,9 +376,9 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
     `sample_fn` (same signature as draw_scene, which it defaults to; called with
     the request checked here) draws the scene: farm.clips passes one that poses a
     clip's person for one frame."""
+    check_request(index, seed, options)  # before bpy is imported: a bad request needs no Blender
     from farm import blender_scene, lights, passes
 
-    check_request(index, seed, options)
     threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
     out_dir = Path(out_dir)
     t_total = time.perf_counter()
