@@ -16,6 +16,7 @@ import struct
 import warnings
 import zlib
 from collections import Counter, defaultdict
+from contextlib import contextmanager
 from datetime import timedelta
 
 import numpy as np
@@ -83,6 +84,28 @@ def run_case(prop: str, call):
     assert not caught, [f"{w.category.__name__}: {w.message}" for w in caught]
     record(prop, outcome)
     return result
+
+
+@contextmanager
+def accepted_share(prop: str, floor: float, accepted: tuple[str, ...] = ("ok",)):
+    """Around a property's run: fails unless some of the calls counted under `prop` in the
+    block were accepted (outcome in `accepted`) and their share is at least `floor`.
+
+    Refusing with a one-line ValueError is allowed case by case, so a loader that refused
+    every input would pass each case; this floor fails it. A floor is half the share q of
+    cases the generator makes valid by construction (derived where it is set; 0 where no
+    branch is valid by construction, leaving "some accepted"): over the "fuzz" profile's
+    1500 cases the accepted count falls below half its mean with probability at most
+    exp(-1500 q / 8) (Chernoff), under 1e-8 for every q >= 0.1 used here; the "ci"
+    profile's cases are fixed (derandomized).
+    """
+    before = Counter(OUTCOMES[prop])
+    yield
+    now = OUTCOMES[prop] - before
+    calls = sum(now.values())
+    ok = sum(now[name] for name in accepted)
+    assert ok >= 1 and ok >= floor * calls, (
+        f"{prop}: {ok} of {calls} calls accepted, below the floor of {floor:.1%} ({dict(now)})")
 
 
 def pytest_terminal_summary(terminalreporter):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import struct
 import warnings
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -19,7 +20,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
-from fuzz_support import exr_bytes, fuzz_settings, new_case, png_bytes, radiance_hdr, run_case
+from fuzz_support import (CASES, OUTCOMES, accepted_share, exr_bytes, fuzz_settings, new_case, png_bytes, radiance_hdr,
+                          record, run_case)
 from relight import envmap, exr, photo
 
 
@@ -114,36 +116,44 @@ def folder(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz-loaders")
 
 
-@given(st.data())
-@fuzz_settings()
-def test_fuzz_photo_loader(seeds, folder, data):
-    path = folder / "photo.bin"
-    path.write_bytes(data.draw(mutated(seeds)))
-    new_case("test_fuzz_photo_loader")
-    result = run_case("photo", lambda: photo.read_photo(path))
-    if result is not None:
-        _check_image(*result)
+def test_fuzz_photo_loader(seeds, folder):
+    @given(st.data())
+    @fuzz_settings()
+    def case(data):
+        path = folder / "photo.bin"
+        path.write_bytes(data.draw(mutated(seeds)))
+        new_case("test_fuzz_photo_loader")
+        result = run_case("photo", lambda: photo.read_photo(path))
+        if result is not None:
+            _check_image(*result)
+
+    with accepted_share("photo", 0.1):  # q = 1/5: mutated's "none" leaves a valid seed as it is
+        case()
 
 
-@given(st.data(), st.tuples(st.integers(1, 16), st.integers(1, 16)))
-@fuzz_settings()
-def test_fuzz_mask_loader(seeds, folder, data, shape):
-    path = folder / "mask.bin"
-    raw = data.draw(mutated(seeds))
-    path.write_bytes(raw)
-    if data.draw(st.booleans()):  # the shape of the file itself, when it has one: the mask is then read
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                with Image.open(io.BytesIO(raw)) as im:
-                    shape = im.size[::-1]
-            except Exception:
-                pass
-    new_case("test_fuzz_mask_loader")
-    mask = run_case("mask", lambda: photo.read_mask(path, shape))
-    if mask is not None:
-        assert mask.shape == tuple(shape) and mask.dtype == np.float32
-        assert np.all(np.isfinite(mask)) and mask.min() >= 0 and mask.max() <= 1 and np.any(mask > 0)
+def test_fuzz_mask_loader(seeds, folder):
+    @given(st.data(), st.tuples(st.integers(1, 16), st.integers(1, 16)))
+    @fuzz_settings()
+    def case(data, shape):
+        path = folder / "mask.bin"
+        raw = data.draw(mutated(seeds))
+        path.write_bytes(raw)
+        if data.draw(st.booleans()):  # the shape of the file itself, when it has one: the mask is then read
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    with Image.open(io.BytesIO(raw)) as im:
+                        shape = im.size[::-1]
+                except Exception:
+                    pass
+        new_case("test_fuzz_mask_loader")
+        mask = run_case("mask", lambda: photo.read_mask(path, shape))
+        if mask is not None:
+            assert mask.shape == tuple(shape) and mask.dtype == np.float32
+            assert np.all(np.isfinite(mask)) and mask.min() >= 0 and mask.max() <= 1 and np.any(mask > 0)
+
+    with accepted_share("mask", 0.05):  # q = 1/5 * 1/2: a seed left as it is, read at its own size
+        case()
 
 
 _SPECIAL = [0.0, -1.0, 1e-45, 65504.0, 3e38, -3e38, np.inf, -np.inf, np.nan]
@@ -167,23 +177,30 @@ def exr_file(draw, folder) -> bytes:
     return draw(mutated({"exr": data})) if draw(st.booleans()) else data
 
 
-@given(st.data())
-@fuzz_settings()
-def test_fuzz_exr_loaders(folder, data):
-    path = folder / "gen.exr"
-    path.write_bytes(data.draw(exr_file(folder)))
-    new_case("test_fuzz_exr_loaders")
-    channels = run_case("exr.read_exr", lambda: exr.read_exr(path))
-    if channels is not None:
-        assert channels and all(a.ndim == 2 and a.dtype in (np.float32, np.uint32) for a in channels.values())
-    env = run_case("exr.load_equirect", lambda: envmap.load_equirect(path))
-    if env is not None:
-        h, w = env.shape
-        assert w == 2 * h and env.pixels.dtype == np.float32 and np.all(np.isfinite(env.pixels))
-        assert env.pixels.min() >= 0
-    result = run_case("exr.read_photo", lambda: photo.read_photo(path))
-    if result is not None:
-        _check_image(*result)
+def test_fuzz_exr_loaders(folder):
+    @given(st.data())
+    @fuzz_settings()
+    def case(data):
+        path = folder / "gen.exr"
+        path.write_bytes(data.draw(exr_file(folder)))
+        new_case("test_fuzz_exr_loaders")
+        channels = run_case("exr.read_exr", lambda: exr.read_exr(path))
+        if channels is not None:
+            assert channels and all(a.ndim == 2 and a.dtype in (np.float32, np.uint32) for a in channels.values())
+        env = run_case("exr.load_equirect", lambda: envmap.load_equirect(path))
+        if env is not None:
+            h, w = env.shape
+            assert w == 2 * h and env.pixels.dtype == np.float32 and np.all(np.isfinite(env.pixels))
+            assert env.pixels.min() >= 0
+        result = run_case("exr.read_photo", lambda: photo.read_photo(path))
+        if result is not None:
+            _check_image(*result)
+
+    # read_exr: q = 1/2, the generated file left undamaged (any values are a valid EXR);
+    # a map or a photo may hold NaN, Inf or no RGB by design: no branch is valid by construction
+    with accepted_share("exr.read_exr", 0.25), accepted_share("exr.load_equirect", 0.0), \
+            accepted_share("exr.read_photo", 0.0):
+        case()
 
 
 @st.composite
@@ -202,16 +219,46 @@ def hdr_file(draw) -> bytes:
     return draw(mutated({"hdr": data})) if draw(st.booleans()) else data
 
 
-@given(hdr_file())
-@fuzz_settings()
-def test_fuzz_hdr_loader(folder, data):
-    path = folder / "gen.hdr"
-    path.write_bytes(data)
-    new_case("test_fuzz_hdr_loader")
-    img = run_case("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
-    if img is not None:
-        assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
-        assert np.all(np.isfinite(img)) and img.min() >= 0
-    env = run_case("hdr.load_equirect", lambda: envmap.load_equirect(path))
-    if env is not None:
-        assert env.shape[1] == 2 * env.shape[0] and np.all(np.isfinite(env.pixels))
+def test_fuzz_hdr_loader(folder):
+    @given(hdr_file())
+    @fuzz_settings()
+    def case(data):
+        path = folder / "gen.hdr"
+        path.write_bytes(data)
+        new_case("test_fuzz_hdr_loader")
+        img = run_case("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
+        if img is not None:
+            assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
+            assert np.all(np.isfinite(img)) and img.min() >= 0
+        env = run_case("hdr.load_equirect", lambda: envmap.load_equirect(path))
+        if env is not None:
+            assert env.shape[1] == 2 * env.shape[0] and np.all(np.isfinite(env.pixels))
+
+    # q = 1/2 * 1/2: undamaged with an honest resolution line (every exponent decodes finite);
+    # a map also needs width 2 x height, drawn half the time: q = 1/8
+    with accepted_share("hdr.read_radiance_hdr", 0.125), accepted_share("hdr.load_equirect", 0.0625):
+        case()
+
+
+def test_the_floor_fails_a_loader_that_refuses_everything(seeds, folder, monkeypatch):
+    """Each case allows a one-line refusal, so only the floor catches a loader that refuses all."""
+    def refuse(path):
+        raise ValueError("refused")
+
+    monkeypatch.setattr(photo, "read_photo", refuse)
+    counted = Counter(OUTCOMES["photo"]), Counter(CASES)
+    try:
+        with pytest.raises(AssertionError, match=r"photo: 0 of \d+ calls accepted"):
+            test_fuzz_photo_loader(seeds, folder)
+    finally:  # `make fuzz` counts the real loader only
+        OUTCOMES["photo"] = counted[0]
+        CASES.clear()
+        CASES.update(counted[1])
+    with pytest.raises(AssertionError, match="1 of 5 calls accepted, below the floor of 25.0%"):
+        with accepted_share("floor-check", 0.25):
+            for outcome in ("ok", "ValueError", "ValueError", "ValueError", "ValueError"):
+                record("floor-check", outcome)
+    with accepted_share("floor-check", 0.2):  # 1 of 5 meets a 20% floor
+        for outcome in ("ok", "ValueError", "ValueError", "ValueError", "ValueError"):
+            record("floor-check", outcome)
+    del OUTCOMES["floor-check"]
