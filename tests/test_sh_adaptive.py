@@ -30,10 +30,12 @@ def test_energy_is_clamped_cosine_weighted():
 
 
 def test_odd_bands_above_one_add_nothing():
-    # A_3 = A_5 = 0: a light made only of band-3 and band-5 content has no irradiance
-    # beyond bands 0..2, so order 2 suffices whatever their size.
+    # A_3 = A_5 = 0: band-3 and band-5 content, however large, gives no irradiance, so a
+    # light of band 0 plus such content needs order 0, as the constant light alone does.
     c = _coeffs_with_bands(8, {0: 1.0, 3: 100.0, 5: 100.0})
-    assert sh.required_order(c) == 0
+    e = sh.band_irradiance_energy(c)
+    assert e[3] == 0.0 and e[5] == 0.0 and e[0] == pytest.approx(3 * math.pi**2, rel=1e-12)
+    assert sh.required_order(c, 1.0) == 0
 
 
 def test_threshold_picks_the_first_order_reaching_it():
@@ -49,14 +51,21 @@ def test_threshold_picks_the_first_order_reaching_it():
     assert sh.required_order(c, 1.0) == 4
 
 
-def test_real_map_orders_are_monotone_in_fraction():
+def test_real_map_order_is_the_smallest_that_reaches_the_fraction():
+    """On a real map each chosen order holds the fraction and the one below it does not;
+    the whole energy needs band 8 (A_8 != 0 and the map has band-8 content)."""
     from relight import envmap, presets
 
     env = envmap.load_equirect(presets.preset_path("sunset"))
     c = sh.project_equirect(env.pixels, 8)
-    orders = [sh.required_order(c, f) for f in (0.9, 0.99, 0.999, 1.0)]
-    assert orders == sorted(orders)
-    assert orders[-1] <= 8
+    e = sh.band_irradiance_energy(c)
+    captured = np.cumsum(e) / e.sum()
+    fractions = (0.9, 0.99, 0.999, 0.9999, 1.0)
+    orders = [sh.required_order(c, f) for f in fractions]
+    for f, n in zip(fractions, orders):
+        assert captured[n] >= f - 1e-12, (f, n)
+        assert n == 0 or captured[n - 1] < f - 1e-12, (f, n)
+    assert orders == sorted(orders) and orders[-1] == 8 and e[8] > 0
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.1, 1.5, float("nan"), "0.9"])
