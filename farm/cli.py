@@ -8,47 +8,25 @@ unwritable or full output disk, workers that cannot start); 2 bad options;
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 from pathlib import Path
 
 from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
 from farm.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
+from relight.cli_args import bounded_int, finite_float
 
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
 MAX_SCENE_INDEX = 999_999
 KNOWN_PASSES = tuple(sorted(PASS_NAMES))
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad command line as one line on stderr and exit code 2."""
 
     def error(self, message: str):  # noqa: D401 - argparse hook
         raise UsageError(message)
-
-
-def _int_in(name: str, low: int, high: int):
-    def convert(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{name} must be in [{low}, {high}], got {value}")
-        return value
-
-    return convert
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--timeout must be a number of seconds, got {text!r}") from None
-    # A week is far beyond any single scene; the bound also rejects inf and nan.
-    if not (math.isfinite(value) and 0 < value <= 7 * 24 * 3600):
-        raise argparse.ArgumentTypeError(f"--timeout must be in (0, 604800] seconds, got {text}")
-    return value
 
 
 def _passes(text: str) -> frozenset:
@@ -69,23 +47,23 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Under Blender: blender -b -P farm/render.py -- --out DIR --scenes N --seed S",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")
-    p.add_argument("--scenes", type=_int_in("--scenes", 1, MAX_SCENE_INDEX + 1), required=True,
+    p.add_argument("--scenes", type=bounded_int(1, MAX_SCENE_INDEX + 1), required=True,
                    help="number of scenes to render")
-    p.add_argument("--seed", type=_int_in("--seed", 0, 2**32 - 1), required=True,
+    p.add_argument("--seed", type=bounded_int(0, 2**32 - 1), required=True,
                    help="dataset seed; scene i draws from rng([seed, i])")
-    p.add_argument("--first", type=_int_in("--first", 0, MAX_SCENE_INDEX), default=0,
+    p.add_argument("--first", type=bounded_int(0, MAX_SCENE_INDEX), default=0,
                    help="index of the first scene (split a dataset across machines)")
     s = p.add_argument_group("scene")
-    s.add_argument("--res", type=_int_in("--res", 16, 4096), default=256, help="image side in pixels")
-    s.add_argument("--lights", type=_int_in("--lights", 1, 64), default=4, help="lights K per scene")
-    s.add_argument("--samples", type=_int_in("--samples", 1, 65536), default=64,
+    s.add_argument("--res", type=bounded_int(16, 4096), default=256, help="image side in pixels")
+    s.add_argument("--lights", type=bounded_int(1, 64), default=4, help="lights K per scene")
+    s.add_argument("--samples", type=bounded_int(1, 65536), default=64,
                    help="path-tracing samples per pixel")
     s.add_argument("--denoise", action=argparse.BooleanOptionalAction, default=True,
                    help="OIDN-denoise the path-traced images")
     s.add_argument("--denoise-prefilter", choices=DENOISE_PREFILTERS, default="fast",
                    help="OIDN guide prefilter: fast (guides as rendered) or accurate (denoised too; slower)")
-    s.add_argument("--order", type=_int_in("--order", 1, 8), default=4, help="SH order N")
-    s.add_argument("--directions", type=_int_in("--directions", 16, 65536), default=256,
+    s.add_argument("--order", type=bounded_int(1, 8), default=4, help="SH order N")
+    s.add_argument("--directions", type=bounded_int(16, 65536), default=256,
                    help="transport bake directions per vertex")
     s.add_argument("--passes", type=_passes, default=",".join(KNOWN_PASSES),
                    help="comma list: pt (path traced), prt (transport)")
@@ -93,17 +71,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
                    help="train maps, or only the held-out maps")
-    s.add_argument("--clip-frames", type=_int_in("--clip-frames", 2, 1000), default=None, metavar="F",
+    s.add_argument("--clip-frames", type=bounded_int(2, 1000), default=None, metavar="F",
                    help="render clips instead of stills: scene i is frame i mod F of clip i // F (farm/clips.py)")
     s.add_argument("--motion", choices=("turn", "sway"), default="turn",
                    help="with --clip-frames: the person turns in place or shifts weight")
     r = p.add_argument_group("runner")
-    r.add_argument("--workers", type=_int_in("--workers", 1, 256), default=1,
+    r.add_argument("--workers", type=bounded_int(1, 256), default=1,
                    help="worker processes (local executor)")
-    r.add_argument("--recycle", type=_int_in("--recycle", 1, 100000), default=100,
+    r.add_argument("--recycle", type=bounded_int(1, 100000), default=100,
                    help="restart a worker after this many scenes")
-    r.add_argument("--timeout", type=_seconds, default=1800.0, help="seconds per scene before kill")
-    r.add_argument("--retries", type=_int_in("--retries", 0, 100), default=3,
+    # a week is far beyond any single scene
+    r.add_argument("--timeout", type=finite_float(0, 7 * 24 * 3600, low_open=True, what="number of seconds"),
+                   default=1800.0, help="seconds per scene before kill")
+    r.add_argument("--retries", type=bounded_int(0, 100), default=3,
                    help="retries per scene after a failure")
     r.add_argument("--resume", action="store_true", help="skip finished scenes in --out")
     r.add_argument("--ray", metavar="auto|ADDRESS", default=None,
