@@ -45,6 +45,13 @@ def run_farm(args: list[str], env: dict, timeout: float = 120, entry=("-m", "far
                           text=True, timeout=timeout)
 
 
+def start_slow_farm(out: Path, env: dict, scenes: int) -> subprocess.Popen:
+    """The fault job's farm started in the background (one light a scene, no progress bar)."""
+    return subprocess.Popen([PYTHON, "-m", "farm", "--out", str(out), "--scenes", str(scenes), "--seed", "0",
+                             "--lights", "1", "--job-module", FAULT_JOB, "--no-progress"],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
 def events(fault_dir: Path) -> list[tuple[str, int, int]]:
     """(event, index, pid) lines the fault job logged."""
     path = fault_dir / "events.log"
@@ -233,9 +240,7 @@ def test_killed_worker_is_detected_and_scene_retried(tmp_path):
     """SIGKILL a worker from outside while it renders; its scene reruns on a fresh worker."""
     out = tmp_path / "out"
     env = farm_env(tmp_path, FARM_FAULT_SLOW_ALL="1", FARM_FAULT_SLOW="0.6")
-    proc = subprocess.Popen([PYTHON, "-m", "farm", "--out", str(out), "--scenes", "4", "--seed", "0",
-                             "--lights", "1", "--job-module", FAULT_JOB, "--no-progress"],
-                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = start_slow_farm(out, env, 4)
     victim = None
     deadline = time.monotonic() + 60
     while victim is None and time.monotonic() < deadline:
@@ -371,9 +376,7 @@ def test_enospc_while_writing_stops_the_run_and_keeps_finished_scenes(tmp_path):
 def test_sigterm_stops_workers_and_keeps_finished_scenes(tmp_path):
     out = tmp_path / "out"
     env = farm_env(tmp_path, FARM_FAULT_SLOW_ALL="1", FARM_FAULT_SLOW="0.4")
-    proc = subprocess.Popen([PYTHON, "-m", "farm", "--out", str(out), "--scenes", "20", "--seed", "0",
-                             "--lights", "1", "--job-module", FAULT_JOB, "--no-progress"],
-                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = start_slow_farm(out, env, 20)
     deadline = time.monotonic() + 60
     while not list(out.glob("scene_*.json")) and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -116,13 +116,18 @@ def folder(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz-loaders")
 
 
+def _drawn_file(path, data: bytes, test: str):
+    """Write one generated case's bytes and count the case."""
+    path.write_bytes(data)
+    new_case(test)
+    return path
+
+
 def test_fuzz_photo_loader(seeds, folder):
     @given(st.data())
     @fuzz_settings()
     def case(data):
-        path = folder / "photo.bin"
-        path.write_bytes(data.draw(mutated(seeds)))
-        new_case("test_fuzz_photo_loader")
+        path = _drawn_file(folder / "photo.bin", data.draw(mutated(seeds)), "test_fuzz_photo_loader")
         result = run_case("photo", lambda: photo.read_photo(path))
         if result is not None:
             _check_image(*result)
@@ -181,9 +186,7 @@ def test_fuzz_exr_loaders(folder):
     @given(st.data())
     @fuzz_settings()
     def case(data):
-        path = folder / "gen.exr"
-        path.write_bytes(data.draw(exr_file(folder)))
-        new_case("test_fuzz_exr_loaders")
+        path = _drawn_file(folder / "gen.exr", data.draw(exr_file(folder)), "test_fuzz_exr_loaders")
         channels = run_case("exr.read_exr", lambda: exr.read_exr(path))
         if channels is not None:
             assert channels and all(a.ndim == 2 and a.dtype in (np.float32, np.uint32) for a in channels.values())
@@ -223,9 +226,7 @@ def test_fuzz_hdr_loader(folder):
     @given(hdr_file())
     @fuzz_settings()
     def case(data):
-        path = folder / "gen.hdr"
-        path.write_bytes(data)
-        new_case("test_fuzz_hdr_loader")
+        path = _drawn_file(folder / "gen.hdr", data, "test_fuzz_hdr_loader")
         img = run_case("hdr.read_radiance_hdr", lambda: envmap.read_radiance_hdr(path))
         if img is not None:
             assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.float32
