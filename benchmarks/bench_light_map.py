@@ -94,9 +94,10 @@ def methods():
 
 def network_lights(data: Path, model: str, quality: str):
     from relight import dataset
+    from relight.quality import preset
     from relight.runtime import Relighter
 
-    relighter = Relighter(model, working_size=quality)
+    relighter = Relighter(model, working_size=preset(quality).working_size)
     out = []
     for path in dataset.list_finished_scenes(data):
         scene = dataset.read_scene(path)

@@ -174,9 +174,10 @@ def psnr(image, reference, mask) -> float:
 def evaluate(data: Path, model: str, quality: str, size: int, samples: int, limit: int | None) -> list[dict]:
     from relight import dataset, sh
     from relight.light_map import irradiance_error, light_map
+    from relight.quality import preset
     from relight.runtime import Relighter
 
-    relighter = Relighter(model, working_size=quality)
+    relighter = Relighter(model, working_size=preset(quality).working_size)
     rows = []
     with tempfile.TemporaryDirectory(prefix="eval_photo_light_") as work:
         renderer = SphereRenderer(size, samples, Path(work))

@@ -136,7 +136,7 @@ def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,),
 
     clips = load_clips(folders, max_frames, source)
     path = model if model is not None else quality_presets.model_path(quality)
-    relighter = Relighter(path, threads=threads, working_size=quality)
+    relighter = Relighter(path, threads=threads, working_size=quality_presets.preset(quality).working_size)
     methods = [("per-frame", 0.0, "ema", None)] + [
         (f"{mode} s={s:g}" + (f" light {w}" if w is not None else ""), s, mode, w)
         for s in stabilities for mode in modes for w in light_windows]

@@ -32,7 +32,8 @@ from relight.sheet import contact_sheet as _contact_sheet
 from relight.sheet import write_sheet
 from relight.fileio import atomic_write_text
 from relight.light import sh_light
-from relight.runtime import QUALITY_SIZES, Relighter
+from relight import quality as quality_presets
+from relight.runtime import Relighter
 
 # a directional light turned about the person (relight.sh.directional_light): a viewer
 # should see it move across the body; then a training preset (not relight.presets.HELD_OUT),
@@ -168,7 +169,7 @@ def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced",
         raise ValueError("no photos to evaluate")
     if not isinstance(tile, int) or not 16 <= tile <= 2048:
         raise ValueError(f"tile must be an integer in [16, 2048], got {tile!r}")
-    relighter = Relighter(model_path, threads=threads, working_size=quality)
+    relighter = Relighter(model_path, threads=threads, working_size=quality_presets.preset(quality).working_size)
     results = [evaluate_photo(relighter, p) for p in paths]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -191,9 +192,9 @@ def main(argv=None) -> int:
     p.add_argument("--photos", default=str(EXAMPLES_DIR),
                    help="folder of photos (default: the bundled relight/data/examples)")
     p.add_argument("--out", default="evaluation_photos", help="output folder (default: ./evaluation_photos)")
-    p.add_argument("--quality", choices=sorted(QUALITY_SIZES), default="balanced",
+    p.add_argument("--quality", choices=[q.key for q in quality_presets.PRESETS], default="balanced",
                    help="working resolution, as `relight --quality` (relight/quality.py; default balanced, "
-                        f"{QUALITY_SIZES['balanced']} px)")
+                        f"{quality_presets.preset('balanced').working_size} px)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.add_argument("--tile", type=int, default=TILE, help=f"contact-sheet tile side in px (default {TILE})")
     args = p.parse_args(argv)

@@ -28,7 +28,6 @@ EXIT_FAILED = 1
 # detail ratio divides by 1e-3, so results stay far below float32's 3.4e38 (a 3e38 map with
 # --no-normalize would overflow: refused, like any light that bright)
 LIGHT_LIMIT = 1e18
-EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is already far past any sensor (runtime.py refuses beyond)
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -54,6 +53,7 @@ def add_light_options(p) -> None:
     """The options that say what light to relight with (`image`, `video`): --light or
     --light-from, --rotate, --exposure, --no-normalize."""
     from relight.cli_args import ROTATE_LIMIT, finite_float
+    from relight.decomposition import EXPOSURE_LIMIT
 
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--light", help="equirect HDR map (.exr/.hdr) or preset name (see `relight presets`)")
@@ -62,8 +62,8 @@ def add_light_options(p) -> None:
     p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"), default=0.0,
                    metavar="DEG",
                    help="turn the light about world Z")
-    p.add_argument("--exposure", type=finite_float(-EXPOSURE_LIMIT, EXPOSURE_LIMIT, what="exposure (EV)"),
-                   default=0.0, metavar="EV",
+    # bounded where it is used (relight.decomposition.exposure_scale), before any photo is read
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help="use the map's radiance as is (default: scale to mean luminance 0.8)")
@@ -105,7 +105,7 @@ def open_relighter(args):
     from relight.runtime import Relighter
 
     model = args.model if args.model is not None else quality.model_path(args.quality)
-    return Relighter(model, threads=args.threads, working_size=args.quality)
+    return Relighter(model, threads=args.threads, working_size=quality.preset(args.quality).working_size)
 
 
 def decompose_options(args) -> dict:
@@ -137,9 +137,12 @@ def read_photo_and_mask(photo_path, mask_path, max_pixels):
     image, alpha = read_photo(photo_path, max_pixels)
     if mask_path is not None:
         return image, read_mask(mask_path, image.shape[:2], max_pixels)
-    if alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0:
-        return image, alpha
-    return image, None
+    return image, _marks_person(alpha)
+
+
+def _marks_person(alpha: np.ndarray | None) -> np.ndarray | None:
+    """A photo's alpha channel when it marks a person (it varies: not all 0, not all 1), else None."""
+    return alpha if alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0 else None
 
 
 def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
@@ -186,12 +189,14 @@ NEGATIVE_WARN_FRACTION = 0.01
 def _light(source, args, relighter) -> np.ndarray:
     """The light of every photo, as SH coefficients of the model's order: resolved once,
     before any photo is read (a bad map fails first)."""
+    from relight.decomposition import exposure_scale
     from relight.light import sh_light
 
+    scale = exposure_scale(args.exposure)  # refused here, before any photo is read
     L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=args.normalize)
     if not np.all(np.isfinite(L)):
         raise ValueError("the light gives non-finite SH coefficients")
-    peak = float(np.abs(L).max(initial=0.0)) * 2.0 ** args.exposure
+    peak = float(np.abs(L).max(initial=0.0)) * scale
     if peak > LIGHT_LIMIT:
         raise ValueError(f"the light is too bright to relight in float32 (SH coefficients up to {peak:.3g} after "
                          f"exposure, limit {LIGHT_LIMIT:g}): drop --no-normalize or lower --exposure")
@@ -206,9 +211,8 @@ def target_light(args, relighter) -> np.ndarray:
         from relight.photo import read_photo
 
         donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
-        usable = donor_alpha is not None and donor_alpha.min() < 1.0 and donor_alpha.max() > 0.0
         options = dict(decompose_options(args), person=None)
-        light_source = relighter.decompose(donor, donor_alpha if usable else None, **options)
+        light_source = relighter.decompose(donor, _marks_person(donor_alpha), **options)
     return _light(light_source, args, relighter)
 
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from relight.box import Box
 from relight.clip_maps import FILTER_MODES, MapSmoother, MatteSmoother, consistent_albedo, grid_grey, history_weight
 from relight.decomposition import Decomposition
 
@@ -71,7 +72,7 @@ class Analysis:
     histogram: np.ndarray
     decomposition: Decomposition | None   # None: no person in the frame
     smooth_matte: bool = False            # the mask is the segmenter's: smoothed over frames in finish()
-    matte_box: tuple | None = None        # (y0, y1, x0, x1) of the segmenter's matte
+    matte_box: Box | None = None          # the segmenter's matte's box
 
 
 def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
@@ -196,7 +197,7 @@ class ClipRelighter:
         for light in state["lights"]:
             self.shot_light.lights.append(np.asarray(light, np.float64))
         self.matte_filter.previous = state.get("matte")
-        self.matte_filter.box = tuple(int(v) for v in state["matte_box"]) if "matte_box" in state else None
+        self.matte_filter.box = Box(*(int(v) for v in state["matte_box"])) if "matte_box" in state else None
         if "maps_box" in state:
             self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
                                "size": tuple(int(v) for v in state["maps_size"]),
@@ -219,9 +220,7 @@ class ClipRelighter:
                 found = person_matte(frame, self.person, threads=self.threads)
             except NoPersonError:
                 return Analysis(frame, histogram, None)
-            mask, smooth_matte = found.alpha, self.stability > 0
-            x0, y0, x1, y1 = found.box
-            matte_box = (y0, y1, x0, x1)
+            mask, smooth_matte, matte_box = found.alpha, self.stability > 0, found.box
         d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person)
         return Analysis(frame, histogram, d, smooth_matte, matte_box)
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from relight.box import Box
+
 __all__ = ["MapSmoother", "MatteSmoother", "consistent_albedo", "grid_grey", "FILTER_MODES",
            "AGREE_SCALE", "MATTE_AGREE_SCALE"]
 
@@ -166,21 +168,21 @@ class MatteSmoother:
     def __init__(self, history: float):
         self.history = float(history)
         self.previous: np.ndarray | None = None
-        self.box = None  # (y0, y1, x0, x1) holding every non-zero pixel of `previous`
+        self.box: Box | None = None  # holds every non-zero pixel of `previous`
 
     def reset(self) -> None:
         self.previous, self.box = None, None
 
     def update(self, alpha: np.ndarray, box=None) -> np.ndarray:
-        """The smoothed matte of this frame; `box` (y0, y1, x0, x1), when known, holds every
+        """The smoothed matte of this frame; `box` (relight.box.Box), when known, holds every
         non-zero pixel of `alpha` (the person matte's box: spares a full-frame search)."""
         prev = self.previous
-        box = _nonzero_box(alpha) if box is None else tuple(box)
+        box = Box.around(alpha) if box is None else Box(*box)
         if prev is None or prev.shape != alpha.shape or self.history == 0.0:
             out = alpha
         else:
             out = alpha.copy()
-            box = _union(box, self.box)
+            box = box.union(self.box) if box is not None else self.box
             if box is not None:  # only where either matte is non-zero: elsewhere both are 0
                 r0, r1, c0, c1 = box
                 a, p = alpha[r0:r1, c0:c1], prev[r0:r1, c0:c1]
@@ -193,22 +195,6 @@ class MatteSmoother:
                 out[r0:r1, c0:c1][where] = av + k * (pv - av)
         self.previous, self.box = out, box
         return out
-
-
-def _nonzero_box(a: np.ndarray):
-    """(r0, r1, c0, c1) around the non-zero pixels of an [H, W] map, or None."""
-    rows = np.flatnonzero(np.any(a > 0, axis=1))
-    if rows.size == 0:
-        return None
-    r0, r1 = int(rows[0]), int(rows[-1]) + 1
-    cols = np.flatnonzero(np.any(a[r0:r1] > 0, axis=0))
-    return r0, r1, int(cols[0]), int(cols[-1]) + 1
-
-
-def _union(a, b):
-    if a is None or b is None:
-        return a or b
-    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
 
 def consistent_albedo(x: np.ndarray, shading: np.ndarray, network_alpha: np.ndarray, reliable: float) -> np.ndarray:

@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from relight import sh
+from relight.box import Box
 from relight.composite import ALPHA_FLOOR, DETAIL_EPS, composite
 from relight.light import fit_order
 from relight.resample import Bilinear
 
-__all__ = ["DETAIL_EPS", "DETAIL_MAX", "Decomposition", "RelightStats", "exposure_scale"]
+__all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "exposure_scale"]
 
 DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 # the light's bands past the order a relight uses may move a working-resolution value by at
@@ -29,16 +30,17 @@ DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 ORDER_TOLERANCE = 0.25 / 255
 STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
 LAYER_NAMES = ("albedo", "shading", "residual", "alpha")  # Decomposition.layers(), in this order
+EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is far past any sensor; the one bound (the CLI's and the add-on's)
 
 
 def exposure_scale(exposure_ev) -> float:
-    """2 ** exposure_ev, for a finite exposure within +-64 EV (ValueError otherwise)."""
+    """2 ** exposure_ev, for a finite exposure within +-EXPOSURE_LIMIT EV (ValueError otherwise)."""
     try:
         ev = float(exposure_ev)
     except (TypeError, ValueError):
         raise ValueError(f"exposure must be a number of EV stops, got {exposure_ev!r}") from None
-    if not math.isfinite(ev) or abs(ev) > 64:
-        raise ValueError(f"exposure must be finite and within +-64 EV, got {exposure_ev}")
+    if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
+        raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
     return 2.0 ** ev
 
 
@@ -74,8 +76,8 @@ class Decomposition:
     """What the network saw in one photo, kept at working resolution.
 
     albedo [h, w, 3], transport [h, w, n], residual [h, w, n], alpha [h, w]
-    and light [n, 3] belong to the crop `box` = (y0, y1, x0, x1) of the photo
-    resized to `working_size` = (h, w). `photo` is the original (not copied).
+    and light [n, 3] belong to the crop `box` (relight.box.Box: y0, y1, x0, x1) of the
+    photo resized to `working_size` = (h, w). `photo` is the original (not copied).
     """
 
     albedo: np.ndarray
@@ -83,7 +85,7 @@ class Decomposition:
     residual: np.ndarray
     light: np.ndarray
     alpha: np.ndarray
-    box: tuple[int, int, int, int]
+    box: Box
     working_size: tuple[int, int]
     photo: np.ndarray = field(repr=False)
     photo_working: np.ndarray = field(repr=False)   # the crop at working resolution
@@ -94,6 +96,7 @@ class Decomposition:
     choices: dict = field(default_factory=dict)  # what the runtime decided for this photo (output metadata)
 
     def __post_init__(self):
+        self.box = Box(*self.box)
         h, w = self.working_size
         n = sh.num_coeffs(self.sh_order)
         # matte pixels grown by one: the bilinear taps of every full-resolution
@@ -120,22 +123,32 @@ class Decomposition:
         y0, y1, x0, x1 = self.box
         self._up = Bilinear(y1 - y0, x1 - x0, h, w)
         self._alpha_prepared = None
+        self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
 
     @property
     def size(self) -> tuple[int, int]:
         """(H, W) of the photo."""
         return self.photo.shape[:2]
 
-    def _light(self, coeffs, exposure_ev) -> np.ndarray:
-        """SH coefficients [m, 3] fitted to the model's order, times 2**exposure_ev, float32."""
+    def fit_light(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
+        """The light a relight uses: SH coefficients [m, 3] (checked) cut or zero-padded to the
+        model's order, times 2**exposure_ev, float32. Fitted once per light: asked again for
+        the same coefficients and exposure (the add-on's layers, relight then layers) it
+        returns the same array."""
         if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
             raise ValueError(f"light must be SH coefficients [n, 3] (relight.light.sh_light makes them from a "
                              f"map, preset or photo), got {type(coeffs).__name__}")
         arr = np.asarray(coeffs)
         if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
             raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
-        L = fit_order(arr.astype(np.float64), sh.num_coeffs(self.sh_order)) * exposure_scale(exposure_ev)
-        return L.astype(np.float32)
+        scale = exposure_scale(exposure_ev)
+        last = self._fitted
+        if last is not None and last[1] == scale and last[0].shape == arr.shape and np.array_equal(last[0], arr):
+            return last[2]
+        L = (fit_order(arr.astype(np.float64), sh.num_coeffs(self.sh_order)) * scale).astype(np.float32)
+        L.setflags(write=False)  # shared by every call with this light
+        self._fitted = (arr.copy(), scale, L)
+        return L
 
     def order_needed(self, light: np.ndarray) -> int:
         """The smallest SH order k whose dropped bands (k+1 .. the model's order) can move no
@@ -160,7 +173,10 @@ class Decomposition:
         error), not light: they are set to 0 and counted in `last_stats`
         (docs/conventions.md, "Ringing and negative light").
         """
-        L = self._light(coeffs, exposure_ev)
+        return self._relit(self.fit_light(coeffs, exposure_ev), output_scale)
+
+    def _relit(self, L: np.ndarray, output_scale: float) -> np.ndarray:
+        """relight_working under the fitted light L."""
         h, w = self.working_size
         order = self.order_needed(L * np.float32(output_scale))
         n = sh.num_coeffs(order)
@@ -196,7 +212,7 @@ class Decomposition:
         written and returned instead of a new array (relight.composite).
         """
         scale = np.float32(exposure_scale(exposure_ev))
-        relit = self.relight_working(coeffs, 0.0, output_scale=float(scale))
+        relit = self._relit(self.fit_light(coeffs), float(scale))
         quotient = detail and not self._up.identity
         if quotient:
             source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
@@ -251,17 +267,24 @@ class Decomposition:
         photo's own light when None. albedo * shading + residual is the relit
         person before the clamp at 0 (the layers keep their sign: linear, for
         compositing)."""
-        return {name: self.layer(name, coeffs, exposure_ev) for name in LAYER_NAMES}
+        L = self.fit_light(self.light if coeffs is None else coeffs, exposure_ev)
+        return {name: self._layer(name, L) for name in LAYER_NAMES}
 
     def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
         """One of layers() at full resolution, alone: a caller that packs each map as it comes
         holds one full-size map at a time (a 24 MP map is 288 MB). `out` ([H, W, 3], alpha
         [H, W], float32; a strided view too, e.g. channels of an RGBA buffer): written and
         returned instead of a new array, so such a caller holds none at all."""
-        if name == "alpha":
-            return self.full_alpha(out)
         if name not in LAYER_NAMES:
             raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
+        L = None if name in ("alpha", "albedo") else self.fit_light(self.light if coeffs is None else coeffs,
+                                                                     exposure_ev)
+        return self._layer(name, L, out)
+
+    def _layer(self, name: str, L: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+        """layer() under the fitted light L (None for the albedo and alpha)."""
+        if name == "alpha":
+            return self.full_alpha(out)
         if name == "albedo":
             values = self._albedo_m
         elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
@@ -273,7 +296,6 @@ class Decomposition:
                 out[y0:y1, x0:x1, c] = 0.0
             return out
         else:
-            L = self._light(self.light if coeffs is None else coeffs, exposure_ev)
             values = (self._transport_m if name == "shading" else self._residual_m) @ L
         h, w = self.working_size
         small = np.zeros((h * w, 3), np.float32)

@@ -2,7 +2,7 @@
 
     m = person_matte(photo)            # photo: linear float32 [H, W, 3]
     m.alpha                            # [H, W] float32 in [0, 1], soft edges, hair kept
-    m.box                              # (x0, y0, x1, y1): pixels where alpha > 0, end exclusive
+    m.box                              # relight.box.Box (y0, y1, x0, x1): pixels where alpha > 0
     m.index, m.count                   # this person (1 = the largest) of how many found
 
 Three MediaPipe networks (Apache-2.0, from the mediapipe 0.10.21 wheel),
@@ -35,9 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.box import Box
+from relight.linear_photo import check_photo
 from relight.models import REGISTRY_PATH
 
-__all__ = ["PersonMatte", "NoPersonError", "person_matte", "METHODS", "MODELS", "model_paths"]
+__all__ = ["PersonMatte", "NoPersonError", "person_matte", "matte_of_checked_photo", "METHODS", "MODELS",
+           "model_paths"]
 
 # registry name -> default file (relight/models/), for each network of the matte
 MODELS = {
@@ -72,34 +75,12 @@ class NoPersonError(ValueError):
 @dataclass
 class PersonMatte:
     alpha: np.ndarray                   # [H, W] float32 in [0, 1]; 0 = untouched background
-    box: tuple[int, int, int, int]      # (x0, y0, x1, y1) of alpha > 0, end exclusive
+    box: Box                            # (y0, y1, x0, x1) of alpha > 0, end exclusive
     index: int                          # which person: 1 = the largest
     count: int                          # people found
 
 
 _NOBODY = "no person found in the photo: give a mask (--mask) or a photo where a person is clearly visible"
-
-
-# ------------------------------------------------------------------ validation
-
-
-def _check_photo(photo) -> np.ndarray:
-    a = np.asarray(photo)
-    if a.ndim == 2 or (a.ndim == 3 and a.shape[2] == 1):
-        raise ValueError(f"photo is greyscale {a.shape}: give linear RGB [H, W, 3] "
-                         "(relight.photo.read_photo expands grey files to RGB)")
-    if a.ndim == 3 and a.shape[2] in (2, 4):
-        raise ValueError(f"photo has {a.shape[2]} channels (an alpha channel?): give linear RGB [H, W, 3]; "
-                         "an alpha channel is a mask, not part of the photo")
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise ValueError(f"photo must be linear RGB [H, W, 3], got shape {a.shape}")
-    if not np.issubdtype(a.dtype, np.floating):
-        raise ValueError(f"photo must be linear float radiance, got dtype {a.dtype} "
-                         "(decode 8/16-bit files with relight.photo.read_photo)")
-    if min(a.shape[:2]) < MIN_SIDE:
-        raise ValueError(f"photo is too small for a person matte ({a.shape[1]}x{a.shape[0]}; "
-                         f"need at least {MIN_SIDE} px a side)")
-    return a.astype(np.float32, copy=False)  # finiteness is checked on the shrunken photo
 
 
 # ------------------------------------------------------------------ the networks
@@ -429,7 +410,16 @@ def person_matte(photo, person: int | None = None, *, threads: int | None = None
     method: "ensemble" (shipped), "selfie" or "pose" alone (for comparison);
     refine=False skips the guided edge (for comparison).
     """
-    photo = _check_photo(photo)
+    photo = check_photo(photo, MIN_SIDE, finite=False, purpose="a person matte")  # NaN/Inf: below, on the small
+    return matte_of_checked_photo(photo, person, threads=threads, registry_path=registry_path, method=method,
+                                  refine=refine)
+
+
+def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, threads: int | None = None,
+                           registry_path=REGISTRY_PATH, method: str = "ensemble",
+                           refine: bool = True) -> PersonMatte:
+    """person_matte of a photo that relight.linear_photo.check_photo(photo, MIN_SIDE) returned
+    (relight.runtime checks it once for the matte and the network)."""
     if person is not None and (isinstance(person, bool) or not isinstance(person, (int, np.integer))
                                or person < 1):
         raise ValueError(f"person must be 1 (the largest), 2, ... or None, got {person!r}")
@@ -458,7 +448,10 @@ def person_matte(photo, person: int | None = None, *, threads: int | None = None
     alpha_small[alpha_small < ALPHA_FLOOR] = 0.0
     alpha_small[alpha_small > 1.0 - ALPHA_FLOOR] = 1.0
     alpha = _upsample_support(alpha_small, H, W)
-    return PersonMatte(alpha=alpha, box=_box(alpha), index=index, count=len(people))
+    box = Box.around(alpha)
+    if box is None:  # the edge refinement erased a part the networks saw: treat as nobody
+        raise NoPersonError(_NOBODY)
+    return PersonMatte(alpha=alpha, box=box, index=index, count=len(people))
 
 
 def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_path) -> list[np.ndarray]:
@@ -531,15 +524,6 @@ def _dilate(inside: np.ndarray, radius: int) -> np.ndarray:
             grown[tuple(lo)] |= out[tuple(hi)]
         out = grown
     return out
-
-
-def _box(alpha: np.ndarray) -> tuple[int, int, int, int]:
-    """(x0, y0, x1, y1) of alpha > 0, end exclusive."""
-    rows = np.flatnonzero(alpha.any(axis=1))
-    if rows.size == 0:  # the edge refinement erased a part the networks saw: treat as nobody
-        raise NoPersonError(_NOBODY)
-    cols = np.flatnonzero(alpha[rows[0]:rows[-1] + 1].any(axis=0))
-    return int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
 
 # ------------------------------------------------------------------ edge refinement

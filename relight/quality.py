@@ -1,5 +1,5 @@
 """Quality presets: the one table that maps Draft / Balanced / Best to a model and a
-working size. `relight image --quality`, `Relighter(working_size="draft")` and the
+working size. `relight image --quality`, `Relighter(working_size=preset("draft").working_size)` and the
 Blender add-on (blender_addon/quality.py) all read PRESETS.
 
 `model` names an entry of the model registry (relight/models/models.json); the
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from relight.tta import AUGMENTATIONS
 
-__all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset", "working_sizes"]
+__all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset"]
 
 
 @dataclass(frozen=True)
@@ -65,11 +65,6 @@ def preset(key: str) -> QualityPreset:
         if isinstance(key, str) and p.key == key.lower():
             return p
     raise ValueError(f"unknown quality preset {key!r}; expected one of {', '.join(p.key for p in PRESETS)}")
-
-
-def working_sizes() -> dict[str, int]:
-    """{key: working size} of every preset."""
-    return {p.key: p.working_size for p in PRESETS}
 
 
 def model_name(key: str, registry: dict) -> str | None:

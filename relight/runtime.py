@@ -24,17 +24,18 @@ from pathlib import Path
 import numpy as np
 
 from relight import quality
+from relight.box import Box
 from relight.composite import ALPHA_FLOOR
 from relight.decomposition import Decomposition, RelightStats  # noqa: F401 (the runtime's result types)
 from relight.models import REGISTRY_PATH, default_model_path
+from relight.linear_photo import check_photo
 from relight.prt import to_network_input
 from relight.resample import resize_linear
 from relight.session import ModelSession
 
-__all__ = ["Relighter", "Decomposition", "RelightStats", "QUALITY_SIZES", "MATTE_SOURCES"]
+__all__ = ["Relighter", "Decomposition", "RelightStats", "MATTE_SOURCES", "check_working_size"]
 
-QUALITY_SIZES = quality.working_sizes()  # the presets' table lives in relight/quality.py
-DEFAULT_WORKING_SIZE = QUALITY_SIZES[quality.DEFAULT]
+DEFAULT_WORKING_SIZE = quality.preset(quality.DEFAULT).working_size  # the presets' table: relight/quality.py
 FIND_SIZE = 256          # longest side of the first, person-finding pass
 FIND_THRESHOLD = 0.5     # alpha above which a low-res pixel counts as the person
 CROP_MARGIN = 0.05       # context kept around the person's box, as a fraction of its longest side
@@ -42,21 +43,6 @@ MATTE_SOURCES = ("person", "network")  # where decompose() takes the matte from 
 
 
 # ------------------------------------------------------------------ validation
-
-
-def _check_photo(photo) -> np.ndarray:
-    a = np.asarray(photo)
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise ValueError(f"photo must be linear RGB [H, W, 3], got shape {a.shape}")
-    if a.shape[0] < 2 or a.shape[1] < 2:
-        raise ValueError(f"photo is too small ({a.shape[1]}x{a.shape[0]})")
-    if not np.issubdtype(a.dtype, np.floating):
-        raise ValueError(f"photo must be floating point linear radiance, got dtype {a.dtype}")
-    a = a.astype(np.float32, copy=False)
-    for r0 in range(0, a.shape[0], 1024):  # strips: no full-size boolean temporary
-        if not np.all(np.isfinite(a[r0:r0 + 1024])):
-            raise ValueError("photo contains NaN or Inf")
-    return a
 
 
 def _check_mask(mask, shape) -> np.ndarray:
@@ -83,18 +69,17 @@ def _fit(h: int, w: int, longest: int) -> tuple[int, int]:
     return max(1, round(h * s)), max(1, round(w * s))
 
 
-def _bbox(mask: np.ndarray, threshold: float):
-    rows = np.flatnonzero(np.any(mask > threshold, axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(np.any(mask[rows[0]:rows[-1] + 1] > threshold, axis=0))
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+def _with_margin(box: Box, height: int, width: int) -> Box:
+    """The crop around the person's box: CROP_MARGIN of its longest side (at least 2 px) more."""
+    return box.grown(max(2, int(math.ceil(CROP_MARGIN * max(box.height, box.width)))), height, width)
 
 
-def _expand(box, height: int, width: int):
-    y0, y1, x0, x1 = box
-    pad = max(2, int(math.ceil(CROP_MARGIN * max(y1 - y0, x1 - x0))))
-    return max(0, y0 - pad), min(height, y1 + pad), max(0, x0 - pad), min(width, x1 + pad)
+def check_working_size(size) -> int:
+    """The longest side of the network's crop, an integer in [16, 4096] (a quality preset's
+    is relight.quality.preset(key).working_size)."""
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 16 <= size <= 4096:
+        raise ValueError(f"working size must be an integer in [16, 4096], got {size!r}")
+    return int(size)
 
 
 # ------------------------------------------------------------------ the network
@@ -107,25 +92,16 @@ class Relighter(ModelSession):
     model_path: the .onnx file (default: the registry's default model);
     threads: intra-op threads, 1 to the cores this process may use (None: all of them);
     providers: onnxruntime execution providers (default CPU only);
-    working_size: longest side of the crop the network sees (QUALITY_SIZES).
+    working_size: longest side, in pixels, of the crop the network sees (a quality preset's:
+    relight.quality.preset(key).working_size).
     """
 
     def __init__(self, model_path: str | os.PathLike | None = None, threads: int | None = None,
-                 providers: list | None = None, working_size: int | str = DEFAULT_WORKING_SIZE,
+                 providers: list | None = None, working_size: int = DEFAULT_WORKING_SIZE,
                  registry_path: str | os.PathLike = REGISTRY_PATH):
         path = Path(model_path) if model_path is not None else default_model_path(registry_path)
-        self.working_size = self._check_size(working_size)
+        self.working_size = check_working_size(working_size)
         super().__init__(path, threads, providers, registry_path)
-
-    @staticmethod
-    def _check_size(size) -> int:
-        if isinstance(size, str):
-            if size not in QUALITY_SIZES:
-                raise ValueError(f"quality must be one of {sorted(QUALITY_SIZES)}, got {size!r}")
-            return QUALITY_SIZES[size]
-        if not isinstance(size, (int, np.integer)) or not 16 <= size <= 4096:
-            raise ValueError(f"working size must be an integer in [16, 4096], got {size!r}")
-        return int(size)
 
     def _run_image(self, linear: np.ndarray, mask: np.ndarray | None) -> dict[str, np.ndarray]:
         """Network outputs for one linear [h, w, 3] image, padded to size_multiple, unpadded after."""
@@ -148,20 +124,18 @@ class Relighter(ModelSession):
         size (linear [h, w, 3]) and its matte ([h, w] or None): relight.tta's augmented runs."""
         return self._run_image(crop, matte)
 
-    def find_person(self, photo: np.ndarray):
-        """Crop box (y0, y1, x0, x1) around the person, from a low-resolution pass of
-        the matte head; the whole frame when the matte finds nobody."""
+    def find_person(self, photo: np.ndarray) -> Box:
+        """Crop box around the person, from a low-resolution pass of the network's alpha
+        head; the whole frame when it finds nobody."""
         H, W = photo.shape[:2]
         h, w = _fit(H, W, min(FIND_SIZE, self.working_size))
         alpha = self._run_image(resize_linear(photo, h, w), None)["alpha"][..., 0]
-        box = _bbox(alpha, FIND_THRESHOLD)
+        box = Box.around(alpha, FIND_THRESHOLD)
         if box is None:
-            return 0, H, 0, W
-        sy, sx = H / h, W / w
-        y0, y1, x0, x1 = box
-        return _expand((int(y0 * sy), int(math.ceil(y1 * sy)), int(x0 * sx), int(math.ceil(x1 * sx))), H, W)
+            return Box.whole(H, W)
+        return _with_margin(box.scaled(H / h, W / w), H, W)
 
-    def decompose(self, photo, mask=None, working_size: int | str | None = None, *,
+    def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
                   augment=(), refine: int = 0) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
@@ -186,19 +160,21 @@ class Relighter(ModelSession):
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
-        photo = _check_photo(photo)
-        size = self.working_size if working_size is None else self._check_size(working_size)
-        H, W = photo.shape[:2]
+        size = self.working_size if working_size is None else check_working_size(working_size)
         found = None
         if mask is None and matte == "person":
-            from relight.matte import person_matte
+            from relight import matte as segmenter
 
-            found = person_matte(photo, person, method=matte_method)
+            photo = check_photo(photo, segmenter.MIN_SIDE, purpose="a person matte")
+            found = segmenter.matte_of_checked_photo(photo, person, method=matte_method)
             mask = found.alpha
-        if mask is not None:
-            mask = _check_mask(mask, (H, W))
-            box = _expand(_bbox(mask, 0.0), H, W)
+            box = _with_margin(found.box, *photo.shape[:2])
+        elif mask is not None:
+            photo = check_photo(photo)
+            mask = _check_mask(mask, photo.shape[:2])
+            box = _with_margin(Box.around(mask), *photo.shape[:2])
         else:
+            photo = check_photo(photo)
             box = self.find_person(photo)
         y0, y1, x0, x1 = box
         h, w = _fit(y1 - y0, x1 - x0, size)

@@ -23,11 +23,11 @@ EPS32 = float(np.finfo(np.float32).eps)
 # ------------------------------------------------------------------ quality table
 
 def test_quality_presets_are_ordered_and_match_the_runtime_sizes():
-    from relight.runtime import QUALITY_SIZES
+    from relight import quality as core_quality
 
     sizes = [quality.preset(key).working_size for key, _, _ in quality.enum_items()]
     assert sizes == sorted(sizes) and len(set(sizes)) == 3
-    assert sizes == [QUALITY_SIZES["draft"], QUALITY_SIZES["balanced"], QUALITY_SIZES["best"]]
+    assert sizes == [core_quality.preset(key).working_size for key in ("draft", "balanced", "best")]
     assert quality.preset(quality.DEFAULT_QUALITY).key == "balanced"
     assert [i[0] for i in quality.enum_items()] == ["DRAFT", "BALANCED", "BEST"]
     with pytest.raises(ValueError, match="unknown quality preset 'ULTRA'"):

@@ -13,6 +13,9 @@ from relight.exr import read_exr, write_exr
 from relight.photo import read_photo
 from relight.light import sh_light
 from relight.runtime import Relighter
+from relight.quality import preset
+
+DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +55,7 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
     assert code == 0, err
     assert f"wrote {out}" in stdout
     img, _ = read_photo(photo)
-    d = Relighter(model, working_size="draft").decompose(img, matte="network")
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(img, matte="network")
     expect = d.relight(sh_light("studio", d.sh_order, rotation_deg=30), 0.5)
     got = np.asarray(Image.open(out)) / 255.0
     # 8-bit sRGB output: within half a code value of the encoded API result
@@ -78,7 +81,7 @@ def test_light_transfer_from_another_photo(model, tmp_path, capsys):
     out = tmp_path / "t.exr"
     code, _, err = _run(capsys, photo, "--light-from", donor, "--model", model, "--out", out)
     assert code == 0, err
-    r = Relighter(model, working_size="draft")
+    r = Relighter(model, working_size=DRAFT_SIZE)
     d = r.decompose(read_photo(photo)[0], matte="network")
     expect = d.relight(r.decompose(read_photo(donor)[0], matte="network").light)
     # (reading an EXR photo clamps negative radiance, which a random network can produce)

@@ -21,7 +21,7 @@ from relight.runtime import Relighter
 @pytest.fixture(scope="module")
 def relighter():
     """The shipped geometry-first model at Draft (96 px), one thread: a frame in ~30 ms."""
-    return Relighter(quality.model_path("draft"), threads=1, working_size="draft")
+    return Relighter(quality.model_path("draft"), threads=1, working_size=quality.preset("draft").working_size)
 
 
 @pytest.fixture(scope="module")
@@ -193,7 +193,7 @@ def random_model(tmp_path_factory):
 
     path, _, _ = export_random_model(tmp_path_factory.mktemp("clip") / "tiny.onnx", seed=5, sh_order=4, width=4,
                                      depth=2)
-    return Relighter(path, threads=1, working_size="draft")
+    return Relighter(path, threads=1, working_size=quality.preset("draft").working_size)
 
 
 @pytest.mark.parametrize("kind", ["shipped", "random"])

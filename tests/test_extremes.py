@@ -27,6 +27,9 @@ from relight.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
 from relight.light import sh_light
 from relight.resample import resize_linear
 from relight.runtime import Relighter
+from relight.quality import preset
+
+DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
 ORDER = 4
 SUN = 1e5
@@ -164,7 +167,7 @@ def test_relight_image_output_is_non_negative(tmp_path, capsys):
     rng = np.random.default_rng(5)
     Image.fromarray(rng.integers(20, 235, (60, 50, 3), dtype=np.uint8)).save(tmp_path / "p.png")
     # through the API at the draft size, as the command below: this network and light do ring below 0
-    d = Relighter(model, working_size="draft").decompose(read_photo(tmp_path / "p.png")[0], matte="network")
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(read_photo(tmp_path / "p.png")[0], matte="network")
     d.relight(sh_light(str(tmp_path / "sun.exr"), d.sh_order))
     assert d.last_stats.clamped > 0
     for out, extra in (("o.exr", []), ("l.exr", ["--layers"])):

@@ -12,6 +12,9 @@ from relight import sh
 from relight.exr import read_exr
 from relight.light_map import (FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error,
                                light_map)
+from relight.quality import preset
+
+DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
 ORDER = 4
 A = sh.clamped_cosine_coeffs(ORDER)
@@ -177,7 +180,7 @@ def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, ca
     assert code == 0, err
     data = json.loads(stdout)
     image, _ = read_photo(photo)
-    d = Relighter(model, working_size="draft").decompose(image, matte="network")
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(image, matte="network")
     np.testing.assert_allclose(data["coeffs"], d.light, atol=5e-9)  # printed with 9 decimals
     expected = light_map(d.light, 64)
     planes = read_exr(out)

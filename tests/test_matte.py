@@ -78,7 +78,7 @@ def test_matte_of_a_photo_is_soft_bounded_and_boxed():
     assert m.alpha.min() == 0.0 and m.alpha.max() == 1.0
     soft = np.count_nonzero((m.alpha > 0) & (m.alpha < 1))
     assert soft > 0.01 * np.count_nonzero(m.alpha)  # a feathered edge, not a binary cut
-    x0, y0, x1, y1 = m.box
+    y0, y1, x0, x1 = m.box
     inside = np.zeros_like(m.alpha, bool)
     inside[y0:y1, x0:x1] = True
     assert not np.any(m.alpha[~inside])  # the box holds every matte pixel ...
@@ -98,7 +98,7 @@ def test_several_people_largest_first_and_selectable():
     assert first.alpha[:, :split].mean() > 0.5 and first.alpha[:, split + 20:].max() < 0.5
     assert first.alpha[:, split + 20:].mean() < 0.01
     assert second.alpha[:, split + 20:].mean() > 0.3 and second.alpha[:, :split - 20].max() < 0.5
-    assert first.box[2] <= split + 80 and second.box[0] >= split - 20
+    assert first.box.x1 <= split + 80 and second.box.x0 >= split - 20
     with pytest.raises(ValueError, match="person 3 asked for, but the photo shows 2 people"):
         matte.person_matte(both, 3)
     for bad in (0, -1, 1.5, True, "2"):
@@ -253,7 +253,7 @@ def test_decompose_takes_the_person_matte_as_its_mask():
     from relight.runtime import Relighter
 
     photo = _photo("obama_standing")
-    relighter = Relighter(quality.model_path("draft"), threads=1, working_size="draft")
+    relighter = Relighter(quality.model_path("draft"), threads=1, working_size=quality.preset("draft").working_size)
     d = relighter.decompose(photo, matte="person", person=1)
     expected = matte.person_matte(photo)
     np.testing.assert_array_equal(d.mask, expected.alpha)  # exactly the matte, as a given mask would be

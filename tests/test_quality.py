@@ -13,12 +13,11 @@ from relight import models, quality
 def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
     from blender_addon import quality as addon_quality
     from relight.cli import build_parser
-    from relight.runtime import DEFAULT_WORKING_SIZE, QUALITY_SIZES
+    from relight.runtime import DEFAULT_WORKING_SIZE
 
     keys = [p.key for p in quality.PRESETS]
     sizes = [p.working_size for p in quality.PRESETS]
     assert keys == ["draft", "balanced", "best"] and sizes == sorted(sizes) and len(set(sizes)) == 3
-    assert QUALITY_SIZES == dict(zip(keys, sizes))
     assert DEFAULT_WORKING_SIZE == quality.preset(quality.DEFAULT).working_size
     assert [key for key, _, _ in addon_quality.enum_items()] == [p.key.upper() for p in quality.PRESETS]
     assert all(addon_quality.preset(p.key.upper()) is p for p in quality.PRESETS)  # one table

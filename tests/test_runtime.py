@@ -320,8 +320,8 @@ def test_bad_session_options(model_path):
         with pytest.raises(ValueError, match=rf"threads must be an integer in \[1, {cores}\]"):
             Relighter(model_path, threads=threads)
     assert Relighter(model_path, threads=cores).session is not None
-    with pytest.raises(ValueError, match="quality"):
-        Relighter(model_path, working_size="ultra")
+    with pytest.raises(ValueError, match="working size"):
+        Relighter(model_path, working_size="draft")  # a preset's size is quality.preset(key).working_size
     with pytest.raises(ValueError, match="working size"):
         Relighter(model_path, working_size=8)
 
@@ -405,3 +405,19 @@ def test_negative_light_is_clamped_and_counted(relighter):
     np.testing.assert_allclose(small[clear], f[clear], rtol=(N + 2) * EPS32 * 10, atol=bound.max())
     out = d.relight(L)
     assert out.min() >= 0 and d.last_stats == stats
+
+
+def test_the_light_is_fitted_once_per_light_and_exposure(relighter):
+    d = relighter.decompose(_photo(), np.ones((48, 64), np.float32))
+    n = sh.num_coeffs(d.sh_order)
+    light = np.random.default_rng(4).normal(0.0, 0.3, (sh.num_coeffs(d.sh_order + 1), 3))  # one band more: cut
+    L = d.fit_light(light, 1.0)
+    assert L.shape == (n, 3) and L.dtype == np.float32 and not L.flags.writeable
+    np.testing.assert_allclose(L, 2.0 * light[:n], rtol=1e-6)
+    assert d.fit_light(light.copy(), 1.0) is L  # the same values: the same fitted array
+    assert d.fit_light(light, 0.5) is not L and d.fit_light(light[:n] * 1.5, 1.0) is not L
+    layers = d.layers(light, 1.0)  # one fit for all layers, same values as one layer at a time
+    for name in ("shading", "residual"):
+        np.testing.assert_array_equal(layers[name], d.layer(name, light, 1.0))
+    with pytest.raises(ValueError, match=r"exposure must be a finite number of EV within \+-64"):
+        d.fit_light(light, 64.5)

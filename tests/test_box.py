@@ -1,0 +1,55 @@
+"""relight/box.py: the one box type (rows then columns, end exclusive) and the boxes the
+matte, the runtime and the clip filters take from it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from relight.box import Box
+
+
+def test_around_holds_every_pixel_above_the_threshold_and_no_more():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        mask = np.zeros((23, 31), np.float32)
+        n = int(rng.integers(1, 12))
+        ys, xs = rng.integers(0, 23, n), rng.integers(0, 31, n)
+        mask[ys, xs] = rng.uniform(0.1, 1.0, n)
+        b = Box.around(mask)
+        assert b == (ys.min(), ys.max() + 1, xs.min(), xs.max() + 1)
+        inside = np.zeros(mask.shape, bool)
+        inside[b.rows, b.cols] = True
+        assert not mask[~inside].any() and (b.height, b.width) == (b.y1 - b.y0, b.x1 - b.x0)
+    assert Box.around(np.zeros((4, 5))) is None
+    mask = np.array([[0.2, 0.7], [0.0, 0.4]])
+    assert Box.around(mask, 0.5) == Box(0, 1, 1, 2) and Box.around(mask, 0.7) is None  # strictly above
+
+
+def test_grown_scaled_union_stay_in_the_image():
+    b = Box(2, 5, 3, 9)
+    assert b.grown(3, 7, 10) == (0, 7, 0, 10) and b.grown(1, 100, 100) == (1, 6, 2, 10)
+    # scaling rounds starts down and ends up: the scaled box covers every pixel the box touches
+    assert b.scaled(2.5, 1.5) == (5, 13, 4, 14)
+    assert b.union(Box(0, 3, 6, 12)) == (0, 5, 3, 12) and b.union(None) is b
+    assert Box.whole(4, 6) == (0, 4, 0, 6)
+    y0, y1, x0, x1 = b  # a tuple in this order: saved files write list(box)
+    assert [y0, y1, x0, x1] == list(b) == [2, 5, 3, 9]
+
+
+def _decomposition(box):
+    from relight.decomposition import Decomposition
+
+    h, w = 6, 8
+    return Decomposition(albedo=np.full((h, w, 3), 0.5, np.float32), transport=np.zeros((h, w, 9), np.float32),
+                         residual=np.zeros((h, w, 9), np.float32), light=np.zeros((9, 3), np.float32),
+                         alpha=np.ones((h, w), np.float32), box=box, working_size=(h, w),
+                         photo=np.zeros((9, 12, 3), np.float32), photo_working=np.zeros((h, w, 3), np.float32),
+                         sh_order=2)
+
+
+def test_the_decomposition_holds_the_box_type():
+    d = _decomposition((1, 7, 2, 10))
+    assert isinstance(d.box, Box) and d.box.rows == slice(1, 7) and d.box.cols == slice(2, 10)
+    with pytest.raises(TypeError, match="x1"):
+        _decomposition((1, 7, 2))  # three numbers are not a box
