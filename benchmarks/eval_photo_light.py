@@ -30,7 +30,6 @@ light, and between the photo's mean colour and the true light's.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import tempfile
@@ -90,7 +89,12 @@ class SphereRenderer:
     """One Blender scene: a Lambertian sphere and the photo camera; render(world) -> (rgb, coverage)."""
 
     def __init__(self, size: int, samples: int, work: Path):
+        import sys
+
         import bpy
+
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        from cycles_support import lambert_sphere, photo_camera  # the sphere and camera the tests render
 
         self.bpy, self.work, self.count = bpy, work, 0
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -105,23 +109,8 @@ class SphereRenderer:
         scene.view_settings.view_transform = "Standard"
         scene.render.image_settings.file_format = "OPEN_EXR"
         scene.render.image_settings.color_depth = "32"
-        bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=64, radius=1.0, location=(0.0, 5.0, 0.0))
-        bpy.ops.object.shade_smooth()
-        material = bpy.data.materials.new("white")
-        nodes = material.node_tree.nodes
-        for node in list(nodes):
-            if node.type != "OUTPUT_MATERIAL":
-                nodes.remove(node)
-        diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-        diffuse.inputs["Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1.0)
-        material.node_tree.links.new(diffuse.outputs[0], nodes["Material Output"].inputs["Surface"])
-        bpy.context.active_object.data.materials.append(material)
-        camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-        camera.data.type = "ORTHO"
-        camera.data.ortho_scale = 2.2
-        camera.rotation_euler = (math.pi / 2, 0.0, 0.0)
-        scene.collection.objects.link(camera)
-        scene.camera = camera
+        lambert_sphere(scene, ALBEDO)
+        photo_camera(scene)
 
     def _world(self, pixels: np.ndarray | None, colour) -> None:
         bpy = self.bpy

@@ -1,11 +1,101 @@
 """Cycles scenes that tests and benchmarks build to check the conventions against a renderer
-(bpy needed): a World whose radiance is one SH basis function."""
+(bpy needed, Blender 4.2 to 5.x): a Lambertian sphere seen by the photo camera of
+docs/conventions.md, its render with Cycles' Normal pass, the sphere's pixels read back, and
+a World whose radiance is one SH basis function."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import bpy
+import numpy as np
+
+from relight.exr import read_exr
+
+SPHERE_CENTRE = (0.0, 5.0, 0.0)  # a unit sphere 5 m along the camera's view
+ORTHO_SCALE = 2.2  # the orthographic view's width: the sphere and a margin
+
+
+def lambert_sphere(scene: bpy.types.Scene, albedo: float) -> bpy.types.Object:
+    """A smooth unit sphere (128 x 64 segments) at SPHERE_CENTRE, pure Lambert of grey `albedo`."""
+    import bmesh
+
+    mesh = bpy.data.meshes.new("sphere")
+    bm = bmesh.new()
+    bmesh.ops.create_uvsphere(bm, u_segments=128, v_segments=64, radius=1.0)
+    for face in bm.faces:
+        face.smooth = True
+    bm.to_mesh(mesh)
+    bm.free()
+    sphere = bpy.data.objects.new("sphere", mesh)
+    sphere.location = SPHERE_CENTRE
+    scene.collection.objects.link(sphere)
+    material = bpy.data.materials.new("lambert")
+    if bpy.app.version < (5, 0, 0):
+        material.use_nodes = True  # always on from 5.0 (deprecated there)
+    nodes = material.node_tree.nodes
+    for node in list(nodes):
+        if node.type != "OUTPUT_MATERIAL":
+            nodes.remove(node)
+    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (albedo, albedo, albedo, 1.0)
+    diffuse.inputs["Roughness"].default_value = 0.0  # pure Lambert
+    material.node_tree.links.new(diffuse.outputs[0], nodes["Material Output"].inputs["Surface"])
+    mesh.materials.append(material)
+    return sphere
+
+
+def photo_camera(scene: bpy.types.Scene) -> bpy.types.Object:
+    """The photo camera: at the origin, looking along +Y (X right, Z up), orthographic."""
+    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    camera.data.type = "ORTHO"
+    camera.data.ortho_scale = ORTHO_SCALE
+    camera.rotation_euler = (math.pi / 2, 0.0, 0.0)
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    return camera
+
+
+def render_with_normals(scene: bpy.types.Scene, out_path: Path, size: int, samples: int, seed: int) -> dict:
+    """Cycles on the CPU, `samples` per pixel without adaptive sampling or denoising, a box
+    filter one pixel wide, `size` x `size`; the render's passes (Combined, Normal) as read
+    back from its multilayer EXR."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.use_denoising = False
+    scene.cycles.seed = seed
+    scene.cycles.pixel_filter_type = "BOX"
+    scene.render.filter_size = 1.0
+    scene.render.resolution_x = scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = "Standard"
+    scene.view_layers[0].use_pass_normal = True
+    if hasattr(scene.render.image_settings, "media_type"):  # Blender 5
+        scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = str(out_path)
+    bpy.ops.render.render(write_still=True)
+    return read_exr(out_path)  # Blender 5 writes one part per pass
+
+
+def sphere_pixels(first: dict, second: dict) -> dict:
+    """The sphere's pixels in two renders of it: fully covered, facing the camera (grazing
+    silhouette pixels, partly covered, left out). `n` unit normals [P, 3] from the first's
+    Normal pass, `rows`/`cols` their pixels, `r0`/`r1` each render's RGB there (float64)."""
+    rgb = [np.stack([p[f"ViewLayer.Combined.{c}"] for c in "RGB"], -1).astype(np.float64) for p in (first, second)]
+    normal = np.stack([first[f"ViewLayer.Normal.{c}"] for c in "XYZ"], -1).astype(np.float64)
+    length = np.linalg.norm(normal, axis=-1)
+    inside = (first["ViewLayer.Combined.A"] > 0.999) & (length > 0.5)
+    n = normal[inside] / length[inside][:, None]
+    keep = n[:, 1] < -0.2
+    rows, cols = np.nonzero(inside)
+    return {"rows": rows[keep], "cols": cols[keep], "n": n[keep],
+            "r0": rgb[0][inside][keep], "r1": rgb[1][inside][keep]}
 
 
 def sh_world(scene: bpy.types.Scene, index: int) -> None:

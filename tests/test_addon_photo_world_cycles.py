@@ -16,7 +16,6 @@ noise, and a mirrored or turned light fails by far.
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import pytest
@@ -25,7 +24,8 @@ import bpy
 
 import blender_addon
 from blender_addon import bl_images, state
-from relight import exr, prt, sh
+from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
+from relight import prt, sh
 from relight.light_map import irradiance_error
 from test_addon_blender import make_tiny_model, write_person_png
 
@@ -37,62 +37,6 @@ SAMPLES = 256
 
 def camera_left_light():
     return sh.directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
-
-
-def render_sphere(scene, out_path, seed):
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = SAMPLES
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    scene.cycles.seed = seed
-    scene.cycles.pixel_filter_type = "BOX"
-    scene.render.filter_size = 1.0
-    scene.render.resolution_x = scene.render.resolution_y = SIZE
-    scene.render.resolution_percentage = 100
-    scene.view_settings.view_transform = "Standard"
-    scene.view_layers[0].use_pass_normal = True
-    if hasattr(scene.render.image_settings, "media_type"):  # Blender 5
-        scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
-    else:
-        scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
-    scene.render.image_settings.color_depth = "32"
-    scene.render.filepath = str(out_path)
-    bpy.ops.render.render(write_still=True)
-    return exr.read_exr(out_path)
-
-
-def build_sphere(scene):
-    mesh = bpy.data.meshes.new("sphere")
-    import bmesh
-
-    bm = bmesh.new()
-    bmesh.ops.create_uvsphere(bm, u_segments=128, v_segments=64, radius=1.0)
-    for face in bm.faces:
-        face.smooth = True
-    bm.to_mesh(mesh)
-    bm.free()
-    sphere = bpy.data.objects.new("sphere", mesh)
-    sphere.location = (0.0, 5.0, 0.0)
-    scene.collection.objects.link(sphere)
-    material = bpy.data.materials.new("lambert")
-    if bpy.app.version < (5, 0, 0):
-        material.use_nodes = True  # always on from 5.0 (deprecated there)
-    nodes = material.node_tree.nodes
-    for node in list(nodes):
-        if node.type != "OUTPUT_MATERIAL":
-            nodes.remove(node)
-    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.inputs["Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1.0)
-    diffuse.inputs["Roughness"].default_value = 0.0  # pure Lambert
-    material.node_tree.links.new(diffuse.outputs[0], nodes["Material Output"].inputs["Surface"])
-    sphere.data.materials.append(material)
-    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    camera.data.type = "ORTHO"
-    camera.data.ortho_scale = 2.2
-    camera.rotation_euler = (math.pi / 2, 0.0, 0.0)  # the photo camera: looking along +Y
-    scene.collection.objects.link(camera)
-    scene.camera = camera
 
 
 @pytest.fixture(scope="module")
@@ -116,21 +60,13 @@ def renders(tmp_path_factory):
         flat = np.empty(w * h * 4, np.float32)
         texture.image.pixels.foreach_get(flat)
         world_map = flat.reshape(h, w, 4)[::-1, :, :3].copy()
-        build_sphere(scene)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)  # use_nodes, gone in Blender 6
-            passes = [render_sphere(scene, folder / f"seed{seed}.exr", seed) for seed in (0, 1)]
+        lambert_sphere(scene, ALBEDO)
+        photo_camera(scene)
+        passes = [render_with_normals(scene, folder / f"seed{seed}.exr", SIZE, SAMPLES, seed) for seed in (0, 1)]
     finally:
         bpy.ops.wm.read_homefile()
         blender_addon.unregister()
-    rgb = [np.stack([p[f"ViewLayer.Combined.{c}"] for c in "RGB"], -1).astype(np.float64) for p in passes]
-    normal = np.stack([passes[0][f"ViewLayer.Normal.{c}"] for c in "XYZ"], -1).astype(np.float64)
-    alpha = passes[0]["ViewLayer.Combined.A"]
-    length = np.linalg.norm(normal, axis=-1)
-    inside = (alpha > 0.999) & (length > 0.5)
-    n = normal[inside] / length[inside][:, None]
-    keep = n[:, 1] < -0.2  # drop grazing silhouette pixels (partial coverage)
-    return {"n": n[keep], "r0": rgb[0][inside][keep], "r1": rgb[1][inside][keep], "map": world_map}
+    return {"map": world_map, **sphere_pixels(*passes)}
 
 
 def predict(n, L):

@@ -23,6 +23,7 @@ import bpy  # the farm extra; the test suite runs with it
 import numpy as np
 import pytest
 
+from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
 from relight import envmap, exr, presets, prt, sh
 
 ALBEDO = 0.5
@@ -42,18 +43,6 @@ def downsampled_map():
 def render_sphere(map_path, out_path, seed):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = SAMPLES
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    scene.cycles.seed = seed
-    scene.cycles.pixel_filter_type = "BOX"
-    scene.render.filter_size = 1.0
-    scene.render.resolution_x = scene.render.resolution_y = SIZE
-    scene.render.resolution_percentage = 100
-    scene.view_settings.view_transform = "Standard"
-
     world = bpy.data.worlds.new("hdr")
     scene.world = world
     world.use_nodes = True
@@ -62,37 +51,11 @@ def render_sphere(map_path, out_path, seed):
     texture.image = bpy.data.images.load(str(map_path))
     texture.interpolation = "Closest"
     world.node_tree.links.new(texture.outputs["Color"], nodes["Background"].inputs["Color"])
-
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=64, radius=1.0, location=(0.0, 5.0, 0.0))
-    bpy.ops.object.shade_smooth()
-    sphere = bpy.context.active_object
-    material = bpy.data.materials.new("lambert")
-    material.use_nodes = True
-    mnodes = material.node_tree.nodes
-    for node in list(mnodes):
-        if node.type != "OUTPUT_MATERIAL":
-            mnodes.remove(node)
-    diffuse = mnodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.inputs["Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1.0)
-    diffuse.inputs["Roughness"].default_value = 0.0  # pure Lambert
-    material.node_tree.links.new(diffuse.outputs[0], mnodes["Material Output"].inputs["Surface"])
-    sphere.data.materials.append(material)
-
-    # the photo camera of docs/conventions.md: at the origin, looking along +Y
-    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    camera.data.type = "ORTHO"
-    camera.data.ortho_scale = 2.2
-    camera.rotation_euler = (math.pi / 2, 0.0, 0.0)
-    scene.collection.objects.link(camera)
-    scene.camera = camera
-
-    scene.view_layers[0].use_pass_normal = True
-    scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
-    scene.render.image_settings.color_depth = "32"
-    scene.render.filepath = str(out_path)
-    bpy.ops.render.render(write_still=True)
+    lambert_sphere(scene, ALBEDO)
+    photo_camera(scene)  # docs/conventions.md: at the origin, looking along +Y
+    passes = render_with_normals(scene, out_path, SIZE, SAMPLES, seed)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    return exr.read_exr(out_path)  # Blender 5 writes one part per pass
+    return passes
 
 
 @pytest.fixture(scope="module")
@@ -101,24 +64,9 @@ def renders(tmp_path_factory):
     light_map = downsampled_map()
     map_path = exr.write_exr(tmp / "map.exr", {c: light_map[..., i] for i, c in enumerate("RGB")})
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # use_nodes, gone in Blender 6
+        warnings.simplefilter("ignore", DeprecationWarning)  # world.use_nodes, gone in Blender 6
         passes = [render_sphere(map_path, tmp / f"seed{seed}.exr", seed) for seed in (0, 1)]
-    rgb = [np.stack([p[f"ViewLayer.Combined.{c}"] for c in "RGB"], -1).astype(np.float64) for p in passes]
-    normal = np.stack([passes[0][f"ViewLayer.Normal.{c}"] for c in "XYZ"], -1).astype(np.float64)
-    alpha = passes[0]["ViewLayer.Combined.A"]
-    length = np.linalg.norm(normal, axis=-1)
-    inside = (alpha > 0.999) & (length > 0.5)
-    n = normal[inside] / length[inside][:, None]
-    keep = n[:, 1] < -0.2  # drop grazing silhouette pixels (partial coverage)
-    rows, cols = np.nonzero(inside)
-    return {
-        "rows": rows[keep],
-        "cols": cols[keep],
-        "map": light_map,
-        "n": n[keep],
-        "r0": rgb[0][inside][keep],
-        "r1": rgb[1][inside][keep],
-    }
+    return {"map": light_map, **sphere_pixels(*passes)}
 
 
 def predict(n, L):
