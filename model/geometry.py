@@ -30,7 +30,6 @@ import math
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from model import physics
 from model.network import MAX_WIDTH_FACTOR, Encoder, Generator, LightDecoder, ResidualBlock, num_coeffs
