@@ -35,16 +35,16 @@ def _median(fn, repeats: int) -> tuple[float, float]:
 
 def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
     """Median wall time of each step of person_matte (the same private steps, in order)."""
-    from relight import matte
+    from relight import matte, resample
     from relight.colour import srgb_encode
 
     H, W = photo.shape[:2]
     out = {}
-    small = matte._area_shrink(photo, matte.GUIDE_SIZE)
-    out["shrink to 512-1023 px"] = _median(lambda: matte._area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
+    small = resample.area_shrink(photo, matte.GUIDE_SIZE)
+    out["shrink to 512-1023 px"] = _median(lambda: resample.area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
     small_srgb = srgb_encode(small).astype(np.float32)
-    grid = matte._area_shrink(small_srgb, matte.NET_SIDE)
-    out["sRGB + grid"] = _median(lambda: matte._area_shrink(srgb_encode(small).astype(np.float32),
+    grid = resample.area_shrink(small_srgb, matte.NET_SIDE)
+    out["sRGB + grid"] = _median(lambda: resample.area_shrink(srgb_encode(small).astype(np.float32),
                                                             matte.NET_SIDE), repeats)[0]
     selfie = matte._session("selfie", threads)
     out["selfie network"] = _median(lambda: matte._selfie(selfie, grid), repeats)[0]
@@ -60,8 +60,8 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
         lambda: matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH), repeats)[0]
     edge = matte._edge(small, grid, people[0], True)
     out["guided edge"] = _median(lambda: matte._edge(small, grid, people[0], True), repeats)[0]
-    out["full-resolution upsample"] = _median(lambda: matte._upsample_support(edge, H, W), repeats)[0]
-    alpha = matte._upsample_support(edge, H, W)
+    out["full-resolution upsample"] = _median(lambda: resample.upsample_support(edge, H, W), repeats)[0]
+    alpha = resample.upsample_support(edge, H, W)
     out["box"] = _median(lambda: matte._box(alpha), repeats)[0]
     return out
 

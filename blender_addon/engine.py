@@ -8,7 +8,6 @@ the next run can estimate how far along it is.
 from __future__ import annotations
 
 import json
-import math
 import os
 import threading
 import time
@@ -179,9 +178,7 @@ def preview_decomposition(decomposition, long_side: int):
         return None
     s = long_side / max(H, W)
     h, w = max(1, round(H * s)), max(1, round(W * s))
-    y0, y1, x0, x1 = decomposition.box
-    box = (int(y0 * h / H), max(int(y0 * h / H) + 1, math.ceil(y1 * h / H)),
-           int(x0 * w / W), max(int(x0 * w / W) + 1, math.ceil(x1 * w / W)))
+    box = decomposition.box.rescaled((H, W), (h, w))
     # every k-th pixel first (k = half the reduction): the area filter then reads
     # 1/k^2 of the photo; a preview's slight aliasing is the price of ~10x less work
     k = max(1, int(min(H / h, W / w) // 2))

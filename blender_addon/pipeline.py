@@ -64,18 +64,6 @@ class PhotoPixels:
     digest: str                 # hash of the stored pixel values: the key of a saved decomposition
 
 
-_SRGB_LUT: list = []
-
-
-def srgb_lut() -> np.ndarray:
-    """Linear value of each 8-bit sRGB code: one table look-up instead of a power per value."""
-    if not _SRGB_LUT:
-        from relight.colour import srgb_decode
-
-        _SRGB_LUT.append(srgb_decode(np.arange(256, dtype=np.float32) / np.float32(255.0)).astype(np.float32))
-    return _SRGB_LUT[0]
-
-
 def _digest(*arrays: np.ndarray) -> str:
     h = hashlib.blake2b(digest_size=16)
     for a in arrays:
@@ -88,11 +76,13 @@ def _from_codes(codes: np.ndarray, alpha_codes: np.ndarray | None,
                 reuse: PhotoPixels | None = None) -> PhotoPixels:
     # the digest covers the colour codes only, so it does not depend on how the
     # alpha was read (Blender gives every byte image four channels)
+    from relight.colour import decode_alpha_codes, decode_srgb_codes  # the CLI's decoder: the same floats
+
     digest = _digest(codes)
     # the same pixels as the photo's last decoding (Relight again): its linear copy is shared,
     # not made twice (288 MB at 24 MP)
-    rgb = reuse.rgb if reuse is not None and reuse.digest == digest else srgb_lut()[codes]
-    alpha = None if alpha_codes is None else alpha_codes.astype(np.float32) * np.float32(1.0 / 255.0)
+    rgb = reuse.rgb if reuse is not None and reuse.digest == digest else decode_srgb_codes(codes)
+    alpha = None if alpha_codes is None else decode_alpha_codes(alpha_codes)
     return PhotoPixels(rgb, alpha, digest)
 
 
@@ -247,7 +237,9 @@ def check_photo_content(photo: np.ndarray) -> None:
     check_photo_size(w, h)
     step = max(1, int(np.sqrt(h * w / CHECK_SAMPLES)))
     sample = np.asarray(photo[::step, ::step, :3], dtype=np.float32).reshape(-1, 3)
-    luminance = sample @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    from relight.colour import LUMINANCE_WEIGHTS
+
+    luminance = sample @ LUMINANCE_WEIGHTS.astype(np.float32)
     if float(luminance.max()) < BLACK_LEVEL:
         raise ValueError("The photo is black: there is no person to see in it. "
                          "Check the photo's exposure, or open another photo.")

@@ -11,7 +11,6 @@ Decomposition.box and the clip filters all hold this type.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -62,10 +61,12 @@ class Box(NamedTuple):
         """`pad` pixels more on every side, kept inside an image of height x width."""
         return Box(max(0, self.y0 - pad), min(height, self.y1 + pad), max(0, self.x0 - pad), min(width, self.x1 + pad))
 
-    def scaled(self, sy: float, sx: float) -> "Box":
-        """The same region on an image sy x sx times the size: starts rounded down, ends up
-        (the scaled box holds every pixel the original touches)."""
-        return Box(int(self.y0 * sy), int(math.ceil(self.y1 * sy)), int(self.x0 * sx), int(math.ceil(self.x1 * sx)))
+    def rescaled(self, size_from: tuple[int, int], size_to: tuple[int, int]) -> "Box":
+        """The same region of the image resized from (H, W) `size_from` to `size_to`: starts
+        rounded down, ends up (exact integer arithmetic), so it holds every pixel the box
+        touches and is never empty."""
+        (h0, w0), (h1, w1) = size_from, size_to
+        return Box(self.y0 * h1 // h0, -(-self.y1 * h1 // h0), self.x0 * w1 // w0, -(-self.x1 * w1 // w0))
 
     def union(self, other: "Box | None") -> "Box":
         """The smallest box holding both (this one when `other` is None)."""

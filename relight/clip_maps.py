@@ -35,9 +35,9 @@ CLIPPED = 0.99            # model/geometry.py: an encoded input above this in an
 def grid_grey(photo_working: np.ndarray) -> np.ndarray:
     """sRGB grey [h, w] float32 of a working-resolution linear crop (what flow and the
     agreement test compare)."""
-    from relight.colour import srgb_encode
+    from relight.colour import LUMINANCE_WEIGHTS, srgb_encode
 
-    grey = photo_working @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    grey = photo_working @ LUMINANCE_WEIGHTS.astype(np.float32)
     return srgb_encode(grey.astype(np.float32)).astype(np.float32)
 
 

@@ -1,4 +1,5 @@
-"""Colour: linear Rec.709 <-> sRGB transfer (IEC 61966-2-1) and luminance."""
+"""Colour: linear Rec.709 <-> sRGB transfer (IEC 61966-2-1), luminance, and the one decoder of
+8- and 16-bit sRGB code values (photo files in the CLI, Blender's byte images in the add-on)."""
 
 from __future__ import annotations
 
@@ -52,3 +53,40 @@ def luminance(rgb) -> np.ndarray:
     if a.ndim < 1 or a.shape[-1] != 3:
         raise ValueError(f"RGB input must have shape [..., 3], got {a.shape}")
     return a @ LUMINANCE_WEIGHTS.astype(a.dtype)
+
+
+# code value -> linear, one table per bit depth, computed in float64 and stored as float32: the
+# one decoder of stored sRGB codes, so `relight image` and the add-on read a PNG to the same floats
+_DECODE_TABLES: dict[int, np.ndarray] = {}
+DECODE_STRIP_ROWS = 256  # rows looked up at a time: bounds the gather's temporaries on huge photos
+
+
+def _decode_table(dtype) -> np.ndarray:
+    levels = {np.dtype(np.uint8): 256, np.dtype(np.uint16): 65536}.get(np.dtype(dtype))
+    if levels is None:
+        raise ValueError(f"sRGB code values must be uint8 or uint16, got dtype {np.dtype(dtype)}")
+    table = _DECODE_TABLES.get(levels)
+    if table is None:  # a benign race: two threads may both build the same table
+        table = srgb_decode(np.arange(levels, dtype=np.float64) / (levels - 1)).astype(np.float32)
+        table.flags.writeable = False
+        _DECODE_TABLES[levels] = table
+    return table
+
+
+def decode_srgb_codes(codes: np.ndarray) -> np.ndarray:
+    """Linear float32 values of stored sRGB code values (uint8 or uint16, any shape)."""
+    codes = np.asarray(codes)
+    table = _decode_table(codes.dtype)
+    if codes.ndim < 2:
+        return table[codes]
+    out = np.empty(codes.shape, np.float32)
+    for r0 in range(0, codes.shape[0], DECODE_STRIP_ROWS):
+        out[r0:r0 + DECODE_STRIP_ROWS] = table[codes[r0:r0 + DECODE_STRIP_ROWS]]
+    return out
+
+
+def decode_alpha_codes(codes: np.ndarray) -> np.ndarray:
+    """Coverage in [0, 1], float32, of stored alpha code values (uint8 or uint16; alpha is linear)."""
+    codes = np.asarray(codes)
+    _decode_table(codes.dtype)  # the same dtypes as colour
+    return codes.astype(np.float32) / np.float32(np.iinfo(codes.dtype).max)

@@ -19,6 +19,7 @@ from relight import sh
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR, DETAIL_EPS, composite
 from relight.light import fit_order
+from relight.mask_ops import dilate
 from relight.resample import Bilinear
 
 __all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "exposure_scale"]
@@ -42,17 +43,6 @@ def exposure_scale(exposure_ev) -> float:
     if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
         raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
     return 2.0 ** ev
-
-
-def _grow(inside: np.ndarray) -> np.ndarray:
-    """3x3 binary dilation of a [h, w] bool map (numpy only)."""
-    out = inside.copy()
-    out[1:] |= inside[:-1]
-    out[:-1] |= inside[1:]
-    rows = out.copy()
-    out[:, 1:] |= rows[:, :-1]
-    out[:, :-1] |= rows[:, 1:]
-    return out
 
 
 @dataclass(frozen=True)
@@ -101,7 +91,7 @@ class Decomposition:
         n = sh.num_coeffs(self.sh_order)
         # matte pixels grown by one: the bilinear taps of every full-resolution
         # pixel inside the matte then read relit values, never the zeros around
-        self._matte = np.flatnonzero(_grow(self.alpha > 0).reshape(-1))
+        self._matte = np.flatnonzero(dilate(self.alpha > 0, 1).reshape(-1))
         self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
         self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
         self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])

@@ -37,7 +37,9 @@ import numpy as np
 
 from relight.box import Box
 from relight.linear_photo import check_photo
+from relight.mask_ops import box_mean, dilate, label
 from relight.models import REGISTRY_PATH
+from relight.resample import area_shrink, bilinear_rows, resize_linear, sample_points, upsample_support
 
 __all__ = ["PersonMatte", "NoPersonError", "person_matte", "matte_of_checked_photo", "METHODS", "MODELS",
            "model_paths"]
@@ -130,8 +132,6 @@ def _nchw(srgb: np.ndarray) -> np.ndarray:
 
 def _selfie(session, grid: np.ndarray) -> np.ndarray:
     """Selfie segmentation of the grid image (sRGB [h, w, 3]) -> probability on the grid."""
-    from relight.resample import bilinear_rows, resize_linear
-
     x = resize_linear(grid, NET_SIDE, NET_SIDE)  # squeezed to the square, as MediaPipe feeds it
     p = session.run(["mask"], {"image": _nchw(x)})[0][0, 0]
     return bilinear_rows(p, *grid.shape[:2])
@@ -161,8 +161,6 @@ def _detect(session, grid: np.ndarray) -> list[np.ndarray]:
     """People found by the pose detector in an sRGB image: for each, its 4 keypoints
     [4, 2] in the image's pixels (0: hips' centre, 1: a point on the body's enclosing
     circle), after MediaPipe's weighted non-maximum suppression."""
-    from relight.resample import resize_linear
-
     h, w = grid.shape[:2]
     scale = DETECT_SIDE / max(h, w)
     nh, nw = max(1, round(h * scale)), max(1, round(w * scale))
@@ -212,30 +210,6 @@ def _roi(keypoints: np.ndarray) -> tuple[float, float, float, float]:
     return x0, y0, side, rotation
 
 
-def _sample(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of image [h, w] or [h, w, C] at pixel coordinates (pixel centres at
-    +0.5); zero outside the image (MediaPipe's zero border)."""
-    h, w = image.shape[:2]
-    flat = image.reshape(h * w, -1)
-    x = np.asarray(x, np.float32) - np.float32(0.5)
-    y = np.asarray(y, np.float32) - np.float32(0.5)
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx, fy = x - x0, y - y0
-    x0 = x0.astype(np.intp)
-    y0 = y0.astype(np.intp)
-    out = np.zeros(x.shape + (flat.shape[1],), np.float32)
-    for dy, wy in ((0, 1 - fy), (1, fy)):
-        yy = y0 + dy
-        row_ok = (yy >= 0) & (yy < h)
-        for dx, wx in ((0, 1 - fx), (1, fx)):
-            xx = x0 + dx
-            weight = wx * wy * (row_ok & (xx >= 0) & (xx < w))  # zero outside the image
-            index = np.clip(yy, 0, h - 1) * w + np.clip(xx, 0, w - 1)
-            out += np.take(flat, index, axis=0) * weight[..., None]
-    return out if image.ndim == 3 else out[..., 0]
-
-
 def _pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k: int) -> np.ndarray:
     """The pose landmark model's segmentation of one detected person (keypoints in pixels of
     `image`, sRGB), resampled onto the grid [h, w] whose pixels are k x k pixels of `image`."""
@@ -245,7 +219,7 @@ def _pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k:
     # the rotated square sampled into the network's 256 x 256 (pixel centres)
     t = ((np.arange(NET_SIDE, dtype=np.float64) + 0.5) / NET_SIDE - 0.5) * side
     u, v = np.meshgrid(t, t)
-    crop = _sample(image, c * u - s * v + cx, s * u + c * v + cy)
+    crop = sample_points(image, c * u - s * v + cx, s * u + c * v + cy)
     mask = session.run(["mask"], {"image": _nchw(crop)})[0][0, 0]
     # back to the grid, over the square's bounding box only
     half = side * (abs(c) + abs(s)) / 2
@@ -258,142 +232,7 @@ def _pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k:
     dx, dy = xx - cx, yy - cy
     mu = (c * dx + s * dy) / side + 0.5
     mv = (-s * dx + c * dy) / side + 0.5
-    out[y0:y1, x0:x1] = _sample(mask, mu * NET_SIDE, mv * NET_SIDE)
-    return out
-
-
-# ------------------------------------------------------------------ people
-
-
-def _label(inside: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """8-connected parts of a bool [h, w] map: (labels [h, w] int32, 0 = none; areas, by label - 1).
-
-    Runs of each row are joined to the overlapping (or diagonally touching)
-    runs of the row above with a union-find; numpy finds the runs.
-    """
-    h, w = inside.shape
-    padded = np.zeros((h, w + 2), np.int8)
-    padded[:, 1:-1] = inside
-    edges = np.diff(padded, axis=1)
-    runs = []                            # (row, start, end) per run
-    row_runs: list[list[int]] = []
-    parent: list[int] = []
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for r in range(h):
-        starts = np.flatnonzero(edges[r] == 1)
-        ends = np.flatnonzero(edges[r] == -1)
-        here = []
-        prev = row_runs[-1] if row_runs else []
-        j = 0
-        for s, e in zip(starts.tolist(), ends.tolist()):
-            idx = len(runs)
-            runs.append((r, s, e))
-            parent.append(idx)
-            here.append(idx)
-            while j < len(prev) and runs[prev[j]][2] < s:  # ends before s - 1: cannot touch this or later runs
-                j += 1
-            k = j
-            while k < len(prev) and runs[prev[k]][1] <= e:  # starts by e: touches (8-connected)
-                a, b = find(idx), find(prev[k])
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
-                k += 1
-        row_runs.append(here)
-    labels = np.zeros((h, w), np.int32)
-    roots: dict[int, int] = {}
-    areas: list[int] = []
-    for i, (r, s, e) in enumerate(runs):
-        root = find(i)
-        if root not in roots:
-            roots[root] = len(roots) + 1
-            areas.append(0)
-        lab = roots[root]
-        labels[r, s:e] = lab
-        areas[lab - 1] += e - s
-    return labels, areas
-
-
-# ------------------------------------------------------------------ resampling
-
-
-def _area_shrink(image: np.ndarray, longest: int) -> np.ndarray:
-    """[H, W, C] averaged over k x k blocks, k the largest integer keeping the longer side
-    >= `longest` (k = 1: the image itself). Every k-th row is added in turn (each a
-    vector add over whole rows), then every k-th column of that: a 12 MP photo is
-    read once. A remainder of < k rows/columns at the end is dropped."""
-    H, W = image.shape[:2]
-    k = max(1, max(H, W) // longest)
-    if k == 1:
-        return image
-    h, w = H // k, W // k
-    rows = image[0:h * k:k].astype(np.float32)  # a copy: the sums go into it
-    for i in range(1, k):
-        rows += image[i:h * k:k]
-    out = rows[:, 0:w * k:k].copy()
-    for i in range(1, k):
-        out += rows[:, i:w * k:k]
-    out *= np.float32(1.0 / (k * k))
-    return out
-
-
-def _window_sum(x: np.ndarray, r: int, axis: int) -> np.ndarray:
-    """Sums over windows of 2r+1 along `axis`, clipped at the borders (running sums in float64:
-    one axis at a time keeps them small enough for the variance's differences)."""
-    n = x.shape[axis]
-    s = np.cumsum(x, axis=axis, dtype=np.float64)
-    zero = np.zeros_like(np.take(s, [0], axis=axis))
-    last = np.take(s, [n - 1], axis=axis)
-    ahead = np.concatenate([s] + [last] * r, axis=axis)                # s[min(i + r, n - 1)]
-    behind = np.concatenate([zero] * (r + 1) + [s], axis=axis)          # s[i - r - 1], 0 before the start
-    idx = [slice(None)] * x.ndim
-    idx[axis] = slice(r, r + n)
-    hi = ahead[tuple(idx)]
-    idx[axis] = slice(0, n)
-    lo = behind[tuple(idx)]
-    return (hi - lo).astype(np.float32)
-
-
-def _box_mean(x: np.ndarray, r: int) -> np.ndarray:
-    """Mean over (2r+1)^2 windows, clipped at the borders."""
-    h, w = x.shape
-    count = (np.minimum(np.arange(h) + r, h - 1) - np.maximum(np.arange(h) - r, 0) + 1)[:, None] * \
-            (np.minimum(np.arange(w) + r, w - 1) - np.maximum(np.arange(w) - r, 0) + 1)[None, :]
-    return _window_sum(_window_sum(x, r, 0), r, 1) / count.astype(np.float32)
-
-
-def _upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
-    """`small` [h, w] bilinearly resized to [H, W], computed only over the rows and
-    columns whose taps reach a non-zero value (zeros elsewhere, left to calloc)."""
-    from relight.resample import Bilinear, axis_taps
-
-    h, w = small.shape
-    if (h, w) == (H, W):
-        return small
-    out = np.zeros((H, W), np.float32)
-    nz_rows = np.flatnonzero(small.any(axis=1))
-    if nz_rows.size == 0:
-        return out
-    nz_cols = np.flatnonzero(small[nz_rows[0]:nz_rows[-1] + 1].any(axis=0))
-
-    def span(n_out, n_in, lo, hi):
-        i0, i1, _ = axis_taps(n_out, n_in)
-        touch = np.flatnonzero((i1 >= lo) & (i0 <= hi))
-        return int(touch[0]), int(touch[-1]) + 1
-
-    r0, r1 = span(H, h, nz_rows[0], nz_rows[-1])
-    c0, c1 = span(W, w, nz_cols[0], nz_cols[-1])
-    up = Bilinear(H, W, h, w)
-    cols, diff = up.prepare(small[..., None])
-    prepared = np.ascontiguousarray(cols[:, c0:c1, 0]), np.ascontiguousarray(diff[:, c0:c1, 0])
-    for a in range(r0, r1, 64):  # strips: the gathered rows stay in cache
-        b = min(a + 64, r1)
-        out[a:b, c0:c1] = up.strip(prepared, a, b)
+    out[y0:y1, x0:x1] = sample_points(mask, mu * NET_SIDE, mv * NET_SIDE)
     return out
 
 
@@ -426,7 +265,7 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     H, W = photo.shape[:2]
-    small = _area_shrink(photo, GUIDE_SIZE)
+    small = area_shrink(photo, GUIDE_SIZE)
     # a NaN or Inf survives the block average (a sum of huge values may overflow to Inf:
     # refused too), so one check of the small image covers the photo at a fraction of the cost
     if not np.all(np.isfinite(small)):
@@ -434,7 +273,7 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
     from relight.colour import srgb_encode
 
     small_srgb = srgb_encode(small).astype(np.float32)
-    grid = _area_shrink(small_srgb, NET_SIDE)
+    grid = area_shrink(small_srgb, NET_SIDE)
     people = _people(small_srgb, grid, method, threads, registry_path)
     if not people:
         raise NoPersonError(_NOBODY)
@@ -447,7 +286,7 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
     # full-resolution matte is exactly 0 (photo untouched) and exactly 1 where its taps are
     alpha_small[alpha_small < ALPHA_FLOOR] = 0.0
     alpha_small[alpha_small > 1.0 - ALPHA_FLOOR] = 1.0
-    alpha = _upsample_support(alpha_small, H, W)
+    alpha = upsample_support(alpha_small, H, W)
     box = Box.around(alpha)
     if box is None:  # the edge refinement erased a part the networks saw: treat as nobody
         raise NoPersonError(_NOBODY)
@@ -459,7 +298,7 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
     (sRGB, 512-1023 px: the detector and the pose crops see it), `grid` the same averaged
     over k x k blocks (256-511 px: the selfie model sees it, the masks are combined on it)."""
     h, w = grid.shape[:2]
-    k = max(1, max(small.shape[:2]) // NET_SIDE)  # as _area_shrink chose it
+    k = max(1, max(small.shape[:2]) // NET_SIDE)  # as area_shrink chose it
     floor = MIN_PERSON_FRACTION * h * w
     selfie = _selfie(_session("selfie", threads, registry_path), grid) if method != "pose" else None
     poses = []
@@ -473,7 +312,7 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         if selfie is None:
             return []
         labels, areas = _components(selfie)  # no detection: the selfie mask's parts are the people
-        return [np.where(_dilate(labels == i + 1, KEEP_RADIUS), selfie, np.float32(0.0)).astype(np.float32)
+        return [np.where(dilate(labels == i + 1, KEEP_RADIUS), selfie, np.float32(0.0)).astype(np.float32)
                 for i in range(len(areas))]
     poses.sort(key=lambda m: -np.count_nonzero(m > PERSON_THRESHOLD))
     if selfie is None:
@@ -486,7 +325,7 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         # "both": a pixel only one network claims stays faint (less ghosting than the mean)
         mine = pose >= others  # where another person's mask is stronger, that person is
         pose = np.where(mine, pose, np.float32(0.0))
-        near = _dilate(pose > PERSON_THRESHOLD, KEEP_RADIUS * max(1, round(max(h, w) / NET_SIDE)))
+        near = dilate(pose > PERSON_THRESHOLD, KEEP_RADIUS * max(1, round(max(h, w) / NET_SIDE)))
         own = np.where(near & mine, selfie, np.float32(0.0))
         inside = pose > PERSON_THRESHOLD
         if np.count_nonzero(inside) < floor:  # another detection holds all of it: one person twice
@@ -501,29 +340,13 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
 def _components(probability: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """Parts of probability > PERSON_THRESHOLD at least MIN_PERSON_FRACTION of the frame:
     (labels, 1 = largest; their areas)."""
-    labels, areas = _label(probability > PERSON_THRESHOLD)
+    labels, areas = label(probability > PERSON_THRESHOLD)
     floor = MIN_PERSON_FRACTION * probability.size
     order = [i + 1 for i in sorted(range(len(areas)), key=lambda i: -areas[i]) if areas[i] >= floor]
     remap = np.zeros(len(areas) + 1, np.int32)
     for rank, lab in enumerate(order, start=1):
         remap[lab] = rank
     return remap[labels], [areas[lab - 1] for lab in order]
-
-
-def _dilate(inside: np.ndarray, radius: int) -> np.ndarray:
-    """Binary dilation by a (2 radius + 1)^2 square (separable running maxima)."""
-    out = inside.copy()
-    for axis in (0, 1):
-        grown = out.copy()
-        n = out.shape[axis]
-        for step in range(1, min(radius, n - 1) + 1):
-            lo = [slice(None)] * 2
-            hi = [slice(None)] * 2
-            lo[axis], hi[axis] = slice(None, -step), slice(step, None)
-            grown[tuple(hi)] |= out[tuple(lo)]
-            grown[tuple(lo)] |= out[tuple(hi)]
-        out = grown
-    return out
 
 
 # ------------------------------------------------------------------ edge refinement
@@ -537,24 +360,24 @@ def _edge(small: np.ndarray, grid: np.ndarray, p: np.ndarray, refine: bool) -> n
     upsampled and applied to the guide at `small`'s size, so the edge follows
     the photo's own edges there.
     """
-    from relight.resample import bilinear_rows
-
     h, w = small.shape[:2]
     same = grid.shape[:2] == (h, w)
     if not refine:
         return p.copy() if same else bilinear_rows(p, h, w)
-    weights = np.array([0.2126, 0.7152, 0.0722], np.float32)
+    from relight.colour import LUMINANCE_WEIGHTS
+
+    weights = LUMINANCE_WEIGHTS.astype(np.float32)
     # grey guides, roughly perceptual: the grid is sRGB already; at the small size the
     # sqrt of linear luminance stands in for the sRGB curve (cheaper)
     coarse = grid @ weights
     guide = coarse if same else np.sqrt(np.clip(small @ weights, 0.0, 1.0)).astype(np.float32)
     ch, cw = coarse.shape
     r = max(1, round(GUIDE_RADIUS * max(ch, cw) / NET_SIDE))
-    mean_i, mean_p = _box_mean(coarse, r), _box_mean(p, r)
-    a = (_box_mean(coarse * p, r) - mean_i * mean_p) / (_box_mean(coarse * coarse, r) - mean_i * mean_i
+    mean_i, mean_p = box_mean(coarse, r), box_mean(p, r)
+    a = (box_mean(coarse * p, r) - mean_i * mean_p) / (box_mean(coarse * coarse, r) - mean_i * mean_i
                                                         + np.float32(GUIDE_EPS))
     b = mean_p - a * mean_i
-    a, b = _box_mean(a, r), _box_mean(b, r)
+    a, b = box_mean(a, r), box_mean(b, r)
     support = p
     if not same:
         a, b, support = bilinear_rows(a, h, w), bilinear_rows(b, h, w), bilinear_rows(p, h, w)

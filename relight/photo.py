@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import srgb_encode
+from relight.colour import decode_alpha_codes, decode_srgb_codes, srgb_encode
 from relight.fileio import atomic_path
 
 __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
@@ -39,28 +39,6 @@ STRIP_ROWS = 256             # rows converted at a time: bounds temporaries for 
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
 EXR_MAGIC = b"\x76\x2f\x31\x01"
-
-# sRGB decode tables: exact per code value, so 8/16-bit decoding is a lookup
-_LUT8: np.ndarray | None = None
-_LUT16: np.ndarray | None = None
-
-
-def _srgb_decode_table(levels: int) -> np.ndarray:
-    from relight.colour import srgb_decode
-
-    return srgb_decode(np.arange(levels, dtype=np.float64) / (levels - 1)).astype(np.float32)
-
-
-def _lut(bits: int) -> np.ndarray:
-    global _LUT8, _LUT16
-    if bits == 8:
-        if _LUT8 is None:
-            _LUT8 = _srgb_decode_table(256)
-        return _LUT8
-    if _LUT16 is None:
-        _LUT16 = _srgb_decode_table(65536)
-    return _LUT16
-
 
 def memory_available() -> int | None:
     """Bytes this process can still allocate: the kernel's MemAvailable, and the
@@ -271,21 +249,11 @@ def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     has_alpha = mode in ("RGBA", "LA", "PA", "La", "RGBa") or (mode == "P" and "transparency" in im.info) \
         or (mode in ("L", "RGB") and "transparency" in im.info)
     rgba = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
-    lut = _lut(8)
-    out = np.empty(rgba.shape[:2] + (3,), np.float32)
-    for r0 in range(0, out.shape[0], STRIP_ROWS):
-        out[r0:r0 + STRIP_ROWS] = lut[rgba[r0:r0 + STRIP_ROWS, :, :3]]
-    mask = rgba[..., 3].astype(np.float32) / 255.0 if has_alpha else None
-    return out, mask
+    return decode_srgb_codes(rgba[..., :3]), decode_alpha_codes(rgba[..., 3]) if has_alpha else None
 
 
 def _decode_16bit(rgb16: np.ndarray, alpha16: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-    lut = _lut(16)
-    out = np.empty(rgb16.shape[:2] + (3,), np.float32)
-    for r0 in range(0, out.shape[0], STRIP_ROWS):
-        out[r0:r0 + STRIP_ROWS] = lut[rgb16[r0:r0 + STRIP_ROWS]]
-    mask = alpha16.astype(np.float32) / 65535.0 if alpha16 is not None else None
-    return out, mask
+    return decode_srgb_codes(rgb16), decode_alpha_codes(alpha16) if alpha16 is not None else None
 
 
 # ------------------------------------------------------------------ 16-bit PNG
@@ -479,8 +447,8 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
                 if im.mode == "F":
                     return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
                 if "A" in im.mode or "transparency" in im.info:
-                    return np.asarray(im.convert("RGBA"))[..., 3].astype(np.float32) / 255.0
-                return np.asarray(im.convert("L"), dtype=np.float32) / 255.0
+                    return decode_alpha_codes(np.asarray(im.convert("RGBA"))[..., 3])
+                return decode_alpha_codes(np.asarray(im.convert("L")))  # grey as stored: white = person
     finally:
         im.close()
 

@@ -5,14 +5,17 @@ down for the person matte: box (area) filter when shrinking, bilinear when
 enlarging. `Bilinear` upsamples small maps (the relit person, the matte) to the
 photo's resolution with half-pixel centres and clamped edges; every caller
 (the compositor's tiles, the layers' strips, the person matte) goes through its
-`columns` and `between`, so they give the same values bit for bit.
+`columns` and `between`, so they give the same values bit for bit. For the person
+matte: `area_shrink` (block means), `upsample_support` (Bilinear over a matte's
+non-zero part only) and `sample_points` (bilinear samples at arbitrary points).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Bilinear", "SourceRows", "axis_taps", "bilinear_rows", "resize_linear"]
+__all__ = ["Bilinear", "SourceRows", "area_shrink", "axis_taps", "bilinear_rows", "resize_linear", "sample_points",
+           "upsample_support"]
 
 
 def axis_taps(n_out: int, n_in: int):
@@ -132,3 +135,76 @@ def resize_linear(img: np.ndarray, out_h: int, out_w: int) -> np.ndarray:
         plane = Image.fromarray(np.ascontiguousarray(planes[..., c]), mode="F")
         out[..., c] = np.asarray(plane.resize((out_w, out_h), method))
     return out[..., 0] if a.ndim == 2 else out
+
+
+def area_shrink(image: np.ndarray, longest: int) -> np.ndarray:
+    """[H, W, C] averaged over k x k blocks, k the largest integer keeping the longer side
+    >= `longest` (k = 1: the image itself). Every k-th row is added in turn (each a
+    vector add over whole rows), then every k-th column of that: a 12 MP photo is
+    read once. A remainder of < k rows/columns at the end is dropped."""
+    H, W = image.shape[:2]
+    k = max(1, max(H, W) // longest)
+    if k == 1:
+        return image
+    h, w = H // k, W // k
+    rows = image[0:h * k:k].astype(np.float32)  # a copy: the sums go into it
+    for i in range(1, k):
+        rows += image[i:h * k:k]
+    out = rows[:, 0:w * k:k].copy()
+    for i in range(1, k):
+        out += rows[:, i:w * k:k]
+    out *= np.float32(1.0 / (k * k))
+    return out
+
+
+def upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
+    """`small` [h, w] (>= 0, a matte) bilinearly resized to [H, W], computed only over the rows and
+    columns whose taps reach a non-zero value (zeros elsewhere, left to calloc)."""
+    h, w = small.shape
+    if (h, w) == (H, W):
+        return small
+    from relight.box import Box
+
+    out = np.zeros((H, W), np.float32)
+    support = Box.around(small)  # small >= 0 (a matte): its non-zero pixels
+    if support is None:
+        return out
+
+    def span(n_out, n_in, lo, hi):
+        i0, i1, _ = axis_taps(n_out, n_in)
+        touch = np.flatnonzero((i1 >= lo) & (i0 <= hi))
+        return int(touch[0]), int(touch[-1]) + 1
+
+    r0, r1 = span(H, h, support.y0, support.y1 - 1)
+    c0, c1 = span(W, w, support.x0, support.x1 - 1)
+    up = Bilinear(H, W, h, w)
+    cols, diff = up.prepare(small[..., None])
+    prepared = np.ascontiguousarray(cols[:, c0:c1, 0]), np.ascontiguousarray(diff[:, c0:c1, 0])
+    for a in range(r0, r1, 64):  # strips: the gathered rows stay in cache
+        b = min(a + 64, r1)
+        out[a:b, c0:c1] = up.strip(prepared, a, b)
+    return out
+
+
+def sample_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of image [h, w] or [h, w, C] at pixel coordinates (pixel centres at
+    +0.5); zero outside the image (MediaPipe's zero border)."""
+    h, w = image.shape[:2]
+    flat = image.reshape(h * w, -1)
+    x = np.asarray(x, np.float32) - np.float32(0.5)
+    y = np.asarray(y, np.float32) - np.float32(0.5)
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.astype(np.intp)
+    y0 = y0.astype(np.intp)
+    out = np.zeros(x.shape + (flat.shape[1],), np.float32)
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        yy = y0 + dy
+        row_ok = (yy >= 0) & (yy < h)
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            xx = x0 + dx
+            weight = wx * wy * (row_ok & (xx >= 0) & (xx < w))  # zero outside the image
+            index = np.clip(yy, 0, h - 1) * w + np.clip(xx, 0, w - 1)
+            out += np.take(flat, index, axis=0) * weight[..., None]
+    return out if image.ndim == 3 else out[..., 0]

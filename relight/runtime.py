@@ -133,7 +133,7 @@ class Relighter(ModelSession):
         box = Box.around(alpha, FIND_THRESHOLD)
         if box is None:
             return Box.whole(H, W)
-        return _with_margin(box.scaled(H / h, W / w), H, W)
+        return _with_margin(box.rescaled((h, w), (H, W)), H, W)
 
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",

@@ -170,8 +170,9 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     # Blender gives code / 255, bottom row first
     flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
     px = pipeline.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p")
-    np.testing.assert_allclose(px.rgb, srgb_decode(codes[..., :3] / np.float32(255)), atol=1e-7)
-    np.testing.assert_allclose(px.alpha, codes[..., 3] / 255.0, atol=1e-7)
+    # the float64 curve rounded once to float32: within half a float32 step (2^-24 relative)
+    np.testing.assert_allclose(px.rgb, srgb_decode(codes[..., :3] / 255.0), rtol=2.0 ** -24, atol=0)
+    np.testing.assert_allclose(px.alpha, codes[..., 3] / 255.0, rtol=2.0 ** -24, atol=0)
     # the digest is of the stored codes: equal for equal pixels, different otherwise
     again = pipeline.photo_from_blender(flat.copy(), (5, 7, 4), srgb=True, with_alpha=True, name="p")
     assert again.digest == px.digest
@@ -188,6 +189,32 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     np.testing.assert_array_equal(cut[::-1], np.dstack([rgb, rgb[..., 1]]))
     tall = rng.uniform(0, 1, (300, 400, 4)).astype(np.float32)  # more rows than one block (163)
     np.testing.assert_array_equal(pipeline.to_blender_rgba(tall).reshape(300, 400, 4)[::-1], tall)
+
+
+def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
+    """One decoder of 8-bit sRGB (relight.colour.decode_srgb_codes): `relight image` (relight.photo),
+    the add-on's file reader and the pixels Blender hands over (code / 255) give the same floats."""
+    from PIL import Image
+
+    from relight.colour import srgb_decode
+    from relight.photo import read_photo
+
+    codes = np.zeros((16, 64, 4), np.uint8)
+    codes[..., 0] = np.arange(256).reshape(4, 64).repeat(4, axis=0)  # every code value
+    codes[..., 1] = codes[..., 0][::-1]
+    codes[..., 2] = np.roll(codes[..., 0], 7, axis=1)
+    codes[..., 3] = codes[..., 0][:, ::-1]
+    path = tmp_path / "p.png"
+    Image.fromarray(codes, "RGBA").save(path)
+    cli_rgb, cli_alpha = read_photo(path)
+    from_file = pipeline.read_8bit_file(str(path), (16, 64), True, "p.png")
+    flat = (codes[::-1].astype(np.float32) / np.float32(255.0)).reshape(-1)  # as Blender stores bytes
+    from_blender = pipeline.photo_from_blender(flat, (16, 64, 4), srgb=True, with_alpha=True, name="p.png")
+    for px in (from_file, from_blender):
+        np.testing.assert_array_equal(px.rgb, cli_rgb)  # one table: the same floats, not merely close
+        np.testing.assert_array_equal(px.alpha, cli_alpha)
+    assert from_file.digest == from_blender.digest
+    np.testing.assert_allclose(cli_rgb, srgb_decode(codes[..., :3] / 255.0), rtol=2.0 ** -24, atol=0)
 
 
 def test_the_relight_job_refuses_a_black_photo_before_loading_anything():

@@ -29,8 +29,19 @@ def test_around_holds_every_pixel_above_the_threshold_and_no_more():
 def test_grown_scaled_union_stay_in_the_image():
     b = Box(2, 5, 3, 9)
     assert b.grown(3, 7, 10) == (0, 7, 0, 10) and b.grown(1, 100, 100) == (1, 6, 2, 10)
-    # scaling rounds starts down and ends up: the scaled box covers every pixel the box touches
-    assert b.scaled(2.5, 1.5) == (5, 13, 4, 14)
+    # rescaling rounds starts down and ends up: it covers every pixel the box touches, never empty
+    assert b.rescaled((10, 20), (25, 30)) == (5, 13, 4, 14)
+    assert Box(7, 8, 0, 1).rescaled((1000, 1000), (10, 10)) == (0, 1, 0, 1)
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        H, W, h, w = (int(v) for v in rng.integers(1, 4000, 4))
+        y0, x0 = int(rng.integers(0, H)), int(rng.integers(0, W))
+        big = Box(y0, int(rng.integers(y0 + 1, H + 1)), x0, int(rng.integers(x0 + 1, W + 1)))
+        s = big.rescaled((H, W), (h, w))
+        assert 0 <= s.y0 < s.y1 <= h and 0 <= s.x0 < s.x1 <= w
+        # the tightest such box: each edge within one pixel of the exact scaled edge
+        assert s.y0 * H <= big.y0 * h < (s.y0 + 1) * H and (s.y1 - 1) * H < big.y1 * h <= s.y1 * H
+        assert s.x0 * W <= big.x0 * w < (s.x0 + 1) * W and (s.x1 - 1) * W < big.x1 * w <= s.x1 * W
     assert b.union(Box(0, 3, 6, 12)) == (0, 5, 3, 12) and b.union(None) is b
     assert Box.whole(4, 6) == (0, 4, 0, 6)
     y0, y1, x0, x1 = b  # a tuple in this order: saved files write list(box)
