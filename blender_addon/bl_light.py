@@ -17,7 +17,7 @@ def light_image_key(settings, model_path: str) -> tuple | None:
 def target_light(context, order: int, model_path: str):
     """(light, extra rotation in degrees) for the current settings.
 
-    The light is a relight.light.Light (a preset, an HDR file or the World),
+    The light is a relight.light.SHLight (a preset, an HDR file or the World),
     SH coefficients (a restored light transfer) or the Decomposition of another
     photo: engine.coefficients turns any of them into what a relight takes;
     ValueError says what is missing.

@@ -193,13 +193,13 @@ def preview_decomposition(decomposition, long_side: int):
 
 
 def coefficients(decomposition, light, rotation_deg: float) -> np.ndarray:
-    """The SH coefficients a relight of `decomposition` takes: `light` (a relight.light.Light,
+    """The SH coefficients a relight of `decomposition` takes: `light` (a relight.light.SHLight,
     SH coefficients or another photo's Decomposition) at the model's order, turned by
     rotation_deg about world Z."""
-    from relight.light import resolve
+    from relight.light import SHLight
 
     cache = pipeline.light_cache()
-    return resolve(light, decomposition.sh_order, cache=cache).at(rotation_deg, cache)
+    return SHLight.resolve(light, decomposition.sh_order, cache=cache).at(rotation_deg, cache)
 
 
 def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, strength: float,

@@ -294,7 +294,7 @@ LIGHT_KINDS = ("WORLD", "HDR", "PRESET", "IMAGE")
 
 
 def light_cache():
-    """The add-on's relight.light.LightCache: HDR files projected once per file state and
+    """The add-on's relight.light.SHLightCache: HDR files projected once per file state and
     the rotation matrices the dials ask for again and again."""
     if not _LIGHT_CACHE:
         from relight.light import LightCache
@@ -307,8 +307,8 @@ _LIGHT_CACHE: list = []
 
 
 def hdr_file_light(path: str, order: int):
-    """The HDR file as a relight.light.Light (read and projected here, once per file state)."""
-    from relight.light import resolve
+    """The HDR file as a relight.light.SHLight (read and projected here, once per file state)."""
+    from relight.light import SHLight
 
     if not path:
         raise ValueError("Choose an HDR file for the light.")
@@ -316,7 +316,7 @@ def hdr_file_light(path: str, order: int):
     if not p.is_file():
         raise ValueError(f"The HDR file '{path}' does not exist.")
     try:
-        return resolve(str(p), order, cache=light_cache())
+        return SHLight.resolve(str(p), order, cache=light_cache())
     except (ValueError, OSError) as exc:
         if _is_black_light(exc):
             raise ValueError(f"The HDR file '{p.name}' is black, so it gives no light: "
@@ -326,19 +326,19 @@ def hdr_file_light(path: str, order: int):
 
 
 def preset_light(name: str, order: int):
-    """The preset as a relight.light.Light (loaded and projected once)."""
-    from relight.light import resolve
+    """The preset as a relight.light.SHLight (loaded and projected once)."""
+    from relight.light import SHLight
 
     try:
-        return resolve(name, order, cache=light_cache())
+        return SHLight.resolve(name, order, cache=light_cache())
     except (ValueError, OSError) as exc:
         raise ValueError(f"The light preset '{name}' is not available ({_first_line(exc)}).") from None
 
 
 def equirect_light(pixels: np.ndarray, order: int):
-    """The World's equirect map (pixels) as a relight.light.Light: a map like an HDR
+    """The World's equirect map (pixels) as a relight.light.SHLight: a map like an HDR
     file or a preset, so World, HDR file and preset are scaled alike."""
-    from relight.light import resolve
+    from relight.light import SHLight
 
     h, w = pixels.shape[:2]
     if w != 2 * h:
@@ -351,7 +351,7 @@ def equirect_light(pixels: np.ndarray, order: int):
     if float(rgb.max(initial=0.0)) <= 0.0:
         raise ValueError(BLACK_WORLD)
     try:
-        return resolve(rgb, order)
+        return SHLight.resolve(rgb, order)
     except ValueError as exc:
         if _is_black_light(exc):
             raise ValueError(BLACK_WORLD) from None

@@ -82,7 +82,7 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
     On Esc (token) it stops between frames and raises engine.Cancelled; the frames
     written stay (progress.written says how many)."""
     from relight.clip import ClipRelighter
-    from relight.light import resolve
+    from relight.light import SHLight
     from relight.video_out import FrameFolderWriter
 
     from . import pipeline
@@ -93,7 +93,7 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
     progress.total = total
     relighter = plan.get("relighter") or engine.open_relighter(plan["model_path"])
     cache = pipeline.light_cache()
-    coeffs = resolve(plan["light"], relighter.sh_order, cache=cache).at(plan["rotation"], cache)
+    coeffs = SHLight.resolve(plan["light"], relighter.sh_order, cache=cache).at(plan["rotation"], cache)
     runner = ClipRelighter(relighter, coeffs, plan["exposure"], stability=plan["stability"],
                            working_size=plan["long_side"], person=plan.get("person"))
     folder = Path(plan["folder"])

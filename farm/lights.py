@@ -2,7 +2,7 @@
 
 Every light is rotated about world Z by a random angle, scaled so its
 solid-angle-weighted mean luminance is a reference radiance drawn in
-[0.7, 0.9] (relight.light.map_light), and stored as SH of order N and
+[0.7, 0.9] (relight.light.SHLight), and stored as SH of order N and
 8 in the photo-camera frame. A procedural sky is rendered once to an
 equirect image, so the world Cycles sees and the SH we store come from the
 same pixels.
@@ -16,7 +16,7 @@ import numpy as np
 
 from relight import presets, sh
 from relight.envmap import load_equirect, validate_equirect
-from relight.light import map_light
+from relight.light import SHLight
 
 SKY = "procedural:sky"  # not "sky": a bundled map has that name
 SKY_SIZE = (128, 256)  # equirect rendering of the procedural sky (H, W)
@@ -102,8 +102,8 @@ def sample_light(
     else:
         pixels = load_equirect(presets.preset_path(name)).pixels
         source = "blender" if name.startswith(presets.BLENDER_PREFIX) else "bundled"
-    # the map recipe (relight.light): project at order max(N, 8), rotate about Z, normalise
-    coeffs, scale = map_light(pixels, max(order, 8), rotation, target)
+    # the map recipe (relight.light): project at order max(N, 8), rotate about Z, normalize
+    coeffs, scale = SHLight.resolve(pixels, max(order, 8), target=target).turned(rotation)
     coeffs = sh.rotate(coeffs, world_to_camera)
     return SampledLight(
         name=name,

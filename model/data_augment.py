@@ -12,7 +12,7 @@ from torch.nn import functional as F
 
 from model.data_splits import held_out_light_names
 from relight.colour import LUMINANCE_WEIGHTS
-from relight.light import rotate_and_normalise
+from relight.light import SHLight
 
 REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range
 
@@ -57,7 +57,7 @@ def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.nda
     """Rotate an SH light [n, 3] about Z at random, scale to a reference radiance in [0.7, 0.9]."""
     rotation = rng.uniform(0.0, 360.0)
     target = rng.uniform(*REFERENCE_RADIANCE)
-    scaled, _ = rotate_and_normalise(base, rotation, target)  # relight.light's recipe for maps
+    scaled = SHLight(base, target).at(rotation)  # relight.light's recipe for maps
     return scaled.astype(np.float32)
 
 

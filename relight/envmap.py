@@ -1,6 +1,6 @@
 """Equirectangular HDR maps: load (OpenEXR or Radiance .hdr) and validate.
 
-Turning a map into SH light (project, rotate, normalise) is relight.light's job."""
+Turning a map into SH light (project, rotate, normalize) is relight.light's job."""
 
 from __future__ import annotations
 

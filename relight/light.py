@@ -6,15 +6,19 @@
     L = sh_light(coeffs, 4, rotation_deg=30)     # SH coefficients [m, 3]: cut or zero-padded to order 4
     L = sh_light(decomposition, 4)               # light transfer: another photo's estimated light
 
-A map (file, preset or pixels) follows one recipe, `map_light`: project it to SH,
-rotate it about world Z, scale it to the reference mean luminance
-(docs/conventions.md, exposure); the farm's lights, the training bank, `relight sh`,
-`relight image` and the add-on all call it. SH coefficients and another photo's
-light are light already: they are only fitted to the order and rotated.
-`map_file` is the one "file or preset?" decision. `resolve` loads and projects
-a source once into a `Light` value; `Light.at(rotation_deg)` gives the
-coefficients that the runtime's `Decomposition.relight` takes. A caller that
-turns lights again and again (the add-on's dials) passes a `LightCache`.
+One way to get a light: `SHLight.resolve(source, order)` loads and projects a source
+once into an SHLight value (the runtime's light: SH coefficients and the mean luminance
+they are scaled to; farm.lights.SampledLight is the farm's drawn light, another thing);
+`SHLight.at(rotation_deg)` gives the coefficients that `Decomposition.relight` takes,
+and `sh_light(source, order, rotation_deg=...)` is the shorthand for both steps.
+
+A map (file, preset or pixels) follows one recipe: project it to SH, rotate it about
+world Z, scale it to the reference mean luminance (docs/conventions.md, exposure); the
+farm's lights, the training bank, `relight sh`, `relight image` and the add-on all go
+through SHLight for it. SH coefficients and another photo's light are light already:
+they are only fitted to the order and rotated. `map_file` is the one "file or preset?"
+decision. A caller that turns lights again and again (the add-on's dials) passes a
+`LightCache`.
 """
 
 from __future__ import annotations
@@ -30,8 +34,7 @@ import numpy as np
 
 from relight import sh
 
-__all__ = ["REFERENCE_LUMINANCE", "Light", "LightCache", "fit_order", "map_file", "map_light", "resolve",
-           "rotate_z", "rotate_and_normalise", "sh_light"]
+__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "fit_order", "map_file", "sh_light"]
 
 REFERENCE_LUMINANCE = 0.8  # mean luminance a map is scaled to (docs/conventions.md, exposure)
 
@@ -89,7 +92,7 @@ def _check_rotation(rotation_deg) -> float:
     return rotation_deg
 
 
-def rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
+def _rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
     """SH light [n, 3] (float64) turned by `rotation_deg` about world Z; a whole number
     of turns returns an unrotated copy."""
     c = sh.validate_coeffs(coeffs)
@@ -102,17 +105,6 @@ def rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> np
     return M @ c
 
 
-def rotate_and_normalise(coeffs, rotation_deg: float, target: float | None = REFERENCE_LUMINANCE,
-                         cache: LightCache | None = None) -> tuple[np.ndarray, float]:
-    """(coeffs turned about Z then scaled to mean luminance `target`, the scale);
-    target None: no scaling (scale 1.0)."""
-    rotated = rotate_z(coeffs, rotation_deg, cache)
-    if target is None:
-        return rotated, 1.0
-    scaled, scale = sh.normalize_reference(rotated, target)
-    return scaled, float(scale)
-
-
 def _pixels(source) -> np.ndarray:
     from relight.envmap import EnvMap, load_equirect, validate_equirect
 
@@ -121,14 +113,6 @@ def _pixels(source) -> np.ndarray:
     if isinstance(source, (str, os.PathLike)):
         return load_equirect(source).pixels
     return validate_equirect(source).pixels
-
-
-def map_light(pixels, order: int, rotation_deg: float = 0.0,
-              target: float | None = REFERENCE_LUMINANCE) -> tuple[np.ndarray, float]:
-    """The map recipe: (SH [n, 3] of the equirect map `pixels` (an array, EnvMap or
-    file) projected at `order`, turned by `rotation_deg` about world Z, scaled to
-    mean luminance `target` (None: unscaled), the scale)."""
-    return rotate_and_normalise(sh.project_equirect(_pixels(pixels), order), rotation_deg, target)
 
 
 def fit_order(coeffs, n: int) -> np.ndarray:
@@ -145,10 +129,10 @@ def _file_key(path: Path) -> tuple:
 
 
 @dataclass(frozen=True)
-class Light:
-    """A light resolved once (see `resolve`): its SH [n, 3] before any rotation and
-    scaling, and the mean luminance it is scaled to after rotation (None: used as
-    is). `at(rotation_deg)` gives the coefficients a relight takes."""
+class SHLight:
+    """The runtime's light, resolved once: its SH [n, 3] before any rotation and scaling, and
+    the mean luminance it is scaled to after rotation (None: used as is). `at(rotation_deg)`
+    gives the coefficients a relight takes."""
 
     base: np.ndarray
     target: float | None = None
@@ -157,51 +141,60 @@ class Light:
     def order(self) -> int:
         return sh.order_from_num_coeffs(self.base.shape[0])
 
+    def turned(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> tuple[np.ndarray, float]:
+        """(SH light [n, 3], float64, turned by `rotation_deg` about world Z then scaled to
+        the target mean luminance, the scale: 1.0 without a target)."""
+        rotated = _rotate_z(self.base, rotation_deg, cache)
+        if self.target is None:
+            return rotated, 1.0
+        scaled, scale = sh.normalize_reference(rotated, self.target)
+        return scaled, float(scale)
+
     def at(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> np.ndarray:
         """SH light [n, 3], float64: turned by `rotation_deg` about world Z, then scaled."""
-        return rotate_and_normalise(self.base, rotation_deg, self.target, cache)[0]
+        return self.turned(rotation_deg, cache)[0]
 
+    @classmethod
+    def resolve(cls, source, order: int, *, normalize: bool = True, target: float = REFERENCE_LUMINANCE,
+                cache: LightCache | None = None) -> "SHLight":
+        """Any light source (see the module docstring) as an SHLight of SH order `order`.
 
-def resolve(source, order: int, *, normalize: bool = True, target: float = REFERENCE_LUMINANCE,
-            cache: LightCache | None = None) -> Light:
-    """Any light source (see the module docstring) as a Light of SH order `order`.
+        A map (path, preset name, equirect pixels [H, W, 3|4] or EnvMap) is loaded
+        and projected here, once, and scaled to `target` at `at` unless
+        normalize=False (a black map fails here); SH coefficients [m, 3], an SHLight
+        and a Decomposition's estimated light are cut or zero-padded to the order
+        and used as they are.
+        """
+        from relight.envmap import EnvMap
 
-    A map (path, preset name, equirect pixels [H, W, 3|4] or EnvMap) is loaded
-    and projected here, once, and scaled to `target` at `Light.at` unless
-    normalize=False (a black map fails here); SH coefficients [m, 3], a Light
-    and a Decomposition's estimated light are cut or zero-padded to the order
-    and used as they are.
-    """
-    from relight.envmap import EnvMap
-
-    n = sh.num_coeffs(order)
-    goal = float(target) if normalize else None
-    if isinstance(source, Light):
-        return Light(fit_order(source.base, n), source.target)
-    if isinstance(source, (str, os.PathLike)):
-        path = map_file(source)
-        base = _cached(cache, ("map", _file_key(path), order), lambda: sh.project_equirect(_pixels(path), order))
-    elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
-        return Light(fit_order(source.light, n))
-    elif isinstance(source, EnvMap):
-        base = sh.project_equirect(source.pixels, order)
-    else:
-        arr = np.asarray(source)
-        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
-            raise ValueError(f"light must be an HDR path, preset name, equirect pixels, SH array [n, 3] or "
-                             f"Decomposition, got {type(source).__name__}")
-        if arr.ndim != 3:  # SH coefficients
-            return Light(fit_order(arr.astype(np.float64), n))
-        base = sh.project_equirect(_pixels(arr), order)
-    if goal is not None:
-        sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
-    return Light(base, goal)
+        n = sh.num_coeffs(order)
+        goal = float(target) if normalize else None
+        if isinstance(source, SHLight):
+            return cls(fit_order(source.base, n), source.target)
+        if isinstance(source, (str, os.PathLike)):
+            path = map_file(source)
+            base = _cached(cache, ("map", _file_key(path), order), lambda: sh.project_equirect(_pixels(path), order))
+        elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
+            return cls(fit_order(source.light, n))
+        elif isinstance(source, EnvMap):
+            base = sh.project_equirect(source.pixels, order)
+        else:
+            arr = np.asarray(source)
+            if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+                raise ValueError(f"light must be an HDR path, preset name, equirect pixels, SH array [n, 3] or "
+                                 f"Decomposition, got {type(source).__name__}")
+            if arr.ndim != 3:  # SH coefficients
+                return cls(fit_order(arr.astype(np.float64), n))
+            base = sh.project_equirect(_pixels(arr), order)
+        if goal is not None:
+            sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
+        return cls(base, goal)
 
 
 def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool = True,
              target: float = REFERENCE_LUMINANCE, cache: LightCache | None = None) -> np.ndarray:
     """SH light [(order+1)^2, 3], float64, of any light source turned by `rotation_deg`
-    about world Z: resolve(source, ...).at(rotation_deg). Maps follow `map_light`'s
+    about world Z: SHLight.resolve(source, ...).at(rotation_deg). Maps follow the map
     recipe (project, rotate, scale to `target` unless normalize=False)."""
     rotation_deg = _check_rotation(rotation_deg)
-    return resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)
+    return SHLight.resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)

@@ -93,7 +93,7 @@ def validate_rotation(R, atol: float = 1e-6) -> np.ndarray:
 
 @functools.lru_cache(maxsize=None)
 def _legendre_factors(order: int):
-    """Coefficients of the normalised associated-Legendre recurrences.
+    """Coefficients of the normalized associated-Legendre recurrences.
 
     q_lm(z) = K_lm P_lm(z) / sin(theta)^m with K_lm the orthonormal factor
     sqrt((2l+1)/(4 pi) (l-m)!/(l+m)!), computed without factorials:
@@ -141,7 +141,7 @@ def _azimuth_table(x: np.ndarray, y: np.ndarray, order: int):
 
 
 def sh_basis(dirs, order: int) -> np.ndarray:
-    """Real orthonormal SH Y_k(dirs) for k < (order+1)^2; dirs [..., 3] (normalised here).
+    """Real orthonormal SH Y_k(dirs) for k < (order+1)^2; dirs [..., 3] (normalized here).
 
     Computed from polynomials in x, y, z (no trigonometry), float64.
     """
@@ -527,7 +527,7 @@ def normalize_reference(coeffs, target: float = 0.8):
         raise ValueError(f"target luminance must be finite and > 0, got {target}")
     current = mean_luminance(c)
     if not current > 0:
-        raise ValueError(f"light has mean luminance {current:g} <= 0; cannot normalise it")
+        raise ValueError(f"light has mean luminance {current:g} <= 0; cannot normalize it")
     scale = target / current
     return c * scale, scale
 

@@ -159,7 +159,7 @@ def test_light_sources_agree(tmp_path):
     np.testing.assert_array_equal(by_name, sh.project_equirect(envmap.load_equirect(path).pixels, 4))
     rotated = light.sh_light("venice", 4, rotation_deg=45.0, target=0.7)
     expected, _ = sh.normalize_reference(sh.rotate(by_name, sh.z_rotation(45.0)), 0.7)
-    np.testing.assert_array_equal(rotated, expected)  # the recipe: project, rotate about Z, normalise
+    np.testing.assert_array_equal(rotated, expected)  # the recipe: project, rotate about Z, normalize
     with pytest.raises(ValueError, match="neither a file nor a preset"):
         light.sh_light("no-such-light", 4)
 

@@ -1,4 +1,4 @@
-"""Fuzzing the SH projection and the map recipe (relight.light.map_light) (Hypothesis; profile in fuzz_support).
+"""Fuzzing the SH projection and the map recipe (relight.light.sh_light of a map) (Hypothesis; profile in fuzz_support).
 
 Property: any array (any real dtype, shape, values including NaN, Inf,
 negatives, subnormals and values near float32's maximum) gives finite
@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -74,11 +74,12 @@ def test_fuzz_map_light():
 
 @given(maps(), st.integers(0, 6), st.floats(-1e6, 1e6), st.booleans(),
        st.floats(1e-6, 1e6))
+@example(np.linspace(0.1, 2.0, 4 * 8 * 3).reshape(4, 8, 3), 2, 30.0, True, 0.8)  # an ordinary map: accepted
 @fuzz_settings()
 def map_light_case(img, order, rotation, normalize, target):
     new_case("test_fuzz_map_light")
-    coeffs = run_case("light.map_light", lambda: light.map_light(img, order, rotation,
-                                                                 target if normalize else None)[0])
+    coeffs = run_case("light.map_light", lambda: light.sh_light(img, order, rotation_deg=rotation,
+                                                                normalize=normalize, target=target))
     if coeffs is None:
         return
     assert coeffs.shape == ((order + 1) ** 2, 3) and np.all(np.isfinite(coeffs))

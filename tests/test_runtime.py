@@ -141,7 +141,7 @@ def test_light_transfer_uses_the_other_photos_light(relighter):
     np.testing.assert_array_equal(d1.relight(sh_light(d2, ORDER)), d1.relight(d2.light))
 
 
-def test_hdr_map_light_is_projected_and_normalised(relighter, tmp_path):
+def test_hdr_map_light_is_projected_and_normalized(relighter, tmp_path):
     d = relighter.decompose(_photo(seed=8), np.ones((48, 64), np.float32))
     h, w = 64, 128
     value = 3.0

@@ -67,7 +67,7 @@ def test_basis_matches_scipy_up_to_order_12():
 
 
 def test_basis_stable_at_high_order():
-    # the normalised recurrences never form factorials: no overflow or
+    # the normalized recurrences never form factorials: no overflow or
     # cancellation even at l = 64 (values stay O(sqrt(l)))
     dirs = random_dirs(40)
     theta, phi = np.arccos(dirs[:, 2]), np.arctan2(dirs[:, 1], dirs[:, 0])
@@ -91,9 +91,9 @@ def test_low_order_closed_forms_and_signs():
     np.testing.assert_allclose(Y[:, 8], 0.5 * c2 * (x * x - y * y), atol=1e-14)
 
 
-def test_basis_shape_normalises_and_batches():
+def test_basis_shape_normalizes_and_batches():
     d = random_dirs(12).reshape(3, 4, 3)
-    Y = sh.sh_basis(d * 7.5, 3)  # non-unit directions are normalised
+    Y = sh.sh_basis(d * 7.5, 3)  # non-unit directions are normalized
     assert Y.shape == (3, 4, 16)
     np.testing.assert_allclose(Y, sh.sh_basis(d, 3), atol=1e-14)
     assert sh.sh_basis([0, 0, 2], 1).shape == (4,)
