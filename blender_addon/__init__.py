@@ -1,7 +1,9 @@
 """Relight Photo: relight a person in a photo from Blender's Image Editor.
 
 The Blender-facing modules (bl_*) are thin; the logic lives in plain-Python
-modules (pipeline, work, quality, jobs, state, engine, build, manifest) that import
+modules (output_names, photo_pixels, photo_checks, pixel_buffers, mask_choice,
+light_sources, work, quality, jobs, state, engine, sequence, photo_light, build,
+manifest) that import
 without bpy, so `python -m blender_addon.build` runs outside Blender.
 """
 

@@ -3,7 +3,7 @@ a screen-sized preview while a dial moves, the full-size image on a worker once 
 
 import bpy
 
-from . import bl_images, bl_session, bl_world, engine, jobs, pipeline, state, work
+from . import bl_images, bl_session, bl_world, engine, jobs, output_names, pixel_buffers, state, work
 from .bl_light import current_dials
 from .bl_session import POLL_SECONDS, current_session, release_job, set_status, write_output
 
@@ -19,7 +19,7 @@ def compute_relit(context, session: state.PhotoSession, dials=None):
     """Linear RGB [H, W, 3] of the cached decomposition relit with the current dials."""
     light, rotation, exposure, strength = dials or current_dials(context, session)
     relit = engine.relight(session.decomposition, light, rotation, exposure)
-    return pipeline.blend(relit, session.photo, strength)
+    return pixel_buffers.blend(relit, session.photo, strength)
 
 
 def render_relit(context, session: state.PhotoSession, dials=None):
@@ -135,7 +135,7 @@ def finish_full_size(context, job, one_layer: bool = False) -> bool:
         return False
     session.source = bl_images.photo_by_id(session.photo_id).name
     buffers = job.result
-    for layer in pipeline.layers_in_order(buffers):
+    for layer in output_names.layers_in_order(buffers):
         write_output(session, layer, buffers.pop(layer), session.photo.shape[:2])
         if layer == "relit":
             show_in_editors(session, "relit")

@@ -5,7 +5,8 @@ encoded values (/255); float images hold scene-linear values.
 
 Every pixel transfer is one `foreach_get` / `foreach_set` of a preallocated
 float32 buffer (a memory copy inside Blender); the conversions around it
-(flip, sRGB decode, RGBA packing) are plain numpy in `pipeline`, so the worker
+(flip, sRGB decode, RGBA packing) are plain numpy in `photo_pixels` and
+`pixel_buffers`, so the worker
 thread does them. A photo that is an unmodified 8-bit file on disk is even
 decoded by the worker from its file, so the main thread does not touch its
 pixels at all.
@@ -22,7 +23,7 @@ import uuid
 import bpy
 import numpy as np
 
-from . import pipeline
+from . import photo_checks, photo_pixels, pixel_buffers
 
 LINEAR = "Linear Rec.709"
 NON_COLOR = "Non-Color"
@@ -169,8 +170,8 @@ def _wants_alpha(image) -> bool:
     return image.channels == 4 and image.alpha_mode != "NONE"
 
 
-def photo_reader(image, reuse: pipeline.PhotoPixels | None = None):
-    """A function for the worker thread returning pipeline.PhotoPixels of `image`.
+def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None):
+    """A function for the worker thread returning photo_pixels.PhotoPixels of `image`.
 
     An unmodified 8-bit sRGB file on disk is decoded from the file by the
     worker (Pillow; same codes as Blender reads); anything else (packed,
@@ -185,17 +186,17 @@ def photo_reader(image, reuse: pipeline.PhotoPixels | None = None):
         path = _plain_file(image, loaded=False)
         if path is not None:
             with_alpha = image.alpha_mode != "NONE"
-            return lambda: pipeline.read_8bit_file(path, None, with_alpha, name, reuse)
+            return lambda: photo_pixels.read_8bit_file(path, None, with_alpha, name, reuse)
     if not has_pixels(image):
         raise ValueError(no_pixels_reason(image))
     width, height = image.size
-    pipeline.check_photo_size(width, height)
+    photo_checks.check_photo_size(width, height)
     path = _plain_file(image)
     if path is not None:
         with_alpha = has_alpha(image)
 
         def read_file():
-            return pipeline.read_8bit_file(path, (height, width), with_alpha, name, reuse)
+            return photo_pixels.read_8bit_file(path, (height, width), with_alpha, name, reuse)
         return read_file
     with_alpha = _wants_alpha(image)
     channels = image.channels
@@ -204,7 +205,7 @@ def photo_reader(image, reuse: pipeline.PhotoPixels | None = None):
     srgb = _is_srgb_bytes(image)
 
     def convert():
-        return pipeline.photo_from_blender(flat, (height, width, channels), srgb=srgb,
+        return photo_pixels.photo_from_blender(flat, (height, width, channels), srgb=srgb,
                                            with_alpha=with_alpha, name=name, reuse=reuse)
     return convert
 
@@ -232,7 +233,7 @@ def linear_rgb_and_alpha(image: bpy.types.Image) -> tuple[np.ndarray, np.ndarray
     """(linear RGB [H, W, 3] float32, alpha [H, W] or None when the image has no alpha), on this thread."""
     px = rgba_pixels(image)
     flat = np.ascontiguousarray(px[::-1]).reshape(-1)  # back to Blender's layout
-    pixels = pipeline.photo_from_blender(flat, px.shape, srgb=_is_srgb_bytes(image),
+    pixels = photo_pixels.photo_from_blender(flat, px.shape, srgb=_is_srgb_bytes(image),
                                          with_alpha=px.shape[2] == 4 and image.alpha_mode != "NONE",
                                          name=image.name)
     return pixels.rgb, pixels.alpha
@@ -245,7 +246,7 @@ def write_image(name: str, pixels: np.ndarray, *, colorspace: str = LINEAR, owne
     """Create or overwrite float image `name` with pixels [H, W] or [H, W, 1|3|4] (top row first)."""
     px = np.asarray(pixels, dtype=np.float32)
     height, width = px.shape[:2]
-    return write_rgba(name, pipeline.to_blender_rgba(px), width, height, colorspace=colorspace,
+    return write_rgba(name, pixel_buffers.to_blender_rgba(px), width, height, colorspace=colorspace,
                       owner=owner, layer=layer)
 
 

@@ -4,7 +4,7 @@ import math
 
 import bpy
 
-from . import bl_images, bl_world, pipeline, state
+from . import bl_images, bl_world, light_sources, state
 from .bl_session import addon_settings
 
 
@@ -27,10 +27,10 @@ def target_light(context, order: int, model_path: str):
     if kind == "PRESET":
         if settings.preset == "NONE":
             raise ValueError("No light preset is installed.")
-        return pipeline.preset_light(settings.preset, order), 0.0
+        return light_sources.preset_light(settings.preset, order), 0.0
     if kind == "HDR":
         path = bpy.path.abspath(settings.hdr_path) if settings.hdr_path else ""
-        return pipeline.hdr_file_light(path, order), 0.0
+        return light_sources.hdr_file_light(path, order), 0.0
     if kind == "WORLD":
         world = context.scene.world
         if world is None:
@@ -56,7 +56,7 @@ def _world_light(world, order: int):
         state.remember_world(key, cached)
     light, projected = cached
     if order not in projected:
-        projected[order] = pipeline.equirect_light(light.equirect, order)
+        projected[order] = light_sources.equirect_light(light.equirect, order)
     return projected[order], light.rotation_deg
 
 

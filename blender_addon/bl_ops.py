@@ -12,7 +12,7 @@ import time
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_dials, bl_images, bl_saved, engine, jobs, pipeline, quality, state, work
+from . import bl_dials, bl_images, bl_saved, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
 from .bl_dials import compute_relit, schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
@@ -29,9 +29,9 @@ def mask_inputs(settings, image) -> dict:
         mask_image = settings.mask_image
         if mask_image is not None:
             # stored values (code values of 8/16-bit files), not decoded colour: a mask is data
-            inputs["rgb"], inputs["alpha"] = pipeline.mask_channels(bl_images.rgba_pixels(mask_image))
+            inputs["rgb"], inputs["alpha"] = mask_choice.mask_channels(bl_images.rgba_pixels(mask_image))
             inputs["name"] = mask_image.name
-        pipeline.choose_mask("IMAGE", (height, width), None, inputs["rgb"], inputs["alpha"], inputs["name"])
+        mask_choice.choose_mask("IMAGE", (height, width), None, inputs["rgb"], inputs["alpha"], inputs["name"])
     elif settings.mask_mode == "IMAGE_ALPHA":
         if not bl_images.has_alpha(image):
             raise ValueError("The photo has no alpha channel to use as the mask.")
@@ -68,10 +68,10 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         previous = state.SESSIONS.get(bl_images.photo_id(image))
         if previous is not None and previous.provisional:  # a reopened file's preview: not the full photo
             previous = None
-        reuse = None if previous is None else pipeline.PhotoPixels(previous.photo, None, previous.digest)
+        reuse = None if previous is None else photo_pixels.PhotoPixels(previous.photo, None, previous.digest)
         read_photo = bl_images.photo_reader(image, reuse)  # checks the photo has pixels and a usable size
         mask = mask_inputs(settings, image)
-        model_path = str(pipeline.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
+        model_path = str(quality.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
         order = engine.known_sh_order(model_path)
         # a shipped model opens on the worker; a custom one here, to learn its SH order
         relighter = engine.open_relighter(model_path) if order is None else None
@@ -138,7 +138,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         if session.people:
             settings.people_found = session.people
         self._result = result
-        self._pending = pipeline.layers_in_order(result["buffers"])
+        self._pending = output_names.layers_in_order(result["buffers"])
 
     def _write_next(self, context) -> None:
         session = self._result["session"]
@@ -191,7 +191,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         return self._done(context)
 
     def invoke(self, context, event):
-        if self.synchronous or pipeline.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
+        if self.synchronous or jobs.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
             return self.execute(context)
         try:
             self._start(context, layers_later=True)

@@ -4,7 +4,7 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import bl_dials, pipeline, quality
+from . import bl_dials, light_sources, quality
 
 _preset_items_cache: list = []  # bpy needs the enum items kept alive by Python
 
@@ -12,7 +12,7 @@ _preset_items_cache: list = []  # bpy needs the enum items kept alive by Python
 def _preset_items(_self, _context):
     if not _preset_items_cache:
         try:
-            names = pipeline.preset_names()
+            names = light_sources.preset_names()
         except Exception:  # a broken data folder must not break the panel
             names = []
         _preset_items_cache.extend(

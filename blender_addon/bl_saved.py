@@ -6,7 +6,7 @@ import threading
 
 import bpy
 
-from . import bl_dials, bl_images, bl_layers, bl_session, engine, jobs, pipeline, state, work
+from . import bl_dials, bl_images, bl_layers, bl_session, engine, jobs, mask_choice, output_names, state, work
 from .bl_dials import show_in_editors
 from .bl_light import current_dials, dials_for
 from .bl_session import POLL_SECONDS, addon_settings, set_notice, set_status, write_output
@@ -47,7 +47,7 @@ def on_save_post(filepath="", *_args) -> None:
     for session in list(state.SESSIONS.values()):
         if bl_images.photo_by_id(session.photo_id) is None:
             continue
-        path = pipeline.saved_relight_path(blend, session.photo_id)
+        path = output_names.saved_relight_path(blend, session.photo_id)
         if session.provisional:
             if session.saved_to and os.path.abspath(session.saved_to) != os.path.abspath(path):
                 _copy_saved(session.saved_to, path)  # a reopened preview: its file goes along
@@ -95,13 +95,13 @@ def _restore_plan(context, image, path: str) -> dict:
             reader = bl_images.photo_reader(image)
         except ValueError as exc:
             missing = str(exc)
-    inputs = pipeline.saved_mask_inputs(meta["mask_key"])
+    inputs = mask_choice.saved_mask_inputs(meta["mask_key"])
     if inputs["mode"] == "IMAGE":
         mask_name = inputs["name"]
         mask_image = bpy.data.images.get(mask_name)
         if mask_image is None:
             raise ValueError(f"The mask image '{mask_name}' of '{image.name}' is gone: press Relight.")
-        inputs["rgb"], inputs["alpha"] = pipeline.mask_channels(bl_images.rgba_pixels(mask_image))
+        inputs["rgb"], inputs["alpha"] = mask_choice.mask_channels(bl_images.rgba_pixels(mask_image))
     work.restore_lights(meta.get("lights", []))
     dials = dials_for(context, int(meta["sh_order"]), meta["model_path"])
     return dict(arrays=arrays, meta=meta, reader=reader, mask=inputs, source=image.name, path=path,
@@ -128,7 +128,7 @@ def restore_saved(context) -> int:
         pid = bl_images.photo_id(image)
         if not pid or bl_images.owner_of(image):
             continue
-        path = pipeline.saved_relight_path(blend, pid)
+        path = output_names.saved_relight_path(blend, pid)
         try:
             if not os.path.isfile(path):
                 raise ValueError(f"The saved relight of '{image.name}' is not next to this .blend "
@@ -197,7 +197,7 @@ def _restore_from_saved(context, plan: dict, reason: str, changed: bool = False)
     session.photo_missing = reason
     session.advice = RELIGHT_THE_NEW_PHOTO if changed else FIND_THE_PHOTO
     buffers = work.layer_buffers(session, dials)  # screen-sized: all at once is small
-    for layer in pipeline.layers_in_order(buffers):
+    for layer in output_names.layers_in_order(buffers):
         write_output(session, layer, buffers[layer], work.layer_size(session, layer))
     height, width = session.photo.shape[:2]
     if changed:

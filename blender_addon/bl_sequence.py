@@ -10,7 +10,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from relight.clip import DEFAULT_STABILITY
 
-from . import engine, jobs, pipeline, quality, sequence
+from . import engine, jobs, quality, sequence
 from .bl_light import target_light
 from .bl_session import POLL_SECONDS, SYNC_ENV, addon_settings, editor_image, release_job, set_status, status_of, tell
 
@@ -53,7 +53,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
         settings = addon_settings(context)
         if settings.light_kind == "IMAGE":
             raise ValueError("Relight Sequence takes a preset, an HDR file or the World as its light.")
-        model_path = str(pipeline.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
+        model_path = str(quality.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
         order = engine.known_sh_order(model_path)
         relighter = engine.open_relighter(model_path) if order is None else None
         order = relighter.sh_order if relighter is not None else order
@@ -112,7 +112,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
             release_job(self._job, SLOT)
 
     def invoke(self, context, event):
-        if self.synchronous or pipeline.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
+        if self.synchronous or jobs.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
             return self.execute(context)
         try:
             self._start(context)

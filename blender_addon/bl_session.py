@@ -4,7 +4,7 @@ line, the photo in the editor and its session, and handing an output buffer to B
 import bpy
 import numpy as np
 
-from . import bl_images, pipeline, state
+from . import bl_images, jobs, output_names, pixel_buffers, state
 
 SYNC_ENV = "RELIGHT_PHOTO_SYNC"   # 1: every Relight runs synchronously (tests, scripts)
 POLL_SECONDS = 0.05               # how often the main thread looks at a running job
@@ -68,7 +68,7 @@ def source_image(context, image_name: str = ""):
         if photo is None:
             raise ValueError(f"'{image.name}' is a relit output whose photo was deleted: open the photo itself.")
         return photo
-    name = pipeline.source_of(image.name, set(bpy.data.images.keys()))
+    name = output_names.source_of(image.name, set(bpy.data.images.keys()))
     return bpy.data.images[name]
 
 
@@ -95,10 +95,10 @@ def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size
     colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
     height, width = size
     try:
-        image = bl_images.write_rgba(pipeline.output_name(session.source, layer), rgba, width, height,
+        image = bl_images.write_rgba(output_names.output_name(session.source, layer), rgba, width, height,
                                      colorspace=colorspace, owner=session.photo_id, layer=layer)
     finally:
-        pipeline.BUFFERS.give(rgba)
+        pixel_buffers.BUFFERS.give(rgba)
     if layer == "matte" and image.alpha_mode != "STRAIGHT":
         image.alpha_mode = "STRAIGHT"  # shown as a cut-out over Blender's checkerboard
     return image
@@ -106,7 +106,7 @@ def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size
 
 def updates_immediately() -> bool:
     # without a UI (tests, scripts) timers never fire: relight at once
-    return bpy.app.background or pipeline.env_flag(SYNC_ENV)
+    return bpy.app.background or jobs.env_flag(SYNC_ENV)
 
 
 def release_job(job, slot: str = "job") -> None:

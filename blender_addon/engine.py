@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import pipeline
+from . import light_sources, pixel_buffers
 
 _RELIGHTERS: dict[tuple, object] = {}
 _SECONDS: dict[tuple, float] = {}   # (model path, working size) -> last network time
@@ -198,7 +198,7 @@ def coefficients(decomposition, light, rotation_deg: float) -> np.ndarray:
     rotation_deg about world Z."""
     from relight.light import SHLight
 
-    cache = pipeline.light_cache()
+    cache = light_sources.light_cache()
     return SHLight.resolve(light, decomposition.sh_order, cache=cache).at(rotation_deg, cache)
 
 
@@ -209,12 +209,12 @@ def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, st
     Composited straight into the buffer (RGB of RGBA, bottom row first): no full-size
     RGB image besides it (288 MB at 24 MP)."""
     h, w = decomposition.size
-    rgba = pipeline.BUFFERS.take(h * w * 4) if out is None else out
+    rgba = pixel_buffers.BUFFERS.take(h * w * 4) if out is None else out
     view = rgba.reshape(h, w, 4)[::-1]
     decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev,
                           out=view[..., :3])
     view[..., 3] = 1.0
-    pipeline.blend_into(view[..., :3], decomposition.photo, strength)
+    pixel_buffers.blend_into(view[..., :3], decomposition.photo, strength)
     return rgba
 
 

@@ -2,11 +2,13 @@
 
 The table itself (model and working resolution per preset) is relight.quality,
 the same one `relight image --quality` reads; the add-on only stores its keys
-upper-cased (DRAFT, BALANCED, BEST: enum identifiers kept in .blend files).
-Plain Python (no bpy), so it is testable.
+upper-cased (DRAFT, BALANCED, BEST: enum identifiers kept in .blend files), and
+model_path_for finds the model file a preset runs. Plain Python (no bpy), so it is testable.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from relight import quality as core_quality
 
@@ -28,3 +30,26 @@ def network_options(key: str) -> dict:
     (mirrored / rescaled runs averaged) and `refine` (light refinement iterations)."""
     p = core_quality.preset(key)
     return {"augment": p.augment, "refine": p.refine}
+
+
+def model_path_for(quality_key: str, override: str = "") -> Path:
+    """The ONNX file to run: `override` when given, else the preset's registered model.
+
+    A preset whose model is not registered falls back to the registry's
+    default model (the working resolution still follows the preset).
+    """
+    if override:
+        p = Path(override)
+        if not p.is_file():
+            raise ValueError(f"The model file '{override}' does not exist.")
+        return p
+    from relight import quality as core_quality
+
+    core_quality.preset(quality_key)  # an unknown key is its own error
+    try:
+        p = core_quality.model_path(quality_key)  # the registry looked up now: tests point it elsewhere
+    except ValueError:
+        raise ValueError("No relighting model is installed: choose a model file (.onnx) in the panel.") from None
+    if not p.is_file():
+        raise ValueError(f"The relighting model '{p.name}' is missing from the installation.")
+    return p

@@ -85,14 +85,14 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
     from relight.light import SHLight
     from relight.video_out import FrameFolderWriter
 
-    from . import pipeline
+    from . import light_sources
 
     progress.enter("Opening the frames", 0.0)
     clip, fmt = open_frames(plan["path"], plan["source"])
     total = clip.info.frames or 0
     progress.total = total
     relighter = plan.get("relighter") or engine.open_relighter(plan["model_path"])
-    cache = pipeline.light_cache()
+    cache = light_sources.light_cache()
     coeffs = SHLight.resolve(plan["light"], relighter.sh_order, cache=cache).at(plan["rotation"], cache)
     runner = ClipRelighter(relighter, coeffs, plan["exposure"], stability=plan["stability"],
                            working_size=plan["long_side"], person=plan.get("person"))

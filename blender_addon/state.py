@@ -53,9 +53,9 @@ def remember_world(key: str, value: tuple) -> None:
 
 
 def clear() -> None:
-    from . import pipeline
+    from . import pixel_buffers
 
-    pipeline.BUFFERS.clear()
+    pixel_buffers.BUFFERS.clear()
     SESSIONS.clear()
     NOTICES.clear()
     LIGHT_SOURCES.clear()

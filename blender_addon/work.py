@@ -14,18 +14,18 @@ import time
 
 import numpy as np
 
-from . import engine, jobs, pipeline, quality, state
+from . import engine, jobs, light_sources, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality, state
 
 PREVIEW_LONG_SIDE = 1024  # px: the screen-sized preview shown while a dial moves on a large photo
 
 
-def make_mask(inputs: dict, pixels: pipeline.PhotoPixels, quality_key: str) -> tuple:
+def make_mask(inputs: dict, pixels: photo_pixels.PhotoPixels, quality_key: str) -> tuple:
     """(mask or None, people found or 0) on the worker: AUTO runs the person matte the
     quality preset names."""
     if inputs["mode"] == "AUTO":
         return engine.person_matte(pixels.rgb, inputs["person"], quality.preset(quality_key).matte_method)
     alpha = pixels.alpha if inputs["use_photo_alpha"] else None
-    return pipeline.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
+    return mask_choice.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
                                 inputs["name"]), 0
 
 
@@ -42,7 +42,7 @@ def layer_names(session: state.PhotoSession, with_relit: bool = False) -> list[s
         names.append("residual")
     if session.mask_key[0] == "AUTO" and session.decomposition.mask is not None:
         names.append("matte")
-    return pipeline.layers_in_order(names)
+    return output_names.layers_in_order(names)
 
 
 def layer_source(session: state.PhotoSession, layer: str):
@@ -67,13 +67,13 @@ def layer_buffer(session: state.PhotoSession, layer: str, dials) -> np.ndarray:
     if layer == "relit":
         return engine.relit_rgba(decomposition, light, rotation, exposure, strength)
     if layer == "matte":  # the photo cut out by the person matte, so the user can check what was found
-        return pipeline.to_blender_rgba(decomposition.photo, alpha=decomposition.mask)
+        return pixel_buffers.to_blender_rgba(decomposition.photo, alpha=decomposition.mask)
     coeffs = engine.coefficients(decomposition, light, rotation)
     h, w = decomposition.size
-    rgba = pipeline.BUFFERS.take(h * w * 4)
+    rgba = pixel_buffers.BUFFERS.take(h * w * 4)
     view = rgba.reshape(h, w, 4)[::-1]  # Blender's layout: bottom row first
     if layer == "alpha":  # one channel (96 MB at 24 MP), grey in Blender: packed as it is
-        return pipeline.to_blender_rgba(decomposition.layer(layer, coeffs, exposure), rgba)
+        return pixel_buffers.to_blender_rgba(decomposition.layer(layer, coeffs, exposure), rgba)
     # made in the buffer itself: no full-size map besides it (288 MB at 24 MP)
     decomposition.layer(layer, coeffs, exposure, out=view[..., :3])
     view[..., 3] = 1.0
@@ -91,13 +91,13 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     progress.enter("Reading the photo", 0.02)
     pixels = plan["read_photo"]()
     token.check()
-    pipeline.check_photo_content(pixels.rgb)  # a photo with no visible person fails before anything loads
+    photo_checks.check_photo_content(pixels.rgb)  # a photo with no visible person fails before anything loads
     relighter = plan["relighter"] or engine.open_relighter(plan["model_path"])
     light = plan["light"]
     if isinstance(light, tuple):  # a preset name or an HDR path: checked before the network runs
         kind, value = light
-        light = pipeline.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
-            pipeline.hdr_file_light(value, relighter.sh_order)
+        light = light_sources.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
+            light_sources.hdr_file_light(value, relighter.sh_order)
     previous = plan.get("previous")
     if previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
             and plan["mask"]["mode"] == "AUTO" \
@@ -117,7 +117,7 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     if plan["light_reader"] is not None:
         progress.enter("Estimating the light of the other photo", 0.45)
         other = plan["light_reader"]()
-        pipeline.check_photo_content(other.rgb)
+        photo_checks.check_photo_content(other.rgb)
         light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token, **options)
         light = light_decomposition
     elif light is None:

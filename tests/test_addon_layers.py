@@ -18,7 +18,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, bl_layers, engine, pipeline, state, work
+from blender_addon import bl_images, bl_layers, engine, pixel_buffers, state, work
 from relight import sh
 from relight.decomposition import Decomposition
 from relight.light import sh_light
@@ -58,7 +58,7 @@ def test_the_relit_buffer_is_the_relit_photo_packed(mask, strength):
     for exposure in (0.0, 1.3):
         buffer = engine.relit_rgba(d, light, 35.0, exposure, strength)
         relit = d.relight(engine.coefficients(d, light, 35.0), exposure_ev=exposure)
-        want = pipeline.to_blender_rgba(pipeline.blend(relit, d.photo, strength), np.empty_like(buffer))
+        want = pixel_buffers.to_blender_rgba(pixel_buffers.blend(relit, d.photo, strength), np.empty_like(buffer))
         np.testing.assert_allclose(buffer, want, atol=SAME, rtol=SAME)
 
 
@@ -70,7 +70,7 @@ def test_each_layer_buffer_is_the_layer_packed(layer):
     light = sh_light("studio", ORDER)
     buffer = work.layer_buffer(session, layer, (light, 20.0, 0.5, 1.0))
     want = d.layer(layer, engine.coefficients(d, light, 20.0), 0.5)
-    np.testing.assert_allclose(buffer, pipeline.to_blender_rgba(want, np.empty_like(buffer)), atol=SAME, rtol=SAME)
+    np.testing.assert_allclose(buffer, pixel_buffers.to_blender_rgba(want, np.empty_like(buffer)), atol=SAME, rtol=SAME)
     # the buffer's own memory is written (bottom row first), not a full-size map beside it
     assert buffer.reshape(50, 40, 4)[-1 - 20, 15, 3] == 1.0
 
@@ -235,5 +235,5 @@ def test_save_layers_writes_the_layers_under_the_current_dials(addon):
         np.testing.assert_allclose(got, want[key], atol=1e-6 + bound)
     np.testing.assert_allclose(ch["Relight.Alpha.A"], want["alpha"], atol=1e-6)
     relit = np.dstack([ch[f"Relight.Relit.{c}"] for c in "RGB"])
-    np.testing.assert_allclose(relit, pipeline.blend(d.relight(light, exposure_ev=0.7), d.photo, 0.6), atol=1e-6)
+    np.testing.assert_allclose(relit, pixel_buffers.blend(d.relight(light, exposure_ev=0.7), d.photo, 0.6), atol=1e-6)
     np.testing.assert_allclose(relit, pixels(f"{name}.relit")[..., :3], atol=1e-6)  # what the panel shows

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blender_addon import engine, jobs, manifest, pipeline, quality, work
+from blender_addon import engine, jobs, light_sources, manifest, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality, work
 from relight import sh
 from relight.exr import write_exr
 from relight.light import sh_light
@@ -37,31 +37,31 @@ def test_quality_presets_are_ordered_and_match_the_runtime_sizes():
 # ------------------------------------------------------------------ names
 
 def test_output_names_map_back_to_their_photo():
-    assert pipeline.output_name("p.png", "relit") == "p.png.relit"
+    assert output_names.output_name("p.png", "relit") == "p.png.relit"
     existing = {"p.png", "p.png.relit", "p.png.alpha"}
-    assert pipeline.source_of("p.png.relit", existing) == "p.png"
-    assert pipeline.source_of("p.png.alpha", existing) == "p.png"
-    assert pipeline.source_of("p.png", existing) == "p.png"
+    assert output_names.source_of("p.png.relit", existing) == "p.png"
+    assert output_names.source_of("p.png.alpha", existing) == "p.png"
+    assert output_names.source_of("p.png", existing) == "p.png"
     # an image that merely ends like an output, with no such photo, is itself
-    assert pipeline.source_of("q.relit", existing) == "q.relit"
+    assert output_names.source_of("q.relit", existing) == "q.relit"
     with pytest.raises(ValueError, match="unknown layer"):
-        pipeline.output_name("p.png", "depth")
+        output_names.output_name("p.png", "depth")
 
 
 # ------------------------------------------------------------------ masks
 
 def test_mask_modes():
     shape = (4, 6)
-    assert pipeline.choose_mask("AUTO", shape, None) is None
+    assert mask_choice.choose_mask("AUTO", shape, None) is None
     alpha = np.linspace(0, 1, 24, dtype=np.float32).reshape(shape)
-    np.testing.assert_array_equal(pipeline.choose_mask("IMAGE_ALPHA", shape, alpha), alpha)
+    np.testing.assert_array_equal(mask_choice.choose_mask("IMAGE_ALPHA", shape, alpha), alpha)
     # another image without a varying alpha: its grey level, the mean of R, G, B
     rgb = np.zeros(shape + (3,), np.float32)
     rgb[..., 1] = 0.6
-    m = pipeline.choose_mask("IMAGE", shape, None, rgb, np.ones(shape, np.float32), "m")
+    m = mask_choice.choose_mask("IMAGE", shape, None, rgb, np.ones(shape, np.float32), "m")
     np.testing.assert_allclose(m, 0.2, rtol=2 * EPS32)
     # with a varying alpha: the alpha
-    np.testing.assert_array_equal(pipeline.choose_mask("IMAGE", shape, None, rgb, alpha, "m"), alpha)
+    np.testing.assert_array_equal(mask_choice.choose_mask("IMAGE", shape, None, rgb, alpha, "m"), alpha)
 
 
 @pytest.mark.parametrize("args, message", [
@@ -74,7 +74,7 @@ def test_mask_modes():
 ])
 def test_bad_masks_are_one_sentence_errors(args, message):
     with pytest.raises(ValueError, match=re.escape(message)):
-        pipeline.choose_mask(*args)
+        mask_choice.choose_mask(*args)
 
 
 # ------------------------------------------------------------------ lights
@@ -88,31 +88,31 @@ def test_hdr_file_light_accepts_an_exr_and_rejects_bad_files(tmp_path):
     env = _equirect()
     good = tmp_path / "env.exr"
     write_exr(good, {c: env[..., i] for i, c in enumerate("RGB")})
-    resolved = pipeline.hdr_file_light(str(good), 4)
+    resolved = light_sources.hdr_file_light(str(good), 4)
     np.testing.assert_array_equal(resolved.base, sh.project_equirect(env, 4))  # projected once, here
     assert resolved.target == 0.8 and sh.mean_luminance(resolved.at(30.0)) == pytest.approx(0.8, rel=1e-12)
     with pytest.raises(ValueError, match="Choose an HDR file"):
-        pipeline.hdr_file_light("", 4)
+        light_sources.hdr_file_light("", 4)
     with pytest.raises(ValueError, match="does not exist"):
-        pipeline.hdr_file_light(str(tmp_path / "absent.exr"), 4)
+        light_sources.hdr_file_light(str(tmp_path / "absent.exr"), 4)
     junk = tmp_path / "junk.hdr"
     junk.write_bytes(b"this is not an image")
     with pytest.raises(ValueError, match=r"^The HDR file 'junk.hdr' cannot be read as an equirectangular map"):
-        pipeline.hdr_file_light(str(junk), 4)
+        light_sources.hdr_file_light(str(junk), 4)
 
 
 def test_preset_light_checks_the_name():
-    names = pipeline.preset_names()
+    names = light_sources.preset_names()
     assert "studio" in names
-    np.testing.assert_array_equal(pipeline.preset_light("studio", 2).at(45.0),
+    np.testing.assert_array_equal(light_sources.preset_light("studio", 2).at(45.0),
                                   sh_light("studio", 2, rotation_deg=45.0))
     with pytest.raises(ValueError, match="The light preset 'nowhere' is not available"):
-        pipeline.preset_light("nowhere", 2)
+        light_sources.preset_light("nowhere", 2)
 
 
 def test_world_pixels_are_scaled_like_hdr_files():
     env = _equirect()
-    coeffs = pipeline.equirect_light(env, 4).at(0.0)
+    coeffs = light_sources.equirect_light(env, 4).at(0.0)
     # the runtime scales maps to mean luminance 0.8 (docs/conventions.md)
     assert sh.mean_luminance(coeffs) == pytest.approx(0.8, rel=1e-9)
     raw = sh.project_equirect(env, 4)
@@ -120,17 +120,17 @@ def test_world_pixels_are_scaled_like_hdr_files():
     scale = coeffs[0, 0] / raw[0, 0]
     np.testing.assert_allclose(coeffs, raw * scale, rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError, match="twice as wide as high"):
-        pipeline.equirect_light(env[:, :20], 4)
+        light_sources.equirect_light(env[:, :20], 4)
     # a black World: the artist's words, not "mean luminance 0 <= 0"
     with pytest.raises(ValueError, match=r"^The World is black, so it gives no light: raise its Background"):
-        pipeline.equirect_light(np.zeros((8, 16, 3), np.float32), 4)
+        light_sources.equirect_light(np.zeros((8, 16, 3), np.float32), 4)
 
 
 def test_black_hdr_file_is_named_in_the_artists_words(tmp_path):
     black = tmp_path / "black.exr"
     write_exr(black, {c: np.zeros((8, 16), np.float32) for c in "RGB"})
     with pytest.raises(ValueError) as info:
-        pipeline.hdr_file_light(str(black), 4)
+        light_sources.hdr_file_light(str(black), 4)
     assert str(info.value) == "The HDR file 'black.exr' is black, so it gives no light: choose another file."
 
 
@@ -150,16 +150,16 @@ def _textured(h=64, w=48):
 ])
 def test_photos_without_a_visible_person_are_refused(photo, message):
     with pytest.raises(ValueError) as info:
-        pipeline.check_photo_content(photo)
+        photo_checks.check_photo_content(photo)
     assert str(info.value).startswith(message), str(info.value)
 
 
 def test_ordinary_and_dark_but_real_photos_pass_the_checks():
-    pipeline.check_photo_content(_textured())
-    pipeline.check_photo_content(_textured() * 0.02)   # a dark photo (max ~0.016 linear) is not black
-    pipeline.check_photo_size(32, 32)
+    photo_checks.check_photo_content(_textured())
+    photo_checks.check_photo_content(_textured() * 0.02)   # a dark photo (max ~0.016 linear) is not black
+    photo_checks.check_photo_size(32, 32)
     with pytest.raises(ValueError, match="31 x 200 pixels"):
-        pipeline.check_photo_size(31, 200)
+        photo_checks.check_photo_size(31, 200)
 
 
 def test_blender_pixels_decode_like_the_file_and_round_trip():
@@ -169,26 +169,26 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     codes = rng.integers(0, 256, (5, 7, 4)).astype(np.uint8)
     # Blender gives code / 255, bottom row first
     flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
-    px = pipeline.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p")
+    px = photo_pixels.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p")
     # the float64 curve rounded once to float32: within half a float32 step (2^-24 relative)
     np.testing.assert_allclose(px.rgb, srgb_decode(codes[..., :3] / 255.0), rtol=2.0 ** -24, atol=0)
     np.testing.assert_allclose(px.alpha, codes[..., 3] / 255.0, rtol=2.0 ** -24, atol=0)
     # the digest is of the stored codes: equal for equal pixels, different otherwise
-    again = pipeline.photo_from_blender(flat.copy(), (5, 7, 4), srgb=True, with_alpha=True, name="p")
+    again = photo_pixels.photo_from_blender(flat.copy(), (5, 7, 4), srgb=True, with_alpha=True, name="p")
     assert again.digest == px.digest
     flat[0] = 0.5
-    assert pipeline.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p").digest != px.digest
+    assert photo_pixels.photo_from_blender(flat, (5, 7, 4), srgb=True, with_alpha=True, name="p").digest != px.digest
     # to_blender_rgba is the inverse layout: RGBA, bottom row first
     rgb = rng.uniform(0, 1, (5, 7, 3)).astype(np.float32)
-    out = pipeline.to_blender_rgba(rgb).reshape(5, 7, 4)
+    out = pixel_buffers.to_blender_rgba(rgb).reshape(5, 7, 4)
     np.testing.assert_array_equal(out[::-1, :, :3], rgb)
     np.testing.assert_array_equal(out[..., 3], 1.0)
-    grey = pipeline.to_blender_rgba(rgb[..., 0]).reshape(5, 7, 4)
+    grey = pixel_buffers.to_blender_rgba(rgb[..., 0]).reshape(5, 7, 4)
     np.testing.assert_array_equal(grey[::-1, :, 2], rgb[..., 0])
-    cut = pipeline.to_blender_rgba(rgb, alpha=rgb[..., 1]).reshape(5, 7, 4)
+    cut = pixel_buffers.to_blender_rgba(rgb, alpha=rgb[..., 1]).reshape(5, 7, 4)
     np.testing.assert_array_equal(cut[::-1], np.dstack([rgb, rgb[..., 1]]))
     tall = rng.uniform(0, 1, (300, 400, 4)).astype(np.float32)  # more rows than one block (163)
-    np.testing.assert_array_equal(pipeline.to_blender_rgba(tall).reshape(300, 400, 4)[::-1], tall)
+    np.testing.assert_array_equal(pixel_buffers.to_blender_rgba(tall).reshape(300, 400, 4)[::-1], tall)
 
 
 def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
@@ -207,9 +207,9 @@ def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
     path = tmp_path / "p.png"
     Image.fromarray(codes, "RGBA").save(path)
     cli_rgb, cli_alpha = read_photo(path)
-    from_file = pipeline.read_8bit_file(str(path), (16, 64), True, "p.png")
+    from_file = photo_pixels.read_8bit_file(str(path), (16, 64), True, "p.png")
     flat = (codes[::-1].astype(np.float32) / np.float32(255.0)).reshape(-1)  # as Blender stores bytes
-    from_blender = pipeline.photo_from_blender(flat, (16, 64, 4), srgb=True, with_alpha=True, name="p.png")
+    from_blender = photo_pixels.photo_from_blender(flat, (16, 64, 4), srgb=True, with_alpha=True, name="p.png")
     for px in (from_file, from_blender):
         np.testing.assert_array_equal(px.rgb, cli_rgb)  # one table: the same floats, not merely close
         np.testing.assert_array_equal(px.alpha, cli_alpha)
@@ -218,7 +218,7 @@ def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
 
 
 def test_the_relight_job_refuses_a_black_photo_before_loading_anything():
-    black = pipeline.PhotoPixels(np.zeros((64, 48, 3), np.float32), None, "d")
+    black = photo_pixels.PhotoPixels(np.zeros((64, 48, 3), np.float32), None, "d")
     plan = dict(read_photo=lambda: black, relighter=None, model_path="/nonexistent/model.onnx",
                 light=("PRESET", "studio"), mask=dict(mode="NETWORK"))
     progress = jobs.Progress()
@@ -228,8 +228,8 @@ def test_the_relight_job_refuses_a_black_photo_before_loading_anything():
 
 
 def test_buffer_pool_reuses_large_buffers_and_keeps_a_bounded_number():
-    pool = pipeline.BufferPool(keep=2)
-    n = pipeline.BufferPool.MIN_VALUES
+    pool = pixel_buffers.BufferPool(keep=2)
+    n = pixel_buffers.BufferPool.MIN_VALUES
     a = pool.take(n)
     pool.give(a)
     pool.give(a)                      # given twice: kept once
@@ -250,17 +250,17 @@ def test_an_8bit_file_read_by_the_worker_equals_blenders_codes(tmp_path):
     rng = np.random.default_rng(2)
     codes = rng.integers(0, 256, (6, 9, 3)).astype(np.uint8)
     Image.fromarray(codes, "RGB").save(tmp_path / "p.png")
-    from_file = pipeline.read_8bit_file(str(tmp_path / "p.png"), (6, 9), False, "p.png")
+    from_file = photo_pixels.read_8bit_file(str(tmp_path / "p.png"), (6, 9), False, "p.png")
     flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
-    from_blender = pipeline.photo_from_blender(flat, (6, 9, 3), srgb=True, with_alpha=False, name="p.png")
+    from_blender = photo_pixels.photo_from_blender(flat, (6, 9, 3), srgb=True, with_alpha=False, name="p.png")
     np.testing.assert_array_equal(from_file.rgb, from_blender.rgb)
     assert from_file.digest == from_blender.digest
     with pytest.raises(ValueError, match="changed on disk since Blender loaded it"):
-        pipeline.read_8bit_file(str(tmp_path / "p.png"), (7, 9), False, "p.png")
+        photo_pixels.read_8bit_file(str(tmp_path / "p.png"), (7, 9), False, "p.png")
 
 
 def test_saved_relight_sits_next_to_the_blend():
-    assert pipeline.saved_relight_path("/a/b/shot.blend", "abc") == "/a/b/shot_relight/abc.npz"
+    assert output_names.saved_relight_path("/a/b/shot.blend", "abc") == "/a/b/shot_relight/abc.npz"
 
 
 # ------------------------------------------------------------------ compositing
@@ -270,25 +270,25 @@ def test_strength_blends_linearly_between_photo_and_relit():
     photo = rng.uniform(0, 1, (5, 7, 3)).astype(np.float32)
     relit = rng.uniform(0, 2, (5, 7, 3)).astype(np.float32)
     relit[0] = photo[0]  # background row: the runtime leaves it bit for bit
-    np.testing.assert_array_equal(pipeline.blend(relit, photo, 0.0), photo)
-    np.testing.assert_array_equal(pipeline.blend(relit, photo, 1.0), relit)
-    np.testing.assert_array_equal(pipeline.blend(relit, photo, 7.0), relit)  # clamped to 1
-    quarter = pipeline.blend(relit, photo, 0.25)
+    np.testing.assert_array_equal(pixel_buffers.blend(relit, photo, 0.0), photo)
+    np.testing.assert_array_equal(pixel_buffers.blend(relit, photo, 1.0), relit)
+    np.testing.assert_array_equal(pixel_buffers.blend(relit, photo, 7.0), relit)  # clamped to 1
+    quarter = pixel_buffers.blend(relit, photo, 0.25)
     assert quarter.dtype == np.float32 and quarter.shape == photo.shape
     # (relit - photo) * 0.25 + photo: three float32 roundings of values <= 2
     np.testing.assert_allclose(quarter, 0.75 * photo + 0.25 * relit, atol=4 * EPS32)
     np.testing.assert_array_equal(quarter[0], photo[0])
     with pytest.raises(ValueError, match="differ in size"):
-        pipeline.blend(relit[:4], photo, 1.0)
+        pixel_buffers.blend(relit[:4], photo, 1.0)
 
 
 def test_env_flag(monkeypatch):
     for value, expected in (("1", True), ("true", True), (" Yes ", True), ("on", True),
                             ("0", False), ("", False), ("no", False)):
         monkeypatch.setenv("RELIGHT_PHOTO_TEST_FLAG", value)
-        assert pipeline.env_flag("RELIGHT_PHOTO_TEST_FLAG") is expected
+        assert jobs.env_flag("RELIGHT_PHOTO_TEST_FLAG") is expected
     monkeypatch.delenv("RELIGHT_PHOTO_TEST_FLAG")
-    assert pipeline.env_flag("RELIGHT_PHOTO_TEST_FLAG") is False
+    assert jobs.env_flag("RELIGHT_PHOTO_TEST_FLAG") is False
 
 
 # ------------------------------------------------------------------ model lookup
@@ -297,23 +297,23 @@ def test_model_lookup(tmp_path, monkeypatch):
     from relight import models
 
     with pytest.raises(ValueError, match=r"^The model file '.*absent.onnx' does not exist\.$"):
-        pipeline.model_path_for("BALANCED", str(tmp_path / "absent.onnx"))
+        quality.model_path_for("BALANCED", str(tmp_path / "absent.onnx"))
     given = tmp_path / "m.onnx"
     given.write_bytes(b"x")
-    assert pipeline.model_path_for("DRAFT", str(given)) == given
+    assert quality.model_path_for("DRAFT", str(given)) == given
     empty = tmp_path / "reg" / "models.json"
     empty.parent.mkdir()
     empty.write_text(json.dumps({"format": models.REGISTRY_FORMAT, "default": None, "models": {}}))
     monkeypatch.setattr(models, "REGISTRY_PATH", empty)
     with pytest.raises(ValueError, match="No relighting model is installed"):
-        pipeline.model_path_for("BEST")
+        quality.model_path_for("BEST")
     # a registered default whose file is gone
     empty.write_text(json.dumps({"format": models.REGISTRY_FORMAT, "default": "a",
                                  "models": {"a": {"file": "a.onnx", "sha256": "0" * 64}}}))
     with pytest.raises(ValueError, match="The relighting model 'a.onnx' is missing"):
-        pipeline.model_path_for("BEST")
+        quality.model_path_for("BEST")
     (empty.parent / "a.onnx").write_bytes(b"x")
-    assert pipeline.model_path_for("BEST") == empty.parent / "a.onnx"
+    assert quality.model_path_for("BEST") == empty.parent / "a.onnx"
 
 
 def test_worker_errors_become_one_sentence():
@@ -394,27 +394,27 @@ def test_cancelled_job_drops_its_result_and_failed_job_keeps_its_error():
 
 def test_layers_are_handed_to_blender_relit_first_in_a_fixed_order():
     buffers = {"matte": 1, "shading": 2, "relit": 3, "alpha": 4, "unknown": 5}
-    assert pipeline.layers_in_order(buffers) == ["relit", "alpha", "shading", "matte"]
-    assert pipeline.layers_in_order({}) == []
+    assert output_names.layers_in_order(buffers) == ["relit", "alpha", "shading", "matte"]
+    assert output_names.layers_in_order({}) == []
 
 
 def test_mask_channels_of_stored_mask_pixels():
     grey = np.arange(4, dtype=np.float32).reshape(2, 2, 1)
-    rgb, alpha = pipeline.mask_channels(grey)
+    rgb, alpha = mask_choice.mask_channels(grey)
     assert rgb.shape == (2, 2, 3) and alpha is None
     assert np.array_equal(rgb[..., 2], grey[..., 0]) and np.array_equal(rgb[..., 0], rgb[..., 1])
     rgba = np.arange(16, dtype=np.float32).reshape(2, 2, 4)
-    rgb, alpha = pipeline.mask_channels(rgba)
+    rgb, alpha = mask_choice.mask_channels(rgba)
     assert np.array_equal(rgb, rgba[..., :3]) and np.array_equal(alpha, [[3.0, 7.0], [11.0, 15.0]])
-    assert pipeline.mask_channels(rgba[..., :3])[1] is None
+    assert mask_choice.mask_channels(rgba[..., :3])[1] is None
 
 
 def test_saved_mask_key_gives_the_mask_inputs_it_was_run_with():
-    auto = pipeline.saved_mask_inputs(("AUTO", "3"))
+    auto = mask_choice.saved_mask_inputs(("AUTO", "3"))
     assert (auto["mode"], auto["person"], auto["use_photo_alpha"], auto["rgb"]) == ("AUTO", 3, False, None)
-    alpha = pipeline.saved_mask_inputs(["IMAGE_ALPHA", ""])
+    alpha = mask_choice.saved_mask_inputs(["IMAGE_ALPHA", ""])
     assert (alpha["person"], alpha["use_photo_alpha"]) == (1, True)
-    image = pipeline.saved_mask_inputs(("IMAGE", "mask.png"))
+    image = mask_choice.saved_mask_inputs(("IMAGE", "mask.png"))
     assert (image["name"], image["person"], image["alpha"]) == ("mask.png", 1, None)
 
 

@@ -20,7 +20,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, pipeline, state
+from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, output_names, state
 from relight.light import sh_light
 from test_addon_blender import _draw_panel, make_tiny_model, pixels, write_person_png
 
@@ -66,7 +66,7 @@ def test_save_and_reopen_restores_the_result_and_the_dials_work_at_once(addon, m
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
     blend = addon / "shot.blend"
     assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
-    saved = pipeline.saved_relight_path(str(blend), pid)
+    saved = output_names.saved_relight_path(str(blend), pid)
     d = state.SESSIONS[pid].decomposition
     float32_bytes = 4 * sum(a.size for a in (d.albedo, d.transport, d.residual, d.photo_working, d.alpha))
     assert os.path.isfile(saved) and os.path.getsize(saved) < 0.55 * float32_bytes  # half floats
@@ -294,11 +294,11 @@ def test_save_copy_keeps_a_decomposition_beside_the_copy(addon, model):
     (addon / "copies").mkdir()
     copy = addon / "copies" / "shot_copy.blend"
     assert bpy.ops.wm.save_as_mainfile(filepath=str(copy), copy=True) == {"FINISHED"}  # File > Save Copy
-    assert os.path.isfile(pipeline.saved_relight_path(str(copy), pid))
+    assert os.path.isfile(output_names.saved_relight_path(str(copy), pid))
     assert bpy.data.filepath == str(blend)  # a copy: the open file stays the one saved before
-    assert state.SESSIONS[pid].saved_to == pipeline.saved_relight_path(str(blend), pid)  # the open file's own
+    assert state.SESSIONS[pid].saved_to == output_names.saved_relight_path(str(blend), pid)  # the open file's own
     bpy.ops.wm.open_mainfile(filepath=str(copy))
-    assert state.SESSIONS[pid].saved_to == pipeline.saved_relight_path(str(copy), pid)
+    assert state.SESSIONS[pid].saved_to == output_names.saved_relight_path(str(copy), pid)
     for layer in LAYERS:
         np.testing.assert_allclose(pixels(f"{name}.{layer}"), before[layer], rtol=HALF, atol=HALF)
     settings = bpy.context.scene.relight_photo

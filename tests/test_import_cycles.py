@@ -101,7 +101,7 @@ def test_the_cycle_finder_finds_a_cycle_and_only_that():
 def test_the_graph_sees_lazy_and_relative_imports():
     graph = import_graph()
     assert "relight.cli_image" in graph["relight.cli"]          # imported inside build_parser()
-    assert "blender_addon.pipeline" in graph["blender_addon.engine"]  # `from . import pipeline`
+    assert "blender_addon.light_sources" in graph["blender_addon.engine"]  # `from . import light_sources`
     assert "relight.light" in graph["farm.lights"]
 
 

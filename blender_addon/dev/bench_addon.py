@@ -63,7 +63,7 @@ def main(argv=None) -> int:
 
     import bpy  # noqa: F401  (imported before the add-on modules that need it)
 
-    from blender_addon import bl_images, bl_world, engine, pipeline, quality
+    from blender_addon import bl_images, bl_world, engine, light_sources, pixel_buffers, quality
     from relight import presets
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))
@@ -87,7 +87,7 @@ def main(argv=None) -> int:
         print(f"| {label} | {size} | {med:.3f} | {best:.3f} |")
 
     d = decompositions["BALANCED"]
-    light = pipeline.preset_light("studio", relighter.sh_order)
+    light = light_sources.preset_light("studio", relighter.sh_order)
     angle = iter(range(10 ** 6))
     relit_holder = {}
 
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         relit_holder["r"] = engine.relight(d, light, float(next(angle)), 0.0)
 
     def blend_step():
-        relit_holder["b"] = pipeline.blend(relit_holder["r"], photo, 0.8)
+        relit_holder["b"] = pixel_buffers.blend(relit_holder["r"], photo, 0.8)
 
     def write_step():
         bl_images.write_image("bench.relit", relit_holder["b"])
@@ -125,13 +125,13 @@ def main(argv=None) -> int:
     env = tree.nodes.new("ShaderNodeTexEnvironment")
     env.image = bpy.data.images.load(str(presets.preset_path("studio")))
     tree.links.new(env.outputs["Color"], bg.inputs["Color"])
-    read = _timed(lambda: pipeline.equirect_light(bl_world.read_world(world).equirect, relighter.sh_order),
+    read = _timed(lambda: light_sources.equirect_light(bl_world.read_world(world).equirect, relighter.sh_order),
                   args.repeat)
     sky = bpy.data.worlds.new("bench_sky")
     bg = next(n for n in sky.node_tree.nodes if n.type == "BACKGROUND")
     node = sky.node_tree.nodes.new("ShaderNodeTexSky")
     sky.node_tree.links.new(node.outputs["Color"], bg.inputs["Color"])
-    baked = _timed(lambda: pipeline.equirect_light(bl_world.read_world(sky).equirect, relighter.sh_order),
+    baked = _timed(lambda: light_sources.equirect_light(bl_world.read_world(sky).equirect, relighter.sh_order),
                    args.repeat)
     print("\nWorld -> SH light:\n")
     print("| world | s (median) | best |")

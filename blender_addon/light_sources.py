@@ -1,0 +1,95 @@
+"""The panel's light sources (World, HDR file, preset, another photo) as relight.light.SHLight
+values, each read and projected once, with the artist's messages when one gives no light.
+Plain Python."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .jobs import first_line
+
+
+LIGHT_KINDS = ("WORLD", "HDR", "PRESET", "IMAGE")
+
+
+def light_cache():
+    """The add-on's relight.light.SHLightCache: HDR files projected once per file state and
+    the rotation matrices the dials ask for again and again."""
+    if not _LIGHT_CACHE:
+        from relight.light import LightCache
+
+        _LIGHT_CACHE.append(LightCache())
+    return _LIGHT_CACHE[0]
+
+
+_LIGHT_CACHE: list = []
+
+
+def hdr_file_light(path: str, order: int):
+    """The HDR file as a relight.light.SHLight (read and projected here, once per file state)."""
+    from relight.light import SHLight
+
+    if not path:
+        raise ValueError("Choose an HDR file for the light.")
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"The HDR file '{path}' does not exist.")
+    try:
+        return SHLight.resolve(str(p), order, cache=light_cache())
+    except (ValueError, OSError) as exc:
+        if _is_black_light(exc):
+            raise ValueError(f"The HDR file '{p.name}' is black, so it gives no light: "
+                             "choose another file.") from None
+        raise ValueError(f"The HDR file '{p.name}' cannot be read as an equirectangular map "
+                         f"({first_line(exc)}).") from None
+
+
+def preset_light(name: str, order: int):
+    """The preset as a relight.light.SHLight (loaded and projected once)."""
+    from relight.light import SHLight
+
+    try:
+        return SHLight.resolve(name, order, cache=light_cache())
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"The light preset '{name}' is not available ({first_line(exc)}).") from None
+
+
+def equirect_light(pixels: np.ndarray, order: int):
+    """The World's equirect map (pixels) as a relight.light.SHLight: a map like an HDR
+    file or a preset, so World, HDR file and preset are scaled alike."""
+    from relight.light import SHLight
+
+    h, w = pixels.shape[:2]
+    if w != 2 * h:
+        raise ValueError(f"The World's environment image is {w}x{h}; an equirectangular map "
+                         "is twice as wide as high.")
+    rgb = np.ascontiguousarray(pixels[..., :3])
+    if not np.all(np.isfinite(rgb)):
+        raise ValueError("The World's light has invalid (infinite or NaN) values: "
+                         "check its environment image and Background strength.")
+    if float(rgb.max(initial=0.0)) <= 0.0:
+        raise ValueError(BLACK_WORLD)
+    try:
+        return SHLight.resolve(rgb, order)
+    except ValueError as exc:
+        if _is_black_light(exc):
+            raise ValueError(BLACK_WORLD) from None
+        raise ValueError(f"The World gives no usable light ({first_line(exc)}).") from None
+
+
+BLACK_WORLD = ("The World is black, so it gives no light: raise its Background colour or Strength, "
+               "or choose another light.")
+
+
+def _is_black_light(exc: BaseException) -> bool:
+    # relight.sh refuses to scale a light whose mean luminance is not positive
+    return "mean luminance" in str(exc)
+
+
+def preset_names() -> list[str]:
+    """Bundled presets, then Blender's own studio worlds when bpy is there."""
+    from relight import presets
+
+    return presets.list_presets() + presets.list_blender_presets()
