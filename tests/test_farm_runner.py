@@ -122,7 +122,7 @@ def test_render_py_entry_exit_code_and_blender_argv(tmp_path):
                         "--seed", "0", "--lights", "65"], cwd=REPO,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == ["farm: error: argument --lights: --lights must be in [1, 64], got 65"]
+    assert r.stderr.strip().splitlines() == ["farm: error: argument --lights: must be an integer in [1, 64], got 65"]
 
 
 def test_options_reach_scene_options_one_to_one():
