@@ -74,7 +74,7 @@ def add_photo_options(p) -> None:
     matte, person, model, quality, threads, largest photo."""
     from relight import quality
     from relight.cli_args import bounded_int
-    from relight.photo import DEFAULT_MAX_PIXELS, MAX_PIXELS
+    from relight.image_limits import DEFAULT_MAX_PIXELS, MAX_PIXELS
     from relight.runtime import MATTE_SOURCES
     from relight.session import cores_available
 

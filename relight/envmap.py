@@ -23,7 +23,7 @@ _HDR_STRIP_ROWS = 256          # rows converted from RGBE to float at a time
 
 def _check_map_size(width: int, height: int, source, file_bytes: int | None = None) -> None:
     """Refuse a declared map size before anything is allocated for it."""
-    from relight.photo import memory_available
+    from relight.image_limits import memory_available
 
     if width < 1 or height < 1:
         raise ValueError(f"{source}: empty map {width}x{height}")

@@ -5,8 +5,9 @@ Reads PNG/JPEG/TIFF/WebP (sRGB-encoded; EXIF orientation applied; 8- and
 EXR (linear). Writes 8-bit sRGB PNG, linear EXR, and a multi-layer EXR whose
 channels follow Blender's "<layer>.<pass>.<channel>" naming so its Image node
 shows every pass. The declared image size is weighed before any pixel is
-decoded (check_declared_size: a pixel limit, the file's size, the memory
-free); every failure to read is one ValueError. Writes are atomic.
+decoded (relight.image_limits: a pixel limit, the file's size, the memory
+free); 16-bit colour PNGs, which Pillow cuts to 8 bits, go through
+relight.png_decoder. Every failure to read is one ValueError. Writes are atomic.
 """
 
 from __future__ import annotations
@@ -20,97 +21,16 @@ import numpy as np
 
 from relight.colour import decode_alpha_codes, decode_srgb_codes, srgb_encode
 from relight.fileio import atomic_path
+from relight.image_limits import check_declared_size, check_max_pixels
+from relight.png_decoder import check_png_chunks, read_png16
 
 __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
-           "write_layers_exr", "check_declared_size", "check_max_pixels", "memory_available", "MAX_SIDE", "MAX_PIXELS",
-           "DEFAULT_MAX_PIXELS", "LAYER_NAME", "PHOTO_SUFFIXES"]
+           "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
-MAX_SIDE = 40_000            # px: refuse wider/taller images before decoding
-MAX_PIXELS = 150_000_000     # hard ceiling, below Pillow's own bomb limit (2 x 89.5 MP) so ours speaks first
-DEFAULT_MAX_PIXELS = 50_000_000  # without --max-pixels (a 50 MP camera frame): ~2 GB through `relight image`
-BYTES_PER_PIXEL = 40         # peak bytes per photo pixel through `relight image` (24 MP: < 1 GB measured)
-PLAUSIBLE_FROM = 1_000_000   # below this many pixels decoding is cheap: no file-size test
-# most pixels one byte of file can hold: JPEG's Huffman-coded DC term costs at least 1 bit per
-# 8x8 block (512 px/byte; x8 for arithmetic coding), PNG's deflate at most 1032:1 on 1-bit pixels
-# (~8,300 px/byte); other formats get a bound 4x above a uniform lossless WebP (23,500 px/byte)
-MAX_PIXELS_PER_BYTE = {"JPEG": 4_096, "MPO": 4_096, "PNG": 8_400}
-MAX_PIXELS_PER_BYTE_OTHER = 100_000
 STRIP_ROWS = 256             # rows converted at a time: bounds temporaries for huge photos
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
 EXR_MAGIC = b"\x76\x2f\x31\x01"
-
-def memory_available() -> int | None:
-    """Bytes this process can still allocate: the kernel's MemAvailable, and the
-    headroom under an address-space limit (RLIMIT_AS) when one is set; None if unknown."""
-    bounds = []
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    bounds.append(int(line.split()[1]) * 1024)
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        import resource
-
-        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-        if soft != resource.RLIM_INFINITY:
-            with open("/proc/self/status") as f:
-                vm = next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmSize:"))
-            bounds.append(max(0, soft - vm))
-    except (ImportError, OSError, ValueError, StopIteration):
-        pass
-    return min(bounds) if bounds else None
-
-
-def _megapixels(pixels: int) -> str:
-    return f"{pixels / 1e6:.3g} MP"
-
-
-def check_max_pixels(max_pixels: int | None = None) -> int:
-    """Validate a pixel limit (None: DEFAULT_MAX_PIXELS) and return it."""
-    if max_pixels is None:
-        return DEFAULT_MAX_PIXELS
-    if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) \
-            or not 1 <= max_pixels <= MAX_PIXELS:
-        raise ValueError(f"max_pixels must be an integer in [1, {MAX_PIXELS}], got {max_pixels!r}")
-    return int(max_pixels)
-
-
-def check_declared_size(width: int, height: int, path, *, max_pixels: int | None = None,
-                        file_bytes: int | None = None, fmt: str | None = None,
-                        bytes_per_pixel: int = BYTES_PER_PIXEL) -> None:
-    """Weigh a size read from a header before anything is allocated for it.
-
-    Refused: an empty size; more than MAX_SIDE a side; more pixels than
-    `max_pixels` (default DEFAULT_MAX_PIXELS); by default, more pixels than
-    a `file_bytes`-long file of format `fmt` can hold (a forged header: an
-    explicit `max_pixels` allows it); and always, more memory than is free.
-    """
-    if width < 1 or height < 1:
-        raise ValueError(f"{path}: image is empty ({width}x{height})")
-    pixels = width * height
-    if width > MAX_SIDE or height > MAX_SIDE:
-        raise ValueError(f"{path}: image is too large ({width}x{height}; limit: {MAX_SIDE} px a side)")
-    limit = check_max_pixels(max_pixels)
-    if pixels > limit:
-        hint = (f"--max-pixels {pixels} allows it" if pixels <= MAX_PIXELS
-                else f"{MAX_PIXELS // 1_000_000} MP is the most any setting allows")
-        raise ValueError(f"{path}: image is {width}x{height} ({_megapixels(pixels)}), over the limit of "
-                         f"{_megapixels(limit)} ({hint})")
-    if max_pixels is None and file_bytes is not None and pixels > PLAUSIBLE_FROM:
-        per_byte = MAX_PIXELS_PER_BYTE.get(fmt or "", MAX_PIXELS_PER_BYTE_OTHER)
-        if pixels > file_bytes * per_byte:
-            raise ValueError(f"{path}: header declares {width}x{height} ({_megapixels(pixels)}) in a "
-                             f"{file_bytes:,}-byte {fmt or 'image'} file, more than such a file can hold: "
-                             f"forged or truncated (--max-pixels {pixels} decodes it anyway)")
-    free = memory_available()
-    need = pixels * bytes_per_pixel
-    if free is not None and need > free:
-        raise ValueError(f"{path}: a {width}x{height} image needs about {need / 2**30:.1f} GiB, "
-                         f"only {free / 2**30:.1f} GiB of memory is free")
 
 
 def _check_size(width: int, height: int, path, max_pixels: int | None = None, file_bytes: int | None = None,
@@ -167,25 +87,6 @@ def _open_pillow(path: Path):
     return im
 
 
-def _check_png_chunks(path: Path) -> None:
-    """Every chunk's declared length must fit in the file: Pillow reads the rest of a
-    damaged IDAT with one read(length), which allocates `length` bytes (up to 4 GiB)
-    before finding the file shorter. Walks the 8-byte chunk headers only."""
-    import struct
-
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        pos = f.seek(len(_PNG_SIGNATURE))
-        while pos + 8 <= size:
-            length, kind = struct.unpack(">I4s", f.read(8))
-            if pos + 12 + length > size:
-                raise ValueError(f"{path}: truncated or corrupt PNG (chunk {kind!r} declares {length:,} bytes, "
-                                 f"past the end of the {size:,}-byte file)")
-            if kind == b"IEND":
-                return
-            pos = f.seek(pos + 12 + length)
-
-
 @contextmanager
 def _decoder_errors(path: Path, what: str):
     """Whatever a decoder raises (truncated data, bad EXIF, library errors) becomes
@@ -208,7 +109,7 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
             width, height = im.size
             _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
             if im.format == "PNG":
-                _check_png_chunks(path)
+                check_png_chunks(path)
             if getattr(im, "n_frames", 1) > 1:
                 im.seek(0)  # animated/multi-page files: the first frame is the photo
             rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
@@ -218,7 +119,7 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
                 warnings.simplefilter("ignore")
                 if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
                     # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
-                    decoded = _read_png16(path, max_pixels)
+                    decoded = read_png16(path, max_pixels)
                     if decoded is not None:
                         return _decode_16bit(*decoded)
                 im.load()
@@ -254,100 +155,6 @@ def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
 def _decode_16bit(rgb16: np.ndarray, alpha16: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
     return decode_srgb_codes(rgb16), decode_alpha_codes(alpha16) if alpha16 is not None else None
-
-
-# ------------------------------------------------------------------ 16-bit PNG
-#
-# Why a hand-written decoder (issue 19): Pillow, the core's one image library, opens a 16-bit
-# RGB PNG as 8-bit "RGB" (checked with Pillow 11 on a 1024x1024 16-bit file: mode RGB, uint8),
-# so the extra 8 bits of a camera export would be lost. The libraries that keep them (imageio
-# with a PNG plugin, OpenCV, pypng) are not dependencies of the core, and the Blender add-on
-# bundles every binary dependency once per platform (blender_addon/build.py); this decoder is
-# numpy + zlib only and reads that 1 MP file in 166 ms (2 loaded cores). It handles only
-# non-interlaced 16-bit RGB/RGBA and returns None otherwise (Pillow decodes the rest); its
-# sizes are checked against max_pixels and the file's length before anything is allocated.
-
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def _read_png16(path: Path, max_pixels: int | None = None):
-    """(rgb uint16 [H, W, 3], alpha uint16 [H, W] | None) of a non-interlaced 16-bit
-    RGB/RGBA PNG, or None for anything else (then Pillow decodes it)."""
-    import struct
-    import zlib
-
-    data = path.read_bytes()
-    if not data.startswith(_PNG_SIGNATURE):
-        return None
-    pos, header, idat = len(_PNG_SIGNATURE), None, []
-    while pos + 8 <= len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + length]
-        if len(body) != length:
-            raise ValueError(f"{path}: truncated PNG chunk {kind!r}")
-        if kind == b"IHDR":
-            header = struct.unpack(">IIBBBBB", body[:13])
-        elif kind == b"IDAT":
-            idat.append(body)
-        elif kind == b"IEND":
-            break
-        pos += 12 + length
-    if header is None:
-        raise ValueError(f"{path}: PNG without IHDR")
-    width, height, depth, colour, _, _, interlace = header
-    if depth != 16 or colour not in (2, 6) or interlace != 0:
-        return None
-    _check_size(width, height, path, max_pixels, len(data), "PNG")
-    channels = 3 if colour == 2 else 4
-    bpp = 2 * channels
-    stride = width * bpp
-    expected = height * (stride + 1)
-    inflater = zlib.decompressobj()
-    try:
-        raw = inflater.decompress(b"".join(idat), expected + 1)  # bounded: no zip bomb
-    except zlib.error as exc:
-        raise ValueError(f"{path}: corrupt PNG data ({exc})") from None
-    if len(raw) != expected:
-        raise ValueError(f"{path}: truncated PNG ({len(raw)} of {expected} bytes of pixel data)")
-    rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
-    kinds = rows[:, 0]
-    if kinds.max(initial=0) > 4:
-        raise ValueError(f"{path}: corrupt PNG (unknown row filter {int(kinds.max())})")
-    recon = _png_unfilter(rows[:, 1:].reshape(height, width, bpp), kinds)
-    values = recon.reshape(height, width * channels * 2).view(">u2").reshape(height, width, channels)
-    values = values.astype(np.uint16)
-    return values[..., :3], (values[..., 3] if channels == 4 else None)
-
-
-def _png_unfilter(filtered: np.ndarray, kinds: np.ndarray) -> np.ndarray:
-    """Undo PNG row filters; filtered [H, W, bpp] uint8 -> reconstructed bytes."""
-    h, w, bpp = filtered.shape
-    out = np.zeros((h + 1, w + 1, bpp), np.int16)  # zero row above, zero column left
-    f = filtered.astype(np.int16)
-    if np.all(kinds <= 2):
-        # None/Sub/Up depend on nothing later in the row but the left byte's sum: row by row
-        for r in range(h):
-            k = kinds[r]
-            if k == 0:
-                out[r + 1, 1:] = f[r]
-            elif k == 1:
-                out[r + 1, 1:] = np.cumsum(f[r], axis=0, dtype=np.int64) & 255
-            else:
-                out[r + 1, 1:] = (f[r] + out[r, 1:]) & 255
-        return out[1:, 1:].astype(np.uint8)
-    # Average/Paeth read the left, upper and upper-left bytes: sweep anti-diagonals,
-    # whose cells depend only on earlier diagonals, so each one is one vector step
-    kind_of_row = kinds.astype(np.int16)
-    for d in range(h + w - 1):
-        r = np.arange(max(0, d - w + 1), min(h - 1, d) + 1)
-        p = d - r
-        left, up, ul = out[r + 1, p], out[r, p + 1], out[r, p]
-        k = kind_of_row[r][:, None]
-        pa, pb, pc = np.abs(up - ul), np.abs(left - ul), np.abs(left + up - 2 * ul)
-        paeth = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, up, ul))
-        pred = np.choose(k, [np.zeros_like(left), left, up, (left + up) >> 1, paeth])
-        out[r + 1, p + 1] = (f[r, p] + pred) & 255
-    return out[1:, 1:].astype(np.uint8)
 
 
 # ------------------------------------------------------------------ EXR
@@ -437,7 +244,7 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
         with _decoder_errors(path, "corrupt or truncated mask image"):
             _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
             if im.format == "PNG":
-                _check_png_chunks(path)
+                check_png_chunks(path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 im.load()

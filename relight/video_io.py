@@ -207,7 +207,7 @@ class VideoFile:
     """A video file's first video stream, decoded frame by frame (PyAV, threaded decoding)."""
 
     def __init__(self, path, max_pixels: int | None = None):
-        from relight.photo import check_declared_size
+        from relight.image_limits import check_declared_size
 
         self.path = Path(path)
         container = open_container(self.path)

@@ -19,7 +19,7 @@ from PIL import Image
 
 from export.random_model import export_random_model
 from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform_rle_hdr
-from relight import envmap, photo, sh
+from relight import envmap, image_limits, photo, sh
 from relight.cli import main
 from relight.colour import srgb_encode
 from relight.models import write_sidecar
@@ -208,19 +208,19 @@ def test_png_chunk_longer_than_the_file_is_refused_before_reading_it(tmp_path):
 def test_declared_size_is_weighed_against_free_memory(tmp_path, monkeypatch):
     path = tmp_path / "p.jpg"
     path.write_bytes(jpeg_bytes(300, 200))
-    free = 300 * 200 * photo.BYTES_PER_PIXEL - 1  # one byte short of what decoding needs
-    monkeypatch.setattr(photo, "memory_available", lambda: free)
+    free = 300 * 200 * image_limits.BYTES_PER_PIXEL - 1  # one byte short of what decoding needs
+    monkeypatch.setattr(image_limits, "memory_available", lambda: free)
     with pytest.raises(ValueError, match="needs about"):
         photo.read_photo(path)
-    monkeypatch.setattr(photo, "memory_available", lambda: free + 1)
+    monkeypatch.setattr(image_limits, "memory_available", lambda: free + 1)
     assert photo.read_photo(path)[0].shape == (300, 200, 3)
     # maps too: a 64 x 32 map needs MAP_BYTES_PER_PIXEL per texel
     hdr = tmp_path / "m.hdr"
     hdr.write_bytes(radiance_hdr(32, 64))
-    monkeypatch.setattr(photo, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL - 1)
+    monkeypatch.setattr(image_limits, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL - 1)
     with pytest.raises(ValueError, match="needs about"):
         envmap.load_equirect(hdr)
-    monkeypatch.setattr(photo, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL)
+    monkeypatch.setattr(image_limits, "memory_available", lambda: 64 * 32 * envmap.MAP_BYTES_PER_PIXEL)
     assert envmap.load_equirect(hdr).shape == (32, 64)
 
 
@@ -230,7 +230,7 @@ def test_pixel_limit_and_max_pixels_option(tmp_path, model, capsys):
         photo.read_photo(path, max_pixels=1000)
     assert photo.read_photo(path, max_pixels=1200)[0].shape == (40, 30, 3)
     with pytest.raises(ValueError, match="max_pixels"):
-        photo.read_photo(path, max_pixels=photo.MAX_PIXELS + 1)
+        photo.read_photo(path, max_pixels=image_limits.MAX_PIXELS + 1)
     base = ["image", str(path), "--light", "studio", "--model", model, "--matte", "network", "--quality", "draft",
             "--out", str(tmp_path / "o.png")]
     assert main([*base, "--max-pixels", "1199"]) == 2
