@@ -60,7 +60,9 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
         light, extra_rotation = target_light(context, order, model_path)  # the World needs bpy: read here
         return dict(path=bpy.path.abspath(image.filepath), source=image.source, name=image.name,
                     folder=str(sequence.output_folder(bpy.data.filepath, image.name)), model_path=model_path,
-                    relighter=relighter, long_side=quality.preset(settings.quality).working_size, light=light,
+                    relighter=relighter, long_side=quality.preset(settings.quality).working_size,
+                    matte_method=quality.preset(settings.quality).matte_method,
+                    augment=quality.preset(settings.quality).augment, light=light,
                     rotation=math.degrees(settings.rotation) + extra_rotation, exposure=settings.exposure,
                     stability=DEFAULT_STABILITY,
                     person=int(settings.person) if settings.person.isdigit() else None)

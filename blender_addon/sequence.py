@@ -95,7 +95,8 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
     cache = light_sources.light_cache()
     coeffs = SHLight.resolve(plan["light"], relighter.sh_order, cache=cache).at(plan["rotation"], cache)
     runner = ClipRelighter(relighter, coeffs, plan["exposure"], stability=plan["stability"],
-                           working_size=plan["long_side"], person=plan.get("person"))
+                           working_size=plan["long_side"], person=plan.get("person"),
+                           matte_method=plan.get("matte_method", "ensemble"), augment=plan.get("augment", ()))
     folder = Path(plan["folder"])
     folder.mkdir(parents=True, exist_ok=True)
     writer = FrameFolderWriter(folder, fmt)

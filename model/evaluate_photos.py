@@ -161,15 +161,18 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate_photos(model_path, photos, out, *, quality: str | int = "balanced", threads: int | None = None,
-                    tile: int = TILE, sheet_name: str = "contact_sheet.png") -> list[PhotoResult]:
-    """Evaluate `model_path` on `photos` (a folder or a list of files); write the files into `out`."""
+def evaluate_photos(model_path, photos, out, *, quality: str = "balanced", working_size: int | None = None,
+                    threads: int | None = None, tile: int = TILE,
+                    sheet_name: str = "contact_sheet.png") -> list[PhotoResult]:
+    """Evaluate `model_path` on `photos` (a folder or a list of files); write the files into `out`.
+    `working_size` (px) replaces the quality preset's."""
     paths = find_photos(photos) if isinstance(photos, (str, Path)) else [Path(p) for p in photos]
     if not paths:
         raise ValueError("no photos to evaluate")
     if not isinstance(tile, int) or not 16 <= tile <= 2048:
         raise ValueError(f"tile must be an integer in [16, 2048], got {tile!r}")
-    relighter = Relighter(model_path, threads=threads, working_size=quality_presets.preset(quality).working_size)
+    size = quality_presets.preset(quality).working_size if working_size is None else working_size
+    relighter = Relighter(model_path, threads=threads, working_size=size)
     results = [evaluate_photo(relighter, p) for p in paths]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

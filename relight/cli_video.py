@@ -199,6 +199,7 @@ def _on_sigterm(handler):
 
 def run_video(args) -> int:
     """Entry point of `relight video` (argparse namespace from register())."""
+    from relight import quality
     from relight.cli_image import open_relighter, target_light
     from relight.clip import ClipRelighter
     from relight.session import cores_available
@@ -219,8 +220,10 @@ def run_video(args) -> int:
     workers = args.threads or cores_available()
     relighter = open_relighter(argparse.Namespace(**{**vars(args), "threads": 1}))
     light = target_light(args, relighter)
+    preset = quality.preset(args.quality)
     runner = ClipRelighter(relighter, light, args.exposure, matte=args.matte, person=args.person,
-                           stability=args.stability, mode=args.filter, threads=1)
+                           stability=args.stability, mode=args.filter, threads=1,
+                           matte_method=preset.matte_method, augment=preset.augment)
     if args.filter == "flow":
         from relight.clip_maps import dis_flow
 

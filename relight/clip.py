@@ -136,12 +136,16 @@ class ClipRelighter:
     "network"; person: which person (1 = the largest); stability: 0..1; mode:
     "ema" or "flow" (relight.clip_maps); threads: the segmenter's onnxruntime threads;
     light_window: frames the light is averaged over (default 1 + (LIGHT_WINDOW - 1) x stability);
-    working_size: the network's working size (default the relighter's own).
+    working_size: the network's working size (default the relighter's own);
+    matte_method, augment: the quality preset's person segmenter and network runs
+    (relight.quality.QualityPreset), so that stability 0 is `relight image` on every frame.
+    A preset's light refinement is not applied: a clip's light is the shot's (ShotLight).
     """
 
     def __init__(self, relighter, light, exposure_ev: float = 0.0, *, matte: str = "person",
                  person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
-                 threads: int | None = None, light_window: int | None = None, working_size=None):
+                 threads: int | None = None, light_window: int | None = None, working_size=None,
+                 matte_method: str = "ensemble", augment=()):
         from relight.decomposition import exposure_scale
         from relight.runtime import MATTE_SOURCES
 
@@ -152,6 +156,7 @@ class ClipRelighter:
         exposure_scale(exposure_ev)  # validates
         self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
         self.matte, self.person, self.threads, self.working_size = matte, person, threads, working_size
+        self.matte_method, self.augment = matte_method, tuple(augment)
         self.stability = float(stability)
         history = history_weight(1.0 + self.stability * (MAP_WINDOW - 1))
         self.cuts = CutDetector()
@@ -217,11 +222,12 @@ class ClipRelighter:
             return Analysis(frame, histogram, None)
         if mask is None and self.matte == "person":
             try:
-                found = person_matte(frame, self.person, threads=self.threads)
+                found = person_matte(frame, self.person, threads=self.threads, method=self.matte_method)
             except NoPersonError:
                 return Analysis(frame, histogram, None)
             mask, smooth_matte, matte_box = found.alpha, self.stability > 0, found.box
-        d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person)
+        d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person,
+                                     matte_method=self.matte_method, augment=self.augment)
         return Analysis(frame, histogram, d, smooth_matte, matte_box)
 
     def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:

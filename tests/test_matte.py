@@ -213,7 +213,10 @@ def test_cli_no_person_and_bad_choices_exit_2_and_write_nothing(tmp_path, capsys
 def test_cli_relights_only_the_person_and_keeps_the_network_matte_for_comparison(tmp_path):
     photo = EVAL_DIR / "obama_standing.jpg"
     image, _ = read_photo(photo)
-    alpha = matte.person_matte(image).alpha
+    from relight import quality
+
+    # the matte the command uses: Draft's person segmenter
+    alpha = matte.person_matte(image, method=quality.preset("draft").matte_method).alpha
     out, net = tmp_path / "person.png", tmp_path / "network.png"
     assert _run([photo, "--light", "studio", "--quality", "draft", "--out", out]) == 0
     assert _run([photo, "--light", "studio", "--quality", "draft", "--matte", "network", "--out", net]) == 0
