@@ -1,5 +1,6 @@
-"""What each quality preset costs on a photo: decomposition (network at the preset's working
-size, with a mask and with the person segmenter finding it) and one relight.
+"""What each quality preset costs on a photo: decomposition (the preset's working size,
+network runs, refinement and person segmenter; with a mask and with the segmenter finding
+the person) and one relight.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_presets.py [--size 512] [--threads 2] [--repeats 7]
 
@@ -42,9 +43,11 @@ def main(argv=None) -> int:
     runs = {}
     for preset in quality.PRESETS:
         r = Relighter(quality.model_path(preset.key), threads=args.threads, working_size=preset.working_size)
-        d = r.decompose(image, mask)
-        runs[(preset.label, "decompose, mask given")] = lambda r=r: r.decompose(image, mask)
-        runs[(preset.label, "decompose, person segmenter")] = lambda r=r: r.decompose(image, matte="person")
+        options = preset.decompose_options()
+        d = r.decompose(image, mask, **options)
+        runs[(preset.label, "decompose, mask given")] = lambda r=r, o=options: r.decompose(image, mask, **o)
+        runs[(preset.label, "decompose, person segmenter")] = \
+            lambda r=r, o=options: r.decompose(image, matte="person", **o)
         light = sh_light("sunset", d.sh_order)
         runs[(preset.label, "relight (full size)")] = lambda d=d, light=light: d.relight(light)
     for fn in runs.values():
@@ -57,13 +60,15 @@ def main(argv=None) -> int:
             times[k].append(time.perf_counter() - t0)
     print(f"# presets on a {args.size}x{args.size} photo, {args.threads} onnxruntime threads, "
           f"median of {args.repeats} (load average {os.getloadavg()[0]:.1f})\n")
-    print("| preset | model | working size | decompose, mask given (ms) | decompose, person segmenter (ms) "
-          "| relight (ms) |")
-    print("|---|---|---|---|---|---|")
+    print("| preset | model | working size | runs | refine | segmenter | decompose, mask given (ms) "
+          "| decompose, person segmenter (ms) | relight (ms) | segmenter to relit photo (ms) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for preset in quality.PRESETS:
         ms = [statistics.median(times[(preset.label, k)]) * 1e3 for k in
               ("decompose, mask given", "decompose, person segmenter", "relight (full size)")]
-        print(f"| {preset.label} | {preset.model} | {preset.working_size} | {ms[0]:.0f} | {ms[1]:.0f} | {ms[2]:.0f} |")
+        print(f"| {preset.label} | {preset.model} | {preset.working_size} | {len(preset.augment) + 1} | "
+              f"{preset.refine} | {preset.matte_method} | {ms[0]:.0f} | {ms[1]:.0f} | {ms[2]:.0f} | "
+              f"{ms[1] + ms[2]:.0f} |")
     return 0
 
 
