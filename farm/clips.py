@@ -141,6 +141,8 @@ def draw_frame(index: int, seed: int, options: SceneOptions, render_sky=None) ->
     fields = {f: getattr(base, f) for f in scene_module.SceneSample.__dataclass_fields__}
     # the drawing's timings belong to the frame that drew the scene; later frames kept it
     fields.update(parts=parts, options=options, timings=dict(base.timings) if drawn else {"clip_scene_kept": 0.0})
+    if base.body_mesh is not None:  # the unclothed body moves with the clothes
+        fields["body_mesh"] = ((base.body_mesh[0] - pivot) @ rotation.T + pivot, base.body_mesh[1])
     return ClipSample(**fields, frame_index=int(index),
                       clip={"clip": clip, "frame": frame, "frames": options.clip_frames,
                             "motion": options.motion, "angle_deg": round(angle, 6)})

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-PASS_NAMES = frozenset({"pt", "prt"})
+PASS_NAMES = frozenset({"pt", "prt", "body"})  # body: the unclothed body ray-cast (farm/body_pass.py)
 SPECULAR_MODES = ("auto", "on", "off")
 LIGHT_POOLS = ("train", "heldout")
 # OIDN prefilter of the albedo/normal guides: "fast" trusts them as rendered (they are
@@ -27,7 +27,7 @@ class SceneOptions:
     denoise_prefilter: str = "fast"
     sh_order: int = 4
     bake_directions: int = 256
-    passes: frozenset = frozenset({"pt", "prt"})
+    passes: frozenset = frozenset({"pt", "prt", "body"})
     specular: str = "auto"
     light_pool: str = "train"
 
@@ -76,6 +76,8 @@ class SceneOptions:
             channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
         if "pt" in self.passes:
             channels += 3 * self.lights  # image.LK
+        if "body" in self.passes:
+            channels += 3 + 1 + 1  # body_normal, body_alpha, body_depth
         return channels
 
     def path_traced_images(self) -> int:

@@ -96,6 +96,7 @@ class SceneSample:
     camera: object  # farm.camera.Camera
     lights: list  # farm.lights.SampledLight
     timings: dict = field(default_factory=dict)
+    body_mesh: tuple | None = None  # (vertices [V, 3] world, faces [F, 3]): the posed body without clothes
 
     @property
     def offsets(self) -> np.ndarray:
@@ -224,7 +225,7 @@ def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) ->
     return SceneSample(
         index=int(index), seed=int(seed), options=options, body=params, pose=pose, yaw_deg=yaw,
         penetration=float(penetration), penetration_pair=pair, parts=parts, look=look, camera=cam,
-        lights=scene_lights, timings=timings,
+        lights=scene_lights, timings=timings, body_mesh=(body.vertices, body.faces),
     )
 
 
@@ -367,7 +368,24 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
             path_trace_seconds.append(round(pt.seconds, 4))
         timings["path_trace"] = round(time.perf_counter() - t0, 4)
     timings["path_trace_render_calls"] = path_trace_seconds
+    if "body" in options.passes:
+        t0 = time.perf_counter()
+        channels.update(body_buffers(sample).channels())
+        timings["body_pass"] = round(time.perf_counter() - t0, 4)
     return channels, timings
+
+
+def body_buffers(sample: SceneSample):
+    """The unclothed body seen by the scene's camera (farm.body_pass.BodyBuffers)."""
+    from farm.bake import vertex_normals
+    from farm.body_pass import body_pass
+
+    if sample.body_mesh is None:
+        raise ValueError(f"scene {sample.index}: no body mesh was drawn (the body pass needs one)")
+    vertices, faces = sample.body_mesh
+    cam = sample.camera
+    normals = vertex_normals(vertices, faces) @ cam.world_to_camera.T
+    return body_pass(cam.to_camera(vertices), faces, normals, sample.options.resolution, cam.focal_mm)
 
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *, sample_fn=None) -> Path:
@@ -407,7 +425,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
         work.cleanup()
 
     asked = frozenset(options.passes)
-    skipped = [name for name in ("prt", "pt") if name not in asked]
+    skipped = [name for name in ("prt", "pt", "body") if name not in asked]
     record, versions = sample.record(), _versions()
     timings["total_before_write"] = round(time.perf_counter() - t_total, 4)
     meta = {

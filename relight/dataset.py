@@ -43,6 +43,12 @@ _GEOMETRY = {
     "material": ("R", "G", "B"),
     "depth": ("Z",),
 }
+# optional: the unclothed body under the clothes and hair, seen by the same camera (farm "body" pass)
+_BODY = {
+    "body_normal": ("X", "Y", "Z"),
+    "body_alpha": ("A",),
+    "body_depth": ("Z",),
+}
 _PER_LIGHT = ("image", "shading", "prt")
 _RGB = ("R", "G", "B")
 
@@ -69,6 +75,9 @@ class Scene:
     shading: list[np.ndarray] | None = None
     prt: list[np.ndarray] | None = None
     lights: list[dict] = field(default_factory=list)
+    body_normal: np.ndarray | None = None  # [H, W, 3] unit, camera frame; 0 where the body is not seen
+    body_alpha: np.ndarray | None = None   # [H, W, 1] coverage of the unclothed body
+    body_depth: np.ndarray | None = None   # [H, W, 1] metres along the view axis; 0 off the body
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -129,7 +138,8 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
     `channels` is grouped by pass, each [H, W, C] (or [H, W] for one plane):
     alpha (1), albedo (3), normal (3), material (3), depth (1) always;
     transport ((sh_order+1)^2) optionally; image.LK / shading.LK / prt.LK (3)
-    for lights K = 0..len(meta["lights"])-1 optionally. `meta` needs `index`,
+    for lights K = 0..len(meta["lights"])-1 optionally; body_normal (3),
+    body_alpha (1), body_depth (1) optionally, all three or none. `meta` needs `index`,
     `sh_order`, `lights`; other keys (seed, camera, body, pose, appearance,
     passes, versions, timings) are stored as given. This function fills
     `format`, `resolution`, `channels`, `exr_sha256`.
@@ -165,8 +175,15 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
         for suffix, plane in zip(suffixes, _as_planes(group, channels[group], len(suffixes), hw)):
             planes[f"{group}.{suffix}"] = plane
             hw = plane.shape
+    body = [g for g in _BODY if g in channels]
+    if body and len(body) != len(_BODY):
+        raise ValueError(f"scene body passes must come together ({', '.join(_BODY)}), got {body}")
     for name, arr in channels.items():
         if name in _GEOMETRY:
+            continue
+        if name in _BODY:
+            for suffix, plane in zip(_BODY[name], _as_planes(name, arr, len(_BODY[name]), hw)):
+                planes[f"{name}.{suffix}"] = plane
             continue
         if name == "transport":
             for cname, plane in zip(transport_channel_names(n), _as_planes(name, arr, n, hw)):
@@ -304,6 +321,8 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
         return np.stack([planes[c] for c in names], axis=-1)
 
     geometry = {g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _GEOMETRY.items()}
+    if any(c.startswith("body_") for c in planes):
+        geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _BODY.items()})
     tnames = transport_channel_names(n)
     has_transport = any(c.startswith("transport.") for c in planes)
     transport = stack(tnames) if has_transport else None

@@ -239,3 +239,21 @@ def test_crash_during_exr_write_leaves_no_scene(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         dataset.write_scene(tmp_path / "scene_000007", channels, meta)
     assert list(tmp_path.iterdir()) == []  # no EXR, no JSON, no temp files
+
+
+def test_body_passes_round_trip_and_come_together(tmp_path):
+    channels, meta = make_scene(k_lights=1)
+    body = {"body_normal": RNG.normal(size=(H, W, 3)).astype(np.float32),
+            "body_alpha": RNG.random((H, W)).astype(np.float32),
+            "body_depth": RNG.random((H, W, 1)).astype(np.float32)}
+    dataset.write_scene(tmp_path / "scene_000007", {**channels, **body}, meta)
+    s = dataset.read_scene(tmp_path / "scene_000007")
+    np.testing.assert_array_equal(s.body_normal, body["body_normal"])
+    np.testing.assert_array_equal(s.body_alpha[..., 0], body["body_alpha"])
+    np.testing.assert_array_equal(s.body_depth, body["body_depth"])
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    dataset.write_scene(plain / "scene_000007", channels, meta)
+    assert dataset.read_scene(plain / "scene_000007").body_normal is None
+    with pytest.raises(ValueError, match="body passes must come together"):
+        dataset.write_scene(plain / "scene_000007", {**channels, "body_normal": body["body_normal"]}, meta)

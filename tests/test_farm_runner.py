@@ -342,14 +342,14 @@ def test_disk_without_room_for_a_scene_stops_before_rendering(tmp_path):
     disk = tmp_path / "disk"
     disk.mkdir()
     env = farm_env(tmp_path, DISK=str(disk))
-    # A 256x256 scene at K=4, order 4 holds 11 + 25 + 3*4*3 = 72 float32 channels:
-    # 72 * 256*256*4 B = 18 MiB raw, + 1 MiB sidecar allowance = 19.0 MiB.
+    # A 256x256 scene at K=4, order 4 holds 11 + 25 + 3*4*3 + 5 (body) = 77 float32 channels:
+    # 77 * 256*256*4 B = 19.25 MiB raw, + 1 MiB sidecar allowance = 20.2 MiB.
     r = _on_small_disk("4m", f'{PYTHON} -m farm --out "$DISK/out" --scenes 2 --seed 0 '
                        f"--job-module {FAULT_JOB} --no-progress", env)
     assert r.returncode == 1
     lines = error_lines(r.stderr)
     assert len(lines) == 1 and lines[0].startswith("farm: error: output disk full: 4.0 MiB free in")
-    assert "19.0 MiB needed" in lines[0]
+    assert "20.2 MiB needed" in lines[0]
     assert events(tmp_path) == []  # no scene started
 
 

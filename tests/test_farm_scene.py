@@ -21,7 +21,7 @@ except ImportError:  # the Blender layer's tests skip; the numpy-only ones below
 
 from farm import bodies, camera, lights, poses
 from farm.scene import SceneOptions, render_scene
-from relight import dataset, presets, sh
+from relight import dataset, presets, sh, sh_projection, sh_rotation
 
 SMALL = {"resolution": 64, "lights": 2, "samples": 4, "denoise": False, "bake_directions": 64}
 needs_bpy = pytest.mark.skipif(bpy is None, reason="needs bpy (the farm extra)")
@@ -85,7 +85,7 @@ def test_scene_files_hold_every_channel_with_sane_values(scene_pair):
         assert 0.05 < mean_shade < 1.5
     meta = s.meta
     assert meta["seed"] == 11 and meta["index"] == 3
-    assert meta["passes"] == {"asked": ["prt", "pt"], "skipped": []}
+    assert meta["passes"] == {"asked": ["body", "prt", "pt"], "skipped": []}
     for key in ("body", "pose", "appearance", "camera", "lights", "versions", "timings", "geometry", "bake"):
         assert key in meta
     for light in meta["lights"]:
@@ -133,16 +133,36 @@ def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
 
 @needs_bpy
 @pytest.mark.anny
+def test_body_pass_is_the_unclothed_body_where_cycles_sees_it(scene_pair):
+    """The ray-cast body (farm/body_pass.py) against Cycles' own buffers of the dressed person:
+    the body lies inside the person's silhouette, and where Cycles' visible surface is the body
+    itself (its depth within 2 mm of the body's) the two normals are the same smooth normal, up
+    to the pixel filters (Cycles: 16 samples through a 1.5 px Blackman-Harris; the pass: 4 rays
+    through a box), which mix neighbouring normals only at silhouettes."""
+    s = dataset.read_scene(scene_pair[0])
+    alpha, body = s.alpha[..., 0], s.body_alpha[..., 0]
+    assert 0.0 < body.mean() <= alpha.mean()
+    assert np.all(alpha[body == 1.0] > 0.5)  # a pixel all body is at least half person
+    length = np.linalg.norm(s.body_normal, axis=-1)
+    assert np.allclose(length[body > 0], 1.0, atol=1e-5) and np.all(length[body == 0] == 0)
+    same = (body == 1.0) & (alpha > 0.999) & (np.abs(s.body_depth[..., 0] - s.depth[..., 0]) < 0.002)
+    assert same.sum() >= 10  # face and hands at least
+    cos = (s.body_normal[same] * s.normal[same]).sum(axis=-1)
+    assert np.median(cos) > 0.999 and np.percentile(cos, 5) > 0.99
+
+
+@needs_bpy
+@pytest.mark.anny
 def test_only_asked_passes_are_rendered(model, tmp_path):
     prt_only = render_scene(5, 1, SceneOptions(**dict(SMALL, lights=1, passes=frozenset({"prt"}))), tmp_path)
     s = dataset.read_scene(prt_only)
-    assert s.images is None and s.transport is not None
-    assert s.meta["passes"]["skipped"] == ["pt"]
+    assert s.images is None and s.transport is not None and s.body_normal is None
+    assert s.meta["passes"]["skipped"] == ["pt", "body"]
     assert "path_trace" not in s.meta["timings"]
     pt_only = render_scene(6, 1, SceneOptions(**dict(SMALL, lights=1, passes=frozenset({"pt"}))), tmp_path)
     s = dataset.read_scene(pt_only)
     assert s.transport is None and s.prt is None and len(s.images) == 1
-    assert s.meta["passes"]["skipped"] == ["prt"]
+    assert s.meta["passes"]["skipped"] == ["prt", "body"]
     assert "bake" not in s.meta["timings"]
 
 
@@ -163,8 +183,9 @@ def test_light_sh_is_rotated_scaled_and_in_camera_frame():
     rng = np.random.default_rng(0)
     cam_rows = camera.orientation(6.0, -2.0)
     light = lights.sample_light(rng, ["bridge"], 4, cam_rows)
-    raw = sh.project_equirect(light.pixels, 8)
-    expected = sh.rotate(sh.rotate(raw, sh.z_rotation(light.rotation_deg)) * light.scale, cam_rows)
+    raw = sh_projection.project_equirect(light.pixels, 8)
+    turned = sh_rotation.rotate(raw, sh_rotation.z_rotation(light.rotation_deg))
+    expected = sh_rotation.rotate(turned * light.scale, cam_rows)
     assert np.allclose(light.sh8, expected, atol=1e-9)
     assert np.allclose(light.sh, expected[:25], atol=1e-9)
 
@@ -275,7 +296,7 @@ def test_diffuse_scene_image_matches_albedo_times_shading_end_to_end(model, tmp_
         assert 0.85 < image.mean() / predicted.mean() < 1.15
         good = np.corrcoef(image, predicted)[0, 1]
         light = np.array(s.meta["lights"][k]["sh"])
-        wrong = (s.albedo * prt.shading(s.transport, sh.rotate(light, upside_down)))[inside].mean(axis=-1)
+        wrong = (s.albedo * prt.shading(s.transport, sh_rotation.rotate(light, upside_down)))[inside].mean(axis=-1)
         assert good > 0.9
         assert np.corrcoef(image, wrong)[0, 1] < good - 0.1
 
