@@ -21,7 +21,7 @@ import platform
 import numpy as np
 
 from farm.bake import fibonacci_directions
-from relight import presets, sh
+from relight import presets, sh, sh_adaptive
 from relight.light import sh_light
 from relight.prt import lambert_transport
 from timing import median_ms  # benchmarks/timing.py
@@ -71,7 +71,7 @@ def main() -> None:
     orders = []
     for name in presets.list_presets():
         c8 = sh_light(name, REF_ORDER)
-        need = sh.required_order(c8, args.fraction)
+        need = sh_adaptive.required_order(c8, args.fraction)
         orders.append(need)
         m_req, x_req = shading_errors(c8, T8, need)
         m_fix, x_fix = shading_errors(c8, T8, FIXED_ORDER)

@@ -85,11 +85,12 @@ def directions_rows(counts=DIRECTION_COUNTS, reference: int = DIRECTION_REFERENC
     surface under the 'park' map at mean luminance 0.8, over the mesh's vertices.
     """
     from farm import bake
-    from relight import presets, prt, sh
+    from relight import presets, prt, sh, sh_projection
     from relight.envmap import load_equirect
 
     v, f, n, mats, view = dressed_mesh()
-    L = sh.normalize_reference(sh.project_equirect(load_equirect(presets.preset_path("park")).pixels, 4), 0.8)[0]
+    park = load_equirect(presets.preset_path("park")).pixels
+    L = sh.normalize_reference(sh_projection.project_equirect(park, 4), 0.8)[0]
     info = (f"mesh: {len(v)} vertices; error of T.L (white surface, 'park' map at mean luminance 0.8)\n"
             f"against S = {reference}; same random rotation family, different draws")
     rows = []

@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from relight import light_map as lm
-from relight import presets, sh
-from relight.light import sh_light
+from relight import presets, sh, sh_projection
+from relight.light import directional_light, sh_light
 
 ORDER = 4
 WIDTH = 512
@@ -47,7 +47,7 @@ BAND = np.repeat(np.arange(ORDER + 1), 2 * np.arange(ORDER + 1) + 1)
 
 def evaluate(coeffs):
     """The light's SH on the map's texels (float64 [H, W, 3])."""
-    dirs, _ = sh.equirect_directions(WIDTH // 2, WIDTH)
+    dirs, _ = sh_projection.equirect_directions(WIDTH // 2, WIDTH)
     return sh.sh_basis(dirs, ORDER) @ coeffs
 
 
@@ -113,8 +113,8 @@ def light_sets(args):
         sets["held-out estimates"] = network_lights(args.data, args.model, args.quality)
     sets["extreme"] = [
         ("delta", np.outer(sh.sh_basis(np.array([0.3, -0.5, 0.8]), ORDER), [1.0, 1.0, 1.0])),
-        ("directional, no ambient", sh.directional_light(-90.0, ORDER, 20.0, 0.0)),
-        ("camera-left + ambient", sh.directional_light(-90.0, ORDER, 20.0, 0.2)),
+        ("directional, no ambient", directional_light(-90.0, ORDER, 20.0, 0.0)),
+        ("camera-left + ambient", directional_light(-90.0, ORDER, 20.0, 0.2)),
     ]
     return sets
 

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from relight import sh
+from relight import sh, sh_projection, sh_rotation
 import timing  # benchmarks/timing.py
 
 
@@ -33,14 +33,14 @@ def bench_projection(repeat: int) -> None:
     print("| order | coeffs | first call (ms) | float32 (ms) | float64 (ms) | max rel. error float32 |")
     print("|---|---|---|---|---|---|")
     for order in (2, 4, 8):
-        sh._projection_tables.cache_clear()
+        sh_projection._projection_tables.cache_clear()
         t = time.perf_counter()
-        sh.project_equirect(img, order)
+        sh_projection.project_equirect(img, order)
         first = 1e3 * (time.perf_counter() - t)
-        t32 = median_ms(lambda: sh.project_equirect(img, order), repeat)
-        t64 = median_ms(lambda: sh.project_equirect(img, order, precision="float64"), repeat)
-        c32 = sh.project_equirect(img, order)
-        c64 = sh.project_equirect(img, order, precision="float64")
+        t32 = median_ms(lambda: sh_projection.project_equirect(img, order), repeat)
+        t64 = median_ms(lambda: sh_projection.project_equirect(img, order, precision="float64"), repeat)
+        c32 = sh_projection.project_equirect(img, order)
+        c64 = sh_projection.project_equirect(img, order, precision="float64")
         err = np.abs(c32 - c64).max() / np.abs(c64).max()
         print(f"| {order} | {sh.num_coeffs(order)} | {first:.1f} | {t32:.1f} | {t64:.1f} | {err:.1e} |")
     print()
@@ -53,23 +53,23 @@ def bench_naive_baseline(repeat: int) -> None:
     img = np.random.default_rng(2).random((H, W, 3)).astype(np.float32)
 
     def naive():
-        dirs, omega = sh.equirect_directions(H, W)
+        dirs, omega = sh_projection.equirect_directions(H, W)
         basis = sh.sh_basis(dirs, order)  # [H, W, n] float64
         return np.einsum("hwk,hwc,h->kc", basis, np.maximum(img, 0), omega, optimize=True)
 
     def batched_matmul():
         # separable too, but channel-major copy + numpy's batched 3D matmul
         # (a loop of H small GEMMs): the previous implementation
-        azimuth, rows = sh._projection_tables(H, W, order)
+        azimuth, rows = sh_projection._projection_tables(H, W, order)
         rgb = np.ascontiguousarray(np.maximum(img, 0).transpose(0, 2, 1))
         per_row = np.matmul(rgb, azimuth.astype(np.float32))
         return np.einsum("hka,hca->kc", rows, per_row.astype(np.float64))
 
     t_naive = median_ms(naive, max(3, repeat // 3))
     t_batched = median_ms(batched_matmul, repeat)
-    t_fast = median_ms(lambda: sh.project_equirect(img, order), repeat)
+    t_fast = median_ms(lambda: sh_projection.project_equirect(img, order), repeat)
     reference = naive()
-    err = np.abs(reference - sh.project_equirect(img, order)).max() / np.abs(reference).max()
+    err = np.abs(reference - sh_projection.project_equirect(img, order)).max() / np.abs(reference).max()
     err_b = np.abs(reference - batched_matmul()).max() / np.abs(reference).max()
     print(f"### Projection methods compared ({W}x{H}, order {order}, one run)\n")
     print("| method | time (ms) | speed-up | max rel. difference to per-texel |")
@@ -96,9 +96,9 @@ def bench_rotation(repeat: int) -> None:
     print("|---|---|---|---|---|")
     for order in (2, 4, 8):
         c = rng.normal(size=(sh.num_coeffs(order), 3))
-        one = median_ms(lambda: sh.rotation_matrix(Rs[0], order), repeat * 10)
-        rot = median_ms(lambda: sh.rotate(c, Rs[0]), repeat * 10)
-        batch = median_ms(lambda: sh.rotation_matrix(Rs, order), max(3, repeat // 5))
+        one = median_ms(lambda: sh_rotation.rotation_matrix(Rs[0], order), repeat * 10)
+        rot = median_ms(lambda: sh_rotation.rotate(c, Rs[0]), repeat * 10)
+        batch = median_ms(lambda: sh_rotation.rotation_matrix(Rs, order), max(3, repeat // 5))
         print(f"| {order} | {one:.3f} | {rot:.3f} | {batch:.0f} | {1e3 * batch / len(Rs):.1f} |")
     print()
 

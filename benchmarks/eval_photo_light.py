@@ -46,15 +46,15 @@ MAP_WIDTH = 512
 
 def true_map(light: dict, world_to_camera, width: int = MAP_WIDTH) -> np.ndarray:
     """The farm light `light` (sidecar record) as an equirect map in the photo-camera frame."""
-    from relight import presets, sh
+    from relight import presets, sh_projection, sh_rotation
     from relight.envmap import load_equirect
 
     source = load_equirect(presets.preset_path(light["name"])).pixels.astype(np.float64)
     sh_, sw = source.shape[:2]
-    dirs, _ = sh.equirect_directions(width // 2, width)
+    dirs, _ = sh_projection.equirect_directions(width // 2, width)
     # camera -> world (world_to_camera is a rotation), then undo the light's turn about Z
     world = dirs @ np.asarray(world_to_camera, np.float64)
-    in_map = world @ sh.z_rotation(float(light["rotation_deg"]))  # R_z(rot)^T d as a row vector
+    in_map = world @ sh_rotation.z_rotation(float(light["rotation_deg"]))  # R_z(rot)^T d as a row vector
     x, y, z = in_map[..., 0], in_map[..., 1], np.clip(in_map[..., 2], -1.0, 1.0)
     u = 0.5 - np.arctan2(y, x) / (2 * math.pi)
     v = 0.5 + np.arcsin(z) / math.pi
@@ -161,7 +161,7 @@ def psnr(image, reference, mask) -> float:
 
 
 def evaluate(data: Path, model: str, quality: str, size: int, samples: int, limit: int | None) -> list[dict]:
-    from relight import dataset, sh
+    from relight import dataset, sh, sh_projection
     from relight.light_map import irradiance_error, light_map
     from relight.quality import preset
     from relight.runtime import Relighter
@@ -178,7 +178,7 @@ def evaluate(data: Path, model: str, quality: str, size: int, samples: int, limi
                 light = scene.lights[k]
                 estimated = relighter.decompose(photo, alpha).light.astype(np.float64)
                 truth = true_map(light, w2c)
-                check = sh.project_equirect(truth, 8, precision="float64")
+                check = sh_projection.project_equirect(truth, 8, precision="float64")
                 resample_error = float(np.linalg.norm(check - light["sh8"]) / np.linalg.norm(light["sh8"]))
                 est_map = light_map(estimated, MAP_WIDTH)
                 level = sh.mean_luminance(estimated)

@@ -27,7 +27,7 @@ BAKE_SAMPLES = 16  # the camera sees the world directly: samples only anti-alias
 @dataclass
 class WorldLight:
     equirect: np.ndarray   # [H, W, 3] linear radiance, Blender's equirect mapping
-    rotation_deg: float    # extra rotation of the light about +Z (relight.sh.z_rotation)
+    rotation_deg: float    # extra rotation of the light about +Z (relight.sh_rotation.z_rotation)
     source: str            # "environment texture 'name'" or "baked procedural world"
     image_path: str | None = None  # the file on disk behind an environment texture
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight import presets, sh
+from relight import presets, sh, sh_rotation
 from relight.envmap import load_equirect, validate_equirect
 from relight.light import SHLight
 
@@ -104,7 +104,7 @@ def sample_light(
         source = "blender" if name.startswith(presets.BLENDER_PREFIX) else "bundled"
     # the map recipe (relight.light): project at order max(N, 8), rotate about Z, normalize
     coeffs, scale = SHLight.resolve(pixels, max(order, 8), target=target).turned(rotation)
-    coeffs = sh.rotate(coeffs, world_to_camera)
+    coeffs = sh_rotation.rotate(coeffs, world_to_camera)
     return SampledLight(
         name=name,
         source=source,

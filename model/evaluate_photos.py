@@ -31,11 +31,11 @@ from relight.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
 from relight.sheet import contact_sheet as _contact_sheet
 from relight.sheet import write_sheet
 from relight.fileio import atomic_write_text
-from relight.light import sh_light
+from relight.light import directional_light, sh_light
 from relight import quality as quality_presets
 from relight.runtime import Relighter
 
-# a directional light turned about the person (relight.sh.directional_light): a viewer
+# a directional light turned about the person (relight.light.directional_light): a viewer
 # should see it move across the body; then a training preset (not relight.presets.HELD_OUT),
 # what a user would pick, at two rotations
 SHEET_DIRECTIONS = (0.0, 90.0, 180.0, 270.0)
@@ -99,7 +99,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
     tiles = [image, albedo]
     working = {}
     for azimuth in SHEET_DIRECTIONS:
-        light = sh.directional_light(azimuth, dec.sh_order)
+        light = directional_light(azimuth, dec.sh_order)
         tiles.append(dec.relight(light))
         working[azimuth] = dec.relight_working(light)
     motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
@@ -149,7 +149,7 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
                      f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
     lines += ["", "Light motion: model.metrics.spatial_change of the relit person (working resolution, "
               "weighted by the matte) between a directional light at 0 and at 180 degrees "
-              "(relight.sh.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
+              "(relight.light.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
               "same number for ground-truth renders of held-out scenes.", "",
               "Colour cast: model.metrics.colour_cast_deg, the angle between the person's mean colour "
               "relit under the four white directional lights and in the photo (0: colours kept up to "

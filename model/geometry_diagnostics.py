@@ -26,14 +26,14 @@ def transport_visibility(transport: np.ndarray) -> np.ndarray:
     return np.clip(transport[0] / UNOCCLUDED_DC, 0.0, 1.0)
 
 
-MOTION_AZIMUTHS = (0.0, 180.0)  # a directional light turned half way round (relight.sh.directional_light)
+MOTION_AZIMUTHS = (0.0, 180.0)  # a directional light turned half way round (relight.light.directional_light)
 
 
 def light_motion(albedo: np.ndarray, transport: np.ndarray, residual: np.ndarray | None, weight: np.ndarray,
                  order: int) -> float:
     """metrics.spatial_change of albedo * (T . L) + E . L between a directional light at
     MOTION_AZIMUTHS[0] and [1]: how visibly a turned light moves over the person."""
-    from relight.sh import directional_light
+    from relight.light import directional_light
 
     imgs = []
     for az in MOTION_AZIMUTHS:
@@ -144,6 +144,6 @@ def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
     lines += ["", f"Parametric ceiling: the lobe of the true normal and visibility reproduces the baked T "
                   f"to a relative L2 error of {ceiling:.3f}.",
               "Light motion: model.metrics.spatial_change of the person relit by a directional light "
-              "(relight.sh.directional_light) at 0 and at 180 degrees, after per-channel gains; in brackets "
+              "(relight.light.directional_light) at 0 and at 180 degrees, after per-channel gains; in brackets "
               "the same for the ground truth, albedo * (T . L) from the farm's buffers."]
     return "\n".join(lines) + "\n"

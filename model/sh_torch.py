@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from relight import sh as sh_np
+from relight import sh_rotation
 from relight.colour import LUMINANCE_WEIGHTS, SRGB_GAMMA, SRGB_LINEAR_KNEE, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
 
 
@@ -41,8 +41,8 @@ def shading_tstar(tstar: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
 
 def rotation_matrix(R: np.ndarray, order: int, dtype=torch.float32,
                     device: torch.device | str = "cpu") -> torch.Tensor:
-    """relight.sh.rotation_matrix as a tensor [n, n]; rotate with rotate_light."""
-    return torch.as_tensor(sh_np.rotation_matrix(R, order), dtype=dtype, device=device)
+    """relight.sh_rotation.rotation_matrix as a tensor [n, n]; rotate with rotate_light."""
+    return torch.as_tensor(sh_rotation.rotation_matrix(R, order), dtype=dtype, device=device)
 
 
 def rotate_light(light: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,8 @@ farm's lights, the training bank, `relight sh`, `relight image` and the add-on a
 through SHLight for it. SH coefficients and another photo's light are light already:
 they are only fitted to the order and rotated. `map_file` is the one "file or preset?"
 decision. A caller that turns lights again and again (the add-on's dials) passes a
-`LightCache`.
+`LightCache`. `directional_light` makes a white sun plus ambient as SH (the light the
+evaluations turn about the person, and many tests').
 """
 
 from __future__ import annotations
@@ -32,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from relight import sh
+from relight import sh, sh_projection, sh_rotation
 
-__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "fit_order", "map_file", "sh_light"]
+__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "directional_light", "fit_order", "map_file", "sh_light"]
 
 REFERENCE_LUMINANCE = 0.8  # mean luminance a map is scaled to (docs/conventions.md, exposure)
 
@@ -101,7 +102,7 @@ def _rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> n
         return np.array(c, dtype=np.float64)
     order = sh.order_from_num_coeffs(c.shape[0])
     M = _cached(cache, ("rot", rotation_deg, order),
-                lambda: sh.rotation_matrix(sh.z_rotation(rotation_deg), order))
+                lambda: sh_rotation.rotation_matrix(sh_rotation.z_rotation(rotation_deg), order))
     return M @ c
 
 
@@ -173,11 +174,12 @@ class SHLight:
             return cls(fit_order(source.base, n), source.target)
         if isinstance(source, (str, os.PathLike)):
             path = map_file(source)
-            base = _cached(cache, ("map", _file_key(path), order), lambda: sh.project_equirect(_pixels(path), order))
+            base = _cached(cache, ("map", _file_key(path), order),
+                           lambda: sh_projection.project_equirect(_pixels(path), order))
         elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
             return cls(fit_order(source.light, n))
         elif isinstance(source, EnvMap):
-            base = sh.project_equirect(source.pixels, order)
+            base = sh_projection.project_equirect(source.pixels, order)
         else:
             arr = np.asarray(source)
             if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
@@ -185,7 +187,7 @@ class SHLight:
                                  f"Decomposition, got {type(source).__name__}")
             if arr.ndim != 3:  # SH coefficients
                 return cls(fit_order(arr.astype(np.float64), n))
-            base = sh.project_equirect(_pixels(arr), order)
+            base = sh_projection.project_equirect(_pixels(arr), order)
         if goal is not None:
             sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
         return cls(base, goal)
@@ -198,3 +200,28 @@ def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool =
     recipe (project, rotate, scale to `target` unless normalize=False)."""
     rotation_deg = _check_rotation(rotation_deg)
     return SHLight.resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)
+
+
+def directional_light(azimuth_deg: float, order: int, elevation_deg: float = 30.0,
+                      ambient: float = 0.2, target: float = REFERENCE_LUMINANCE) -> np.ndarray:
+    """A white directional light plus a constant ambient term, as SH [n, 3] at mean luminance `target`.
+
+    Azimuth 0 lights the person from the camera's side (the light sits toward -Y
+    from the person, docs/conventions.md); positive azimuth turns it about world Z
+    like sh_rotation.z_rotation. `ambient` is the constant part's share of the irradiance a
+    surface facing the light gets, so the far side is not pure black. A direct
+    light's SH is its delta, Y_lm(d), truncated at `order`; the ambient term
+    lives in Y_00 only.
+    """
+    if not (math.isfinite(azimuth_deg) and math.isfinite(elevation_deg) and 0.0 <= ambient < 1.0):
+        raise ValueError("directional_light: azimuth and elevation must be finite, ambient in [0, 1)")
+    e = math.radians(elevation_deg)
+    direction = sh_rotation.z_rotation(azimuth_deg) @ np.array([0.0, -math.cos(e), math.sin(e)])
+    delta = sh.sh_basis(direction, order)  # SH of a delta of integral 1 at `direction`
+    # a delta of integral 1 gives a facing surface irradiance 1; a constant radiance c
+    # gives irradiance pi * c: choose c so the ambient share of a facing surface is `ambient`
+    c = ambient / (1.0 - ambient) / math.pi
+    coeffs = np.zeros((sh.num_coeffs(order), 3))
+    coeffs += delta[:, None]
+    coeffs[0] += 2.0 * math.sqrt(math.pi) * c
+    return sh.normalize_reference(coeffs, target)[0]

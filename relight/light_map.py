@@ -5,7 +5,7 @@ rings and goes negative; a World texel cannot. The map is
 
     f(w) = max(0, sum_lm c_lm Y_lm(w))
 
-at the texel centres of Blender's mapping (relight.sh.equirect_directions):
+at the texel centres of Blender's mapping (relight.sh_projection.equirect_directions):
 the light's own SH (c = L) when that is >= 0 at every texel; otherwise the
 clamp of the coefficients c that minimise the convex
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight import sh
+from relight import sh, sh_projection
 
 __all__ = ["LightMap", "light_map", "irradiance_error", "check_width", "DEFAULT_WIDTH", "MAX_WIDTH",
            "REGULARISATION"]
@@ -80,7 +80,7 @@ def check_width(width) -> int:
 @functools.lru_cache(maxsize=6)
 def _grid(height: int, order: int):
     """SH basis [H*2H, n] at the texel centres of a 2H x H map and each texel's solid angle [H*2H]."""
-    dirs, solid_angle = sh.equirect_directions(height, 2 * height)
+    dirs, solid_angle = sh_projection.equirect_directions(height, 2 * height)
     basis = sh.sh_basis(dirs, order).reshape(-1, sh.num_coeffs(order))
     omega = np.repeat(solid_angle, 2 * height)
     basis.flags.writeable = omega.flags.writeable = False
@@ -93,7 +93,7 @@ def _evaluate(coeffs: np.ndarray, height: int):
     order = sh.order_from_num_coeffs(coeffs.shape[0])
     if height <= TABLE_HEIGHT:
         return (_grid(height, order)[0] @ coeffs).reshape(height, width, 3)
-    dirs, _ = sh.equirect_directions(height, width)
+    dirs, _ = sh_projection.equirect_directions(height, width)
     out = np.empty((height, width, 3))
     for r0 in range(0, height, STRIP_ROWS):
         out[r0:r0 + STRIP_ROWS] = sh.sh_basis(dirs[r0:r0 + STRIP_ROWS], order) @ coeffs
@@ -187,7 +187,7 @@ def irradiance_error(coeffs, pixels) -> float:
     Parseval, f the map's SH up to IRRADIANCE_ORDER. 0 for a black light and black map."""
     L = sh.validate_coeffs(coeffs, "light")
     order = max(IRRADIANCE_ORDER, sh.order_from_num_coeffs(L.shape[0]))
-    f = sh.project_equirect(pixels, order, precision="float64")
+    f = sh_projection.project_equirect(pixels, order, precision="float64")
     padded = np.zeros_like(f)
     padded[:L.shape[0]] = L
     A = sh.clamped_cosine_coeffs(order)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from blender_addon import engine, jobs, light_sources, manifest, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality, work
-from relight import sh
+from relight import sh, sh_projection
 from relight.exr import write_exr
 from relight.light import sh_light
 
@@ -89,7 +89,7 @@ def test_hdr_file_light_accepts_an_exr_and_rejects_bad_files(tmp_path):
     good = tmp_path / "env.exr"
     write_exr(good, {c: env[..., i] for i, c in enumerate("RGB")})
     resolved = light_sources.hdr_file_light(str(good), 4)
-    np.testing.assert_array_equal(resolved.base, sh.project_equirect(env, 4))  # projected once, here
+    np.testing.assert_array_equal(resolved.base, sh_projection.project_equirect(env, 4))  # projected once, here
     assert resolved.target == 0.8 and sh.mean_luminance(resolved.at(30.0)) == pytest.approx(0.8, rel=1e-12)
     with pytest.raises(ValueError, match="Choose an HDR file"):
         light_sources.hdr_file_light("", 4)
@@ -115,7 +115,7 @@ def test_world_pixels_are_scaled_like_hdr_files():
     coeffs = light_sources.equirect_light(env, 4).at(0.0)
     # the runtime scales maps to mean luminance 0.8 (docs/conventions.md)
     assert sh.mean_luminance(coeffs) == pytest.approx(0.8, rel=1e-9)
-    raw = sh.project_equirect(env, 4)
+    raw = sh_projection.project_equirect(env, 4)
     # same direction in coefficient space: only a scale differs
     scale = coeffs[0, 0] / raw[0, 0]
     np.testing.assert_allclose(coeffs, raw * scale, rtol=1e-9, atol=1e-12)

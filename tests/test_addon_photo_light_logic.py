@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from blender_addon import photo_light
-from relight import sh
+from relight.light import directional_light
 from relight.exr import read_exr
 from relight.light_map import light_map
 
@@ -51,7 +51,7 @@ def test_focal_length_comes_from_exif_when_the_photo_says_it(tmp_path):
 
 
 def test_the_map_file_is_the_light_map_written_losslessly(tmp_path):
-    light = sh.directional_light(30.0, 4)
+    light = directional_light(30.0, 4)
     result = photo_light.write_light_map(light, str(tmp_path / "light.exr"), width=64)
     planes = read_exr(tmp_path / "light.exr")
     np.testing.assert_array_equal(np.stack([planes[c] for c in "RGB"], -1), light_map(light, 64).pixels)

@@ -19,6 +19,7 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, bl_photo_world, photo_light, state
 from relight import exr, sh
+from relight.light import directional_light
 from relight.light_map import light_map
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
@@ -158,7 +159,7 @@ def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
 
     # a new Relight, a new light: pressing again updates the same World and replaces its map
     world = bpy.context.scene.world
-    _session(name).decomposition.light = sh.directional_light(-90.0, 4)  # as a relight with another estimate
+    _session(name).decomposition.light = directional_light(-90.0, 4)  # as a relight with another estimate
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert bpy.context.scene.world == world and len(bpy.data.worlds) == 1
     check_world(name)
@@ -173,7 +174,7 @@ def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
     lights = {
         "all energy in one direction": np.outer(sh.sh_basis(direction, 4), [1.0, 1.0, 1.0]),
         "black": np.zeros((25, 3)),
-        "very bright": 1e30 * sh.directional_light(-90.0, 4),
+        "very bright": 1e30 * directional_light(-90.0, 4),
     }
     for what, light in lights.items():
         _session(name).decomposition.light = light
@@ -235,7 +236,7 @@ def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(ad
     name = _relit(model, addon)
     # a light from behind the object (+Y), 35 degrees up, little ambient: the shadow falls toward
     # the camera, on the floor in front of the object
-    _session(name).decomposition.light = sh.directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
+    _session(name).decomposition.light = directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
     scene = bpy.context.scene
     camera = scene.camera.data

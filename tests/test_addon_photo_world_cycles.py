@@ -25,7 +25,8 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, state
 from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
-from relight import prt, sh
+from relight import prt, sh, sh_projection, sh_rotation
+from relight.light import directional_light
 from relight.light_map import irradiance_error
 from test_addon_blender import make_tiny_model, write_person_png
 
@@ -36,7 +37,7 @@ SAMPLES = 256
 
 
 def camera_left_light():
-    return sh.directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
+    return directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +90,7 @@ def test_sphere_under_the_world_matches_the_runtimes_sh_irradiance(renders):
     error = relative_rms(mean, runtime)
     noise_rms = float(np.sqrt(np.mean(noise ** 2)) / np.sqrt(np.mean(runtime ** 2)))
     # the map's own irradiance, to order 16 (A_16 / A_0 < 0.002): what Cycles integrates
-    own = predict(n, sh.project_equirect(renders["map"], 16, precision="float64"))
+    own = predict(n, sh_projection.project_equirect(renders["map"], 16, precision="float64"))
     print(f"relative RMS vs the runtime's SH: {error:.4f} (map irradiance error {map_error:.4f}, "
           f"noise {noise_rms:.4f}); vs the map's own irradiance {relative_rms(mean, own):.4f}")
     assert error < 0.03  # the goal
@@ -107,5 +108,5 @@ def test_a_light_from_camera_left_lights_the_spheres_camera_left_side(renders):
     # (turned 90) is far off
     L = camera_left_light()
     mean = 0.5 * (renders["r0"] + renders["r1"])
-    assert relative_rms(mean, predict(n, sh.rotate(L, sh.z_rotation(180.0)))) > 0.3
-    assert relative_rms(mean, predict(n, sh.rotate(L, sh.z_rotation(90.0)))) > 0.15
+    assert relative_rms(mean, predict(n, sh_rotation.rotate(L, sh_rotation.z_rotation(180.0)))) > 0.3
+    assert relative_rms(mean, predict(n, sh_rotation.rotate(L, sh_rotation.z_rotation(90.0)))) > 0.15

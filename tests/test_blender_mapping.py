@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
-from relight import envmap, exr, presets, prt, sh
+from relight import envmap, exr, presets, prt, sh_projection, sh_rotation
 
 ALBEDO = 0.5
 ORDER = 8
@@ -79,11 +79,11 @@ def test_sphere_matches_sh_prediction(renders):
     mean = 0.5 * (renders["r0"] + renders["r1"])
     # (r0 - r1) / 2 has the same distribution as the noise of the mean
     noise = 0.5 * (renders["r0"] - renders["r1"])
-    L = sh.project_equirect(light_map, ORDER, precision="float64")
+    L = sh_projection.project_equirect(light_map, ORDER, precision="float64")
     pred = predict(n, L)
 
     # truncation: order-8 SH shading vs direct quadrature over every texel
-    dirs, omega = sh.equirect_directions(*light_map.shape[:2])
+    dirs, omega = sh_projection.equirect_directions(*light_map.shape[:2])
     texel_power = (light_map * omega[:, None, None]).reshape(-1, 3)
     direct = ALBEDO * np.maximum(n @ dirs.reshape(-1, 3).T, 0) @ texel_power / np.pi
     truncation = np.abs(pred - direct)
@@ -106,13 +106,13 @@ def test_sphere_matches_sh_prediction(renders):
 
     # the test has teeth: wrong mappings fail it by a wide margin
     for degrees in (90.0, -90.0, 180.0, 5.0):
-        turned = predict(n, sh.rotate(L, sh.z_rotation(degrees)))
+        turned = predict(n, sh_rotation.rotate(L, sh_rotation.z_rotation(degrees)))
         assert np.abs(mean - turned).mean() > 1.5 * budget, degrees
     mirrored = L.copy()  # u = 0.5 + phi / 2pi instead: y -> -y flips every m < 0
     for l in range(ORDER + 1):
         mirrored[l * l : l * l + l] *= -1
     assert np.abs(mean - predict(n, mirrored)).mean() > 10 * budget
-    upside_down = sh.rotate(L, np.diag([1.0, -1.0, -1.0]))  # v flipped and u mirrored
+    upside_down = sh_rotation.rotate(L, np.diag([1.0, -1.0, -1.0]))  # v flipped and u mirrored
     assert np.abs(mean - predict(n, upside_down)).mean() > 10 * budget
 
 

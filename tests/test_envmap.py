@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from relight import envmap, exr, light, presets, sh
+from relight import envmap, exr, light, presets, sh, sh_projection, sh_rotation
 
 RNG = np.random.default_rng(11)
 
@@ -156,9 +156,9 @@ def test_light_sources_agree(tmp_path):
     np.testing.assert_array_equal(by_name, by_path)
     np.testing.assert_array_equal(by_name, by_env)
     np.testing.assert_array_equal(by_name, by_pixels)
-    np.testing.assert_array_equal(by_name, sh.project_equirect(envmap.load_equirect(path).pixels, 4))
+    np.testing.assert_array_equal(by_name, sh_projection.project_equirect(envmap.load_equirect(path).pixels, 4))
     rotated = light.sh_light("venice", 4, rotation_deg=45.0, target=0.7)
-    expected, _ = sh.normalize_reference(sh.rotate(by_name, sh.z_rotation(45.0)), 0.7)
+    expected, _ = sh.normalize_reference(sh_rotation.rotate(by_name, sh_rotation.z_rotation(45.0)), 0.7)
     np.testing.assert_array_equal(rotated, expected)  # the recipe: project, rotate about Z, normalize
     with pytest.raises(ValueError, match="neither a file nor a preset"):
         light.sh_light("no-such-light", 4)
@@ -177,7 +177,7 @@ def test_bundled_presets():
         env = envmap.load_equirect(presets.preset_path(name))
         assert env.shape == (256, 512)
         # real light: positive mean, and DWAB ringing only touches a few texels
-        assert sh.mean_luminance(sh.project_equirect(env.pixels, 0)) > 0.01
+        assert sh.mean_luminance(sh_projection.project_equirect(env.pixels, 0)) > 0.01
         assert env.negatives_clamped < 0.02 * env.pixels.size
     assert (presets.HDRI_DIR / "LICENSE.md").read_text().count("CC0-1.0") >= 1
 

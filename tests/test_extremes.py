@@ -21,7 +21,7 @@ from export.fp16 import export_fp16
 from export.onnx_export import export_onnx, onnx_outputs
 from export.random_model import export_random_model, random_relightnet
 from farm.bake import fibonacci_directions
-from relight import envmap, presets, sh
+from relight import envmap, presets, sh, sh_projection
 from relight.prt import lambert_transport
 from relight.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
 from relight.light import sh_light
@@ -54,7 +54,7 @@ def _sphere_values(coeffs: np.ndarray, dirs: np.ndarray, order: int) -> np.ndarr
 
 
 def test_sun_light_rings_negative_but_stays_finite():
-    c8 = sh.project_equirect(_sun_map(), 8, precision="float64")
+    c8 = sh_projection.project_equirect(_sun_map(), 8, precision="float64")
     assert np.all(np.isfinite(c8))
     dirs = fibonacci_directions(20_000)
     radiance = _sphere_values(c8, dirs, 8)[:, 0]
@@ -91,7 +91,7 @@ def test_sun_light_through_the_runtime_is_finite(relighter):
     mask = np.zeros((h, w), np.float32)
     mask[3:20, 4:16] = 1.0
     d = relighter.decompose(photo, mask)
-    c8 = sh.project_equirect(_sun_map(), 8, precision="float64")
+    c8 = sh_projection.project_equirect(_sun_map(), 8, precision="float64")
     out = d.relight(c8)  # order 8 truncated to the model's 4
     assert np.all(np.isfinite(out))
     np.testing.assert_array_equal(out[mask == 0], photo[mask == 0])
@@ -136,7 +136,7 @@ def test_sun_light_relit_image_is_finite_and_non_negative(kind):
     #   0 <= out <= max(photo.max(), upper), upper = the working-resolution person's
     #   max without detail transfer (bilinear weights: a convex combination), and
     #   DETAIL_MAX * (photo.max() + eps) with it
-    c = sh.project_equirect(_sun_map(), ORDER, precision="float64")
+    c = sh_projection.project_equirect(_sun_map(), ORDER, precision="float64")
     if kind is not None:
         c = sh.apply_window(c, kind)
     for mask in (True, False):
@@ -192,7 +192,7 @@ def test_bundled_maps_clamp_negative_texels_and_stay_finite():
         env = envmap.load_equirect(presets.preset_path(name))
         assert np.all(np.isfinite(env.pixels)) and env.pixels.min() >= 0.0
         counts[name] = env.negatives_clamped
-        c = sh.project_equirect(env.pixels, 8)
+        c = sh_projection.project_equirect(env.pixels, 8)
         assert np.all(np.isfinite(c))
     # the resampled maps really had negative texels (beside the sun): the clamp ran
     assert sum(counts.values()) > 0, counts

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fuzz_support import accepted_share, fuzz_settings, new_case, run_case
-from relight import envmap, light, sh
+from relight import envmap, light, sh, sh_projection
 
 F32_MAX = float(np.finfo(np.float32).max)
 
@@ -45,7 +45,7 @@ def maps(draw):
 def test_fuzz_projection():
     # maps() makes NaN, Inf, odd shapes and overflowing dtypes on purpose, with no branch
     # valid by construction: the floor is "some accepted"
-    with accepted_share("sh.project_equirect", 0.0):
+    with accepted_share("sh_projection.project_equirect", 0.0):
         projection_case()
 
 
@@ -53,7 +53,8 @@ def test_fuzz_projection():
 @fuzz_settings()
 def projection_case(img, order, precision):
     new_case("test_fuzz_projection")
-    coeffs = run_case("sh.project_equirect", lambda: sh.project_equirect(img, order, precision=precision))
+    coeffs = run_case("sh_projection.project_equirect",
+                      lambda: sh_projection.project_equirect(img, order, precision=precision))
     if coeffs is None:
         return
     assert coeffs.shape == ((order + 1) ** 2, 3) and coeffs.dtype == np.float64
@@ -61,7 +62,7 @@ def projection_case(img, order, precision):
     # against float64 throughout: a float32 sum of W terms errs by at most ~W * 2^-24 of the
     # sum of |terms|, and rounding a texel to float32 by 2^-24 of it or half the smallest
     # subnormal (7e-46); both weighted by at most 4 pi max|Y|, max|Y| <= sqrt((2N+1) / (4 pi))
-    exact = sh.project_equirect(img, order, precision="float64")
+    exact = sh_projection.project_equirect(img, order, precision="float64")
     largest = float(np.max(np.maximum(np.asarray(img[..., :3], dtype=np.float64), 0)))
     weight = 4 * np.pi * math.sqrt((2 * order + 1) / (4 * np.pi))
     np.testing.assert_allclose(coeffs, exact, rtol=0, atol=weight * (1e-5 * largest + 7e-46) + 1e-300)
@@ -86,7 +87,7 @@ def map_light_case(img, order, rotation, normalize, target):
     if normalize:  # scaled to the target mean luminance, whatever the map's level
         np.testing.assert_allclose(sh.mean_luminance(coeffs), target, rtol=1e-9)
     else:  # a rotation about Z keeps each band's energy
-        base = sh.project_equirect(envmap.validate_equirect(img).pixels, order)
+        base = sh_projection.project_equirect(envmap.validate_equirect(img).pixels, order)
         for l in range(order + 1):
             band = slice(l * l, (l + 1) * (l + 1))
             np.testing.assert_allclose(np.linalg.norm(coeffs[band], axis=0), np.linalg.norm(base[band], axis=0),

@@ -19,7 +19,7 @@ from PIL import Image
 
 from export.random_model import export_random_model
 from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform_rle_hdr
-from relight import envmap, image_limits, photo, sh
+from relight import envmap, image_limits, photo, sh_projection
 from relight.cli import main
 from relight.colour import srgb_encode
 from relight.models import write_sidecar
@@ -135,7 +135,7 @@ def test_sh_of_maps_near_float32_max_is_finite_and_exact(tmp_path, capsys):
         assert main(["sh", str(path), "--order", "2", "--json"]) == 0
         coeffs = np.array(json.loads(capsys.readouterr().out)["coeffs"])
         assert np.all(np.isfinite(coeffs))
-        reference = sh.project_equirect(envmap.load_equirect(path).pixels, 2, precision="float64")
+        reference = sh_projection.project_equirect(envmap.load_equirect(path).pixels, 2, precision="float64")
         np.testing.assert_allclose(coeffs, reference, rtol=1e-8, atol=1e-12 * np.abs(reference).max())
     # a uniform map of value v: L00 = v * integral of Y00 = v * 4 pi / (2 sqrt(pi)) = 2 sqrt(pi) v
     main(["sh", str(exr_map), "--order", "0", "--json"])

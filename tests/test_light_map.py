@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from relight import sh
+from relight import sh, sh_projection
+from relight.light import directional_light
 from relight.exr import read_exr
 from relight.light_map import (FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error,
                                light_map)
@@ -28,12 +29,12 @@ def delta(direction, rgb=(1.0, 1.0, 1.0)):
 
 def camera_left_light():
     """A white light from camera-left (-X), 20 degrees up, a fifth of the irradiance ambient."""
-    return sh.directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
+    return directional_light(-90.0, ORDER, elevation_deg=20.0, ambient=0.2)
 
 
 def texel_of(pixels, direction):
     """(row, col) of the texel whose centre is nearest `direction` in Blender's mapping."""
-    dirs, _ = sh.equirect_directions(*pixels.shape[:2])
+    dirs, _ = sh_projection.equirect_directions(*pixels.shape[:2])
     return np.unravel_index(np.argmax(dirs @ np.asarray(direction, float)), pixels.shape[:2])
 
 
@@ -43,7 +44,7 @@ def test_a_light_that_is_non_negative_is_its_own_sh():
     L[1:4] = [[0.2, 0.1, 0.0]] * 3  # ... with a gentle gradient: >= 0 everywhere
     m = light_map(L, 64)
     assert not m.fitted and m.pixels.shape == (32, 64, 3) and m.pixels.dtype == np.float32
-    dirs, _ = sh.equirect_directions(32, 64)
+    dirs, _ = sh_projection.equirect_directions(32, 64)
     np.testing.assert_allclose(m.pixels, sh.sh_basis(dirs, ORDER) @ L, rtol=1e-6)
     # what is left is the midpoint rule's error on 32 rows: h^2 / 24 * l(l+1) <= 8e-4 for band 1,
     # h = pi / 32
@@ -64,7 +65,7 @@ def test_extreme_lights_give_a_finite_non_negative_map_close_in_irradiance(name,
     assert m.fitted  # each of these rings below 0 as plain SH
     assert np.all(np.isfinite(m.pixels)) and m.pixels.min() >= 0.0
     assert irradiance_error(light, m.pixels) < bound
-    dirs, _ = sh.equirect_directions(*m.pixels.shape[:2])
+    dirs, _ = sh_projection.equirect_directions(*m.pixels.shape[:2])
     assert (sh.sh_basis(dirs, ORDER) @ light).min() < 0  # so windowing was needed
 
 
@@ -80,7 +81,7 @@ def test_the_fit_matches_the_irradiance_coefficients_up_to_the_regularisation():
     # tolerance plus float32 texels (~1e-7)
     L = camera_left_light()
     m = light_map(L, 2 * FIT_HEIGHT)
-    f = sh.project_equirect(m.pixels, ORDER, precision="float64")
+    f = sh_projection.project_equirect(m.pixels, ORDER, precision="float64")
     keep, _ = _fitted_bands(ORDER)
     assert list(keep) == [k for k in range(25) if BAND[k] != 3]  # band 3: A_3 = 0, not fitted
     lhs = (A[BAND] ** 2)[:, None] * (L - f)

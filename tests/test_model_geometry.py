@@ -157,9 +157,9 @@ def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dat
     assert m["normal_median_deg"] < 0.05 and m["visibility_l1"] < 1e-6 and m["light_rel_l2"] == 0.0
     # a transport turned 90 degrees about Z reads as normals 90 degrees off where they
     # are horizontal; every angle is within [0, 180]
-    from relight import sh as sh_np
+    from relight import sh_rotation
 
-    turn = sh_np.rotation_matrix(sh_np.z_rotation(90.0), 4)
+    turn = sh_rotation.rotation_matrix(sh_rotation.z_rotation(90.0), 4)
     turned = np.einsum("kn,nhw->khw", turn, sample["transport"])
     m90 = geometry_diagnostics.geometry_metrics({"transport": turned, "light": sample["light"] * 2,
                                      "albedo": sample["albedo"]}, sample)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from model import sh_torch
-from relight import prt, sh
+from relight import prt, sh, sh_rotation
 
 # float32 torch vs float64 numpy: products of O(1) values summed over n <= 25 terms;
 # float32 relative round-off ~6e-8 per op, so 1e-5 relative / 1e-5 absolute is ample
@@ -54,12 +54,12 @@ def test_tstar_shading_equals_per_channel_render():
 
 def test_rotation_equals_numpy_and_preserves_shading_of_rotated_transport():
     _, T, _, L = _random()
-    R = sh.z_rotation(73.0)
+    R = sh_rotation.z_rotation(73.0)
     M = sh_torch.rotation_matrix(R, 4)
     got = sh_torch.rotate_light(torch.from_numpy(L[None].astype(np.float32)), M[None])[0].numpy()
-    np.testing.assert_allclose(got, sh.rotate(L, R), **TOL)
+    np.testing.assert_allclose(got, sh_rotation.rotate(L, R), **TOL)
     # rotating both light and transport by the same R leaves T . L unchanged (M is orthogonal)
-    Mn = sh.rotation_matrix(R, 4)
+    Mn = sh_rotation.rotation_matrix(R, 4)
     np.testing.assert_allclose(prt.shading(T @ Mn.T, Mn @ L), prt.shading(T, L), rtol=1e-10, atol=1e-10)
 
 

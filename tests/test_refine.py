@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from relight import refine as rf
-from relight import sh, tta
+from relight import sh, sh_rotation, tta
 from relight.decomposition import Decomposition
 
 ORDER = 4
@@ -74,7 +74,7 @@ def test_mirror_signs_are_the_parity_of_each_basis_function_in_x():
 def test_refinement_lowers_the_photo_residual_monotonically_and_recovers_the_light():
     light_true = lobe_light([0.8, -1.0, 0.6], [1.0, 0.85, 0.7], 0.3)
     # the estimate: the same light turned 50 degrees about Z (DC, the colour and level, right)
-    light_start = sh.rotate(light_true, sh.z_rotation(50.0))
+    light_start = sh_rotation.rotate(light_true, sh_rotation.z_rotation(50.0))
     d, albedo, transport, disk = synthetic(light_true, light_start)
     # exact transport: a weak pull toward the start lets the photo decide
     refined, report = rf.refine(d, 12, ridge=0.03)
@@ -119,7 +119,7 @@ def test_refinement_keeps_a_right_light():
     refined, report = rf.refine(d, 8)
     assert report.residuals[-1] <= report.residuals[0]
     seen = slice(1, 9)
-    turned = np.linalg.norm(sh.rotate(light, sh.z_rotation(50.0))[seen] - light[seen])
+    turned = np.linalg.norm(sh_rotation.rotate(light, sh_rotation.z_rotation(50.0))[seen] - light[seen])
     assert np.linalg.norm(refined.light[seen] - light[seen]) < 0.02 * turned
 
 

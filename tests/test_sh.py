@@ -1,4 +1,4 @@
-"""relight.sh: basis, quadrature, projection, convolution, exposure."""
+"""relight.sh and relight.sh_projection: basis, quadrature, projection, convolution, exposure."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from numpy.polynomial.legendre import leggauss
 from scipy.special import eval_legendre, sph_harm_y
 
-from relight import sh
+from relight import sh, sh_projection
 
 RNG = np.random.default_rng(1234)
 
@@ -128,7 +128,7 @@ def test_basis_bad_input(dirs, order, match):
 
 def test_equirect_mapping_is_blenders():
     H, W = 16, 32
-    dirs, omega = sh.equirect_directions(H, W)
+    dirs, omega = sh_projection.equirect_directions(H, W)
     assert dirs.shape == (H, W, 3) and omega.shape == (H,)
     np.testing.assert_allclose(np.linalg.norm(dirs, axis=-1), 1, atol=1e-15)
     # u = 0.5 - atan2(y, x) / 2pi at texel centres (c + 0.5) / W, modulo 1
@@ -143,11 +143,11 @@ def test_equirect_mapping_is_blenders():
 
 def test_equirect_solid_angles_exact():
     for H, W in ((1, 2), (7, 14), (256, 512)):
-        _, omega = sh.equirect_directions(H, W)
+        _, omega = sh_projection.equirect_directions(H, W)
         # band areas telescope: sum = 2 pi (sin(pi/2) - sin(-pi/2)) = 4 pi
         assert abs(omega.sum() * W - 4 * np.pi) < 1e-12
         np.testing.assert_allclose(omega, omega[::-1], rtol=1e-12)  # symmetric about the equator
-    _, omega = sh.equirect_directions(4, 8)
+    _, omega = sh_projection.equirect_directions(4, 8)
     e = np.radians([90, 45, 0, -45, -90])
     np.testing.assert_allclose(omega, 2 * np.pi / 8 * (np.sin(e[:-1]) - np.sin(e[1:])), rtol=1e-14)
 
@@ -155,7 +155,7 @@ def test_equirect_solid_angles_exact():
 @pytest.mark.parametrize("h, w", [(0, 2), (2, -1), (2.0, 4), (True, 2)])
 def test_equirect_bad_size(h, w):
     with pytest.raises(ValueError, match="positive integer"):
-        sh.equirect_directions(h, w)
+        sh_projection.equirect_directions(h, w)
 
 
 def quadrature_bound(H, degree, peak):
@@ -174,7 +174,7 @@ def test_project_constant_map():
     H, W, order = 256, 512, 6
     colour = np.array([0.5, 1.0, 2.0])
     img = np.broadcast_to(colour, (H, W, 3)).astype(np.float32)
-    c = sh.project_equirect(img, order, precision="float64")
+    c = sh_projection.project_equirect(img, order, precision="float64")
     # solid angles sum to 4 pi exactly, so L00 = 4 pi c Y00 = 2 sqrt(pi) c to round-off
     np.testing.assert_allclose(c[0], 2 * np.sqrt(np.pi) * colour, rtol=1e-13)
     peak = max(math.sqrt((2 * l + 1) / (4 * math.pi)) for l in range(order + 1))
@@ -186,7 +186,7 @@ def test_project_constant_map():
 
 def test_project_single_lobe_gives_unit_coefficient():
     H, W, order = 256, 512, 4
-    dirs, _ = sh.equirect_directions(H, W)
+    dirs, _ = sh_projection.equirect_directions(H, W)
     Y = sh.sh_basis(dirs, order)
     peak = math.sqrt((2 * order + 1) / (4 * math.pi))
     # product of two order-<=4 harmonics: trig degree 8 in elevation, peak^2;
@@ -196,7 +196,7 @@ def test_project_single_lobe_gives_unit_coefficient():
         img = np.repeat(Y[..., k : k + 1], 3, axis=2)  # negative lobes are ...
         img_pos = np.maximum(img, 0)  # ... clamped, so project the two halves
         img_neg = np.maximum(-img, 0)
-        c = sh.project_equirect(img_pos, order, precision="float64") - sh.project_equirect(
+        c = sh_projection.project_equirect(img_pos, order, precision="float64") - sh_projection.project_equirect(
             img_neg, order, precision="float64"
         )
         expected = np.zeros((25, 3))
@@ -214,10 +214,10 @@ def test_project_cap_matches_funk_hecke():
     s /= np.linalg.norm(s)
     a = np.radians(12.0)
     radiance = 5.0
-    dirs, _ = sh.equirect_directions(H, W)
+    dirs, _ = sh_projection.equirect_directions(H, W)
     img = np.zeros((H, W, 3), np.float32)
     img[dirs @ s >= np.cos(a)] = radiance
-    c = sh.project_equirect(img, order, precision="float64")
+    c = sh_projection.project_equirect(img, order, precision="float64")
     t = np.cos(a)
     h = np.array(
         [2 * np.pi * (1 - t)]
@@ -236,8 +236,8 @@ def test_project_cap_matches_funk_hecke():
 
 def test_project_float32_close_to_float64():
     img = RNG.random((128, 256, 3)).astype(np.float32) * 10
-    c64 = sh.project_equirect(img, 8, precision="float64")
-    c32 = sh.project_equirect(img, 8)
+    c64 = sh_projection.project_equirect(img, 8, precision="float64")
+    c32 = sh_projection.project_equirect(img, 8)
     # float32 sums of 256 values per row: relative error ~ 256 * 6e-8 worst case
     assert np.abs(c32 - c64).max() < 256 * 6e-8 * np.abs(c64).max()
 
@@ -249,16 +249,16 @@ def test_project_clamps_negatives_and_drops_alpha():
     clamped = neg.copy()
     clamped[0, 0, :3] = 0.0
     np.testing.assert_allclose(
-        sh.project_equirect(neg, 2, precision="float64"),
-        sh.project_equirect(clamped[..., :3], 2, precision="float64"),
+        sh_projection.project_equirect(neg, 2, precision="float64"),
+        sh_projection.project_equirect(clamped[..., :3], 2, precision="float64"),
         atol=1e-12,
     )
     # a non-finite alpha channel is ignored, like any alpha
     alpha_nan = clamped.copy()
     alpha_nan[1, 1, 3] = np.nan
     np.testing.assert_allclose(
-        sh.project_equirect(alpha_nan, 2, precision="float64"),
-        sh.project_equirect(clamped[..., :3], 2, precision="float64"),
+        sh_projection.project_equirect(alpha_nan, 2, precision="float64"),
+        sh_projection.project_equirect(clamped[..., :3], 2, precision="float64"),
         atol=1e-12,
     )
 
@@ -278,16 +278,16 @@ def test_project_clamps_negatives_and_drops_alpha():
 )
 def test_project_bad_input(img, match):
     with pytest.raises(ValueError, match=match):
-        sh.project_equirect(img, 2)
+        sh_projection.project_equirect(img, 2)
 
 
 def test_project_bad_precision():
     with pytest.raises(ValueError, match="precision"):
-        sh.project_equirect(np.ones((4, 8, 3)), 2, precision="half")
+        sh_projection.project_equirect(np.ones((4, 8, 3)), 2, precision="half")
     huge = np.full((4, 8, 3), 1e39)  # finite in float64, Inf in float32
     with pytest.raises(ValueError, match="beyond float32 range"):
-        sh.project_equirect(huge, 0)
-    c = sh.project_equirect(huge, 0, precision="float64")
+        sh_projection.project_equirect(huge, 0)
+    c = sh_projection.project_equirect(huge, 0, precision="float64")
     np.testing.assert_allclose(c[0], 2 * np.sqrt(np.pi) * 1e39, rtol=1e-13)
 
 
@@ -330,7 +330,7 @@ def test_windows():
 
 def test_mean_luminance_of_constant_map():
     colour = np.array([0.2, 0.5, 1.5])
-    c = sh.project_equirect(np.broadcast_to(colour, (16, 32, 3)), 4, precision="float64")
+    c = sh_projection.project_equirect(np.broadcast_to(colour, (16, 32, 3)), 4, precision="float64")
     expected = 0.2126 * 0.2 + 0.7152 * 0.5 + 0.0722 * 1.5
     assert abs(sh.mean_luminance(c) - expected) < 1e-13
 
@@ -368,12 +368,11 @@ def test_projection_error_converges_at_second_order():
     k, order = 12, 4
     errors = []
     for H in (32, 64, 128):
-        dirs, _ = sh.equirect_directions(H, 2 * H)
+        dirs, _ = sh_projection.equirect_directions(H, 2 * H)
         lobe = sh.sh_basis(dirs, order)[..., k : k + 1]
         img = np.repeat(lobe, 3, axis=2)
-        c = sh.project_equirect(np.maximum(img, 0), order, precision="float64") - sh.project_equirect(
-            np.maximum(-img, 0), order, precision="float64"
-        )
+        c = (sh_projection.project_equirect(np.maximum(img, 0), order, precision="float64")
+             - sh_projection.project_equirect(np.maximum(-img, 0), order, precision="float64"))
         expected = np.zeros((25, 3))
         expected[k] = 1
         errors.append(np.abs(c - expected).max())

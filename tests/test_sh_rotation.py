@@ -1,4 +1,4 @@
-"""relight.sh rotations: exactness, composition, equivariance with map rotation."""
+"""relight.sh_rotation: exactness, composition, equivariance with map rotation."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relight import sh
+from relight import sh, sh_projection, sh_rotation
 
 RNG = np.random.default_rng(99)
 
@@ -45,18 +45,18 @@ def rotation_by_fit(R, order):
 
 @pytest.mark.parametrize("order", [0, 1, 2, 5, 8, 12])
 def test_recurrence_matches_least_squares_fit(order):
-    special = [np.eye(3), sh.z_rotation(180), np.diag([-1.0, 1.0, -1.0]), np.diag([1.0, -1.0, -1.0]),
+    special = [np.eye(3), sh_rotation.z_rotation(180), np.diag([-1.0, 1.0, -1.0]), np.diag([1.0, -1.0, -1.0]),
                quaternion_to_matrix([1.0, 0.0, 1e-9, 0.0])]  # near identity about Y
     for R in list(random_rotations(4)) + special:
         # both are round-off accurate; the fit's conditioning costs a few ulps per band
-        np.testing.assert_allclose(sh.rotation_matrix(R, order), rotation_by_fit(R, order), atol=1e-11)
+        np.testing.assert_allclose(sh_rotation.rotation_matrix(R, order), rotation_by_fit(R, order), atol=1e-11)
 
 
 def test_identity_and_orthogonality():
     order = 8
-    np.testing.assert_allclose(sh.rotation_matrix(np.eye(3), order), np.eye(81), atol=1e-13)
+    np.testing.assert_allclose(sh_rotation.rotation_matrix(np.eye(3), order), np.eye(81), atol=1e-13)
     for R in random_rotations(5):
-        M = sh.rotation_matrix(R, order)
+        M = sh_rotation.rotation_matrix(R, order)
         np.testing.assert_allclose(M @ M.T, np.eye(81), atol=1e-12)
         # block diagonal: no leakage between bands
         for l in range(order + 1):
@@ -69,7 +69,7 @@ def test_identity_and_orthogonality():
 def test_high_order_rotation_stays_exact():
     order = 32
     R = random_rotations(1)[0]
-    M = sh.rotation_matrix(R, order)
+    M = sh_rotation.rotation_matrix(R, order)
     n = (order + 1) ** 2
     assert np.abs(M @ M.T - np.eye(n)).max() < 1e-12
     p = RNG.normal(size=3)
@@ -80,7 +80,7 @@ def test_band_one_is_the_rotation_itself():
     # (Y_{1,-1}, Y_{1,0}, Y_{1,1}) ~ (y, z, x): band 1 is R in that axis order
     R = random_rotations(1)[0]
     perm = [1, 2, 0]
-    np.testing.assert_allclose(sh.rotation_matrix(R, 1)[1:, 1:], R[np.ix_(perm, perm)], atol=1e-14)
+    np.testing.assert_allclose(sh_rotation.rotation_matrix(R, 1)[1:, 1:], R[np.ix_(perm, perm)], atol=1e-14)
 
 
 def test_rotation_moves_a_lobe_to_the_rotated_direction():
@@ -88,7 +88,7 @@ def test_rotation_moves_a_lobe_to_the_rotated_direction():
     order = 8
     for R, p in zip(random_rotations(4), RNG.normal(size=(4, 3))):
         np.testing.assert_allclose(
-            sh.rotation_matrix(R, order) @ sh.sh_basis(p, order), sh.sh_basis(R @ p, order), atol=1e-13
+            sh_rotation.rotation_matrix(R, order) @ sh.sh_basis(p, order), sh.sh_basis(R @ p, order), atol=1e-13
         )
 
 
@@ -98,7 +98,7 @@ def test_pointwise_equivariance():
     c = RNG.normal(size=81)
     d = RNG.normal(size=(300, 3))
     for R in random_rotations(3):
-        lhs = sh.sh_basis(d, order) @ (sh.rotation_matrix(R, order) @ c)
+        lhs = sh.sh_basis(d, order) @ (sh_rotation.rotation_matrix(R, order) @ c)
         rhs = sh.sh_basis(d @ R, order) @ c  # rows of d @ R are R^T d
         np.testing.assert_allclose(lhs, rhs, atol=1e-12)
 
@@ -107,8 +107,8 @@ def test_composition():
     order = 8
     R1, R2 = random_rotations(2)
     np.testing.assert_allclose(
-        sh.rotation_matrix(R1 @ R2, order),
-        sh.rotation_matrix(R1, order) @ sh.rotation_matrix(R2, order),
+        sh_rotation.rotation_matrix(R1 @ R2, order),
+        sh_rotation.rotation_matrix(R1, order) @ sh_rotation.rotation_matrix(R2, order),
         atol=1e-13,
     )
 
@@ -116,8 +116,8 @@ def test_composition():
 def test_ten_thousand_composed_rotations_stay_orthogonal():
     order = 8
     Rs = random_rotations(10_000)
-    Ms = sh.rotation_matrix(Rs, order)  # batched
-    np.testing.assert_array_equal(Ms[17], sh.rotation_matrix(Rs[17], order))
+    Ms = sh_rotation.rotation_matrix(Rs, order)  # batched
+    np.testing.assert_array_equal(Ms[17], sh_rotation.rotation_matrix(Rs[17], order))
     product = np.eye(81)
     R_total = np.eye(3)
     for M, R in zip(Ms, Rs):
@@ -125,7 +125,7 @@ def test_ten_thousand_composed_rotations_stay_orthogonal():
         R_total = R @ R_total
     # each factor is orthogonal to ~1e-15; errors add up linearly: ~1e-11
     assert np.abs(product @ product.T - np.eye(81)).max() < 1e-9
-    assert np.abs(product - sh.rotation_matrix(R_total, order)).max() < 1e-9
+    assert np.abs(product - sh_rotation.rotation_matrix(R_total, order)).max() < 1e-9
 
 
 def test_z_rotation_equals_integer_pixel_shift():
@@ -135,20 +135,20 @@ def test_z_rotation_equals_integer_pixel_shift():
     # round-off remains.
     H, W, order = 32, 64, 8
     img = RNG.random((H, W, 3))
-    c = sh.project_equirect(img, order, precision="float64")
+    c = sh_projection.project_equirect(img, order, precision="float64")
     for k in (1, 5, 16, 40):
         degrees = 360.0 * k / W
-        shifted = sh.project_equirect(np.roll(img, -k, axis=1), order, precision="float64")
-        np.testing.assert_allclose(sh.rotate(c, sh.z_rotation(degrees)), shifted, atol=1e-11)
+        shifted = sh_projection.project_equirect(np.roll(img, -k, axis=1), order, precision="float64")
+        np.testing.assert_allclose(sh_rotation.rotate(c, sh_rotation.z_rotation(degrees)), shifted, atol=1e-11)
 
 
 def test_z_rotation_direction():
-    R = sh.z_rotation(90)
+    R = sh_rotation.z_rotation(90)
     np.testing.assert_allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-15)  # +X light goes to +Y
-    np.testing.assert_allclose(sh.z_rotation(-30) @ sh.z_rotation(30), np.eye(3), atol=1e-15)
+    np.testing.assert_allclose(sh_rotation.z_rotation(-30) @ sh_rotation.z_rotation(30), np.eye(3), atol=1e-15)
     for bad in ("ninety", float("nan"), None):
         with pytest.raises(ValueError, match="angle"):
-            sh.z_rotation(bad)
+            sh_rotation.z_rotation(bad)
 
 
 def test_general_rotation_matches_resampled_analytic_map():
@@ -159,24 +159,24 @@ def test_general_rotation_matches_resampled_analytic_map():
     c = RNG.normal(size=(25, 3)) * 0.2
     c[0] = 12.0  # keep the light positive so clamping is not involved
     R = random_rotations(1)[0]
-    dirs, _ = sh.equirect_directions(H, W)
+    dirs, _ = sh_projection.equirect_directions(H, W)
     rotated_map = sh.sh_basis(dirs @ R, order) @ c  # f(R^T d)
     assert rotated_map.min() > 0
-    projected = sh.project_equirect(rotated_map, order, precision="float64")
-    expected = sh.rotate(c, R)
+    projected = sh_projection.project_equirect(rotated_map, order, precision="float64")
+    expected = sh_rotation.rotate(c, R)
     error = np.abs(projected - expected).max()
     delta = np.pi / H
     bound = 2 * np.pi * np.pi * delta**2 / 12 * (8 + 32) * (9 / (4 * np.pi)) * np.abs(c).sum(axis=0).max()
     assert error < bound, (error, bound)
     # and a 90 degree mistake would be caught by a wide margin
-    wrong = sh.rotate(c, R @ sh.z_rotation(90))
+    wrong = sh_rotation.rotate(c, R @ sh_rotation.z_rotation(90))
     assert np.abs(projected - wrong).max() > 100 * error
 
 
 def test_rotate_matches_matrix():
     c = RNG.normal(size=(16, 3))
     R = random_rotations(1)[0]
-    np.testing.assert_allclose(sh.rotate(c, R), sh.rotation_matrix(R, 3) @ c, atol=1e-15)
+    np.testing.assert_allclose(sh_rotation.rotate(c, R), sh_rotation.rotation_matrix(R, 3) @ c, atol=1e-15)
 
 
 rotations = st.lists(st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4).filter(
@@ -188,7 +188,7 @@ rotations = st.lists(st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4).
 @given(q=rotations, seed=st.integers(0, 2**32 - 1), order=st.integers(0, 8))
 def test_property_rotation_preserves_band_energy(q, seed, order):
     c = np.random.default_rng(seed).normal(size=((order + 1) ** 2, 3))
-    out = sh.rotate(c, quaternion_to_matrix(q))
+    out = sh_rotation.rotate(c, quaternion_to_matrix(q))
     for l in range(order + 1):
         s = slice(l * l, (l + 1) ** 2)
         e_in, e_out = np.sum(c[s] ** 2, axis=0), np.sum(out[s] ** 2, axis=0)
@@ -200,7 +200,7 @@ def test_property_rotation_preserves_band_energy(q, seed, order):
 def test_property_rotate_then_inverse_is_identity(q, seed, order):
     c = np.random.default_rng(seed).normal(size=((order + 1) ** 2, 3))
     R = quaternion_to_matrix(q)
-    np.testing.assert_allclose(sh.rotate(sh.rotate(c, R), R.T), c, atol=1e-12)
+    np.testing.assert_allclose(sh_rotation.rotate(sh_rotation.rotate(c, R), R.T), c, atol=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -215,15 +215,15 @@ def test_property_rotate_then_inverse_is_identity(q, seed, order):
 )
 def test_rotation_bad_input(R, match):
     with pytest.raises(ValueError, match=match):
-        sh.rotation_matrix(R, 2)
+        sh_rotation.rotation_matrix(R, 2)
     with pytest.raises(ValueError, match=match):
-        sh.rotate(np.ones((9, 3)), R)
+        sh_rotation.rotate(np.ones((9, 3)), R)
 
 
 def test_rotate_bad_coeffs():
     with pytest.raises(ValueError, match="not \\(order"):
-        sh.rotate(np.ones((8, 3)), np.eye(3))
+        sh_rotation.rotate(np.ones((8, 3)), np.eye(3))
     with pytest.raises(ValueError, match="shape"):
-        sh.rotate(np.ones(9), np.eye(3))
+        sh_rotation.rotate(np.ones(9), np.eye(3))
     with pytest.raises(ValueError, match="NaN"):
-        sh.rotate(np.full((9, 3), math.nan), np.eye(3))
+        sh_rotation.rotate(np.full((9, 3), math.nan), np.eye(3))

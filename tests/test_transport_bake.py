@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from farm import bake
-from relight import prt, sh
+from relight import prt, sh, sh_projection, sh_rotation
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -308,7 +308,7 @@ def _hdr_scene(tmp_path, material, rotation_deg):
     for seed in (0, 1):
         scene.cycles.seed = seed
         images.append(passes.render_path_traced(scene, tmp_path, f"pt{seed}", samples=256, denoise=False, bounces=4))
-    L = sh.project_equirect(pixels, order)
+    L = sh_projection.project_equirect(pixels, order)
     t_pix = np.concatenate([geo.aovs[n] for n in names], axis=-1)[..., : sh.num_coeffs(order)]
     inside = geo.alpha > 0.999
     # Mean |I1 - I2| / 2 is the mean absolute noise of the two-render average.
@@ -318,7 +318,7 @@ def _hdr_scene(tmp_path, material, rotation_deg):
 
 
 def _relative_error(geo, image, L, t_pix, rotation_deg):
-    predicted = geo.aovs["albedo"] * prt.shading(t_pix, sh.rotate(L, sh.z_rotation(rotation_deg)))
+    predicted = geo.aovs["albedo"] * prt.shading(t_pix, sh_rotation.rotate(L, sh_rotation.z_rotation(rotation_deg)))
     inside = geo.alpha > 0.999
     return np.abs(image - predicted)[inside].mean() / np.abs(image[inside]).mean()
 
@@ -329,10 +329,10 @@ def _exact_lambert_irradiance(normals, pixels, rotation_deg):
     Rotating the light by R equals evaluating the unrotated map at R^T n.
     """
     height, width = pixels.shape[:2]
-    dirs, omega = sh.equirect_directions(height, width)
+    dirs, omega = sh_projection.equirect_directions(height, width)
     dirs = dirs.reshape(-1, 3)
     weighted = (pixels * omega[:, None, None]).reshape(-1, 3) / math.pi
-    turned = normals @ sh.z_rotation(rotation_deg)  # rows are R^T n
+    turned = normals @ sh_rotation.z_rotation(rotation_deg)  # rows are R^T n
     out = np.empty((len(normals), 3))
     for start in range(0, len(normals), 128):
         cos = np.maximum(turned[start:start + 128] @ dirs.T, 0.0)
@@ -366,7 +366,7 @@ def test_convex_diffuse_sphere_path_traced_equals_albedo_times_shading(tmp_path)
     seen = n[:, 1] < -0.1  # facing the camera at -Y
     baked = bake.bake_transport(v, f, n, 8, 512, rng=np.random.default_rng(0)).transport[seen]
     analytic = prt.lambert_transport(n[seen], 8)
-    light = sh.rotate(L, sh.z_rotation(70.0))
+    light = sh_rotation.rotate(L, sh_rotation.z_rotation(70.0))
     pixels = load_equirect(presets.preset_path("bridge")).pixels
     exact = _exact_lambert_irradiance(n[seen], pixels, 70.0) * albedo
     scale = np.abs(exact).mean()
