@@ -21,7 +21,9 @@ model.data_splits. Per training sample (draws: model.data_augment):
     training maps;
   * with `exposure_jitter` > 0, the input light and its image scaled by
     2^N(0, sigma^2) (exposure; the albedo target is unchanged);
-  * with probability `flip_prob` a horizontal mirror (exact: mirror_signs).
+  * with probability `flip_prob` a horizontal mirror (exact: mirror_signs);
+  * with `body_prior`, the unclothed body's normal and coverage (the farm's body pass,
+    body_input's encoding) appended to the input's channels.
 Splits: by body (validation bodies never train) and by light (held-out maps
 never reach training: asserted on every training sample).
 """
@@ -38,6 +40,7 @@ import torch
 from model.data_augment import MIRROR_X, mirror_signs, random_background, random_light_tint, random_reference_light
 from model.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
 from model.data_splits import held_out_light_names, is_held_out
+from model.geometry import BODY_CHANNELS
 from relight import sh as sh_np
 from relight.dataset import read_sidecar, traced_lights
 from relight.prt import render, to_network_input
@@ -47,6 +50,16 @@ def _to_tensors(sample: dict) -> dict:
     """The sample's arrays as contiguous float32 tensors (other values kept)."""
     return {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) if isinstance(v, np.ndarray) else v
             for k, v in sample.items()}
+
+
+def body_input(scene: CroppedScene) -> np.ndarray:
+    """[4, S, S] network input channels of the scene's body prior: the unit normal (camera
+    frame) and the coverage mapped to [-1, 1]."""
+    if scene.body is None:
+        raise ValueError(f"scene {scene.index} has no body pass (the body prior needs the farm's body pass)")
+    out = np.concatenate([scene.body[:3], scene.body[3:4] * 2.0 - 1.0]).astype(np.float32)
+    assert out.shape[0] == BODY_CHANNELS
+    return out
 
 
 def network_input(linear_chw: np.ndarray, alpha: np.ndarray | None) -> np.ndarray:
@@ -63,7 +76,8 @@ class TrainingScenes(torch.utils.data.Dataset):
                  extra_lights: list[tuple[str, np.ndarray]] | None = None, extra_light_prob: float = 0.5,
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
-                 pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False):
+                 pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
+                 body_prior: bool = False):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -83,6 +97,7 @@ class TrainingScenes(torch.utils.data.Dataset):
         # 0.5-0.8 dB on held-out scenes and did not lessen the colour cast on real photos
         # (docs/EVALUATION.md, "Training people like the people in photos")
         self.capture = capture
+        self.body_prior = bool(body_prior)
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
@@ -157,8 +172,11 @@ class TrainingScenes(torch.utils.data.Dataset):
             composite, image_a, light_a, _ = photo_like(composite, image_a, alpha, light_a,
                                                         np.random.default_rng([self.seed, epoch, i, 20]))
         masked = rng.uniform() < self.mask_prob
+        network_in = network_input(composite, alpha if masked else None)
+        if self.body_prior:
+            network_in = np.concatenate([network_in, body_input(scene)])
         sample = {
-            "input": network_input(composite, alpha if masked else None),
+            "input": network_in,
             "image": image_a, "albedo": scene.albedo, "transport": scene.transport, "alpha": alpha,
             "normal": scene.normal, "light": light_a, "target_light": light_b, "target_image": image_b,
             "light_name": name_a, "target_light_name": name_b,
@@ -168,6 +186,8 @@ class TrainingScenes(torch.utils.data.Dataset):
                 sample[key] = sample[key][..., ::-1]
             sample["transport"] = sample["transport"] * self.signs[:, None, None]
             sample["normal"] = sample["normal"] * MIRROR_X[:, None, None]
+            if self.body_prior:  # the body normal's x flips too (input channel 3)
+                sample["input"] = sample["input"] * np.array([1, 1, 1, -1, 1, 1, 1], np.float32)[:, None, None]
             sample["light"] = sample["light"] * self.signs[:, None]
             sample["target_light"] = sample["target_light"] * self.signs[:, None]
         return _to_tensors(sample)
@@ -182,8 +202,9 @@ class EvaluationPairs(torch.utils.data.Dataset):
     """
 
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
-                 held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4):
-        self.size, self.order = size, order
+                 held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4,
+                 body_prior: bool = False):
+        self.size, self.order, self.body_prior = size, order, bool(body_prior)
         self.held_out = held_out_light_names() if held_out is None else held_out
         self.load = functools.partial(load_cropped, size=size, order=order, padding=padding,
                                       held_out=self.held_out, verify_hash=True)
@@ -210,8 +231,11 @@ class EvaluationPairs(torch.utils.data.Dataset):
     def __getitem__(self, i: int) -> dict:
         s, a, b = self.pairs[i]
         scene = self._cache(s)
+        network_in = network_input(scene.images[a], scene.alpha)
+        if self.body_prior:
+            network_in = np.concatenate([network_in, body_input(scene)])
         sample = {
-            "input": network_input(scene.images[a], scene.alpha),
+            "input": network_in,
             "input_linear": scene.images[a],
             "image": scene.images[a], "albedo": scene.albedo, "transport": scene.transport,
             "normal": scene.normal, "alpha": scene.alpha, "light": scene.lights[a], "target_light": scene.lights[b],

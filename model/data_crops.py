@@ -64,6 +64,7 @@ class CroppedScene:
     lights: list[np.ndarray]  # per light: [n, 3] (camera frame)
     light_names: list[str]
     held_out: list[bool]
+    body: np.ndarray | None = None  # [4, S, S]: the unclothed body's unit normal and coverage (farm body pass)
 
 
 def load_cropped(json_path: Path, size: int, order: int, padding: int,
@@ -76,20 +77,26 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
     n = sh_np.num_coeffs(order)
     box = crop_box(scene.alpha[..., 0], padding)  # padding in the scene's own pixels
     stacked = [scene.alpha, scene.albedo, scene.transport[..., :n], scene.normal]
+    widths = [1, 3, n, 3]
+    if scene.body_normal is not None:
+        stacked += [scene.body_normal, scene.body_alpha]
+        widths += [3, 1]
     if scene.images is not None:
         stacked += list(scene.images)
+        widths += [3] * len(scene.images)
     planes = crop_resize(np.concatenate(stacked, axis=-1), box, size)
     k = 0
     parts = []
-    for width in [1, 3, n, 3] + ([3] * len(scene.images) if scene.images is not None else []):
+    for width in widths:
         parts.append(planes[k:k + width])
         k += width
+    body = None
+    if scene.body_normal is not None:
+        body = np.concatenate([unit_normals(parts[4]), np.clip(parts[5], 0.0, 1.0)])
+        parts = parts[:4] + parts[6:]
     n_lights = len(scene.lights)
     images = parts[4:] if scene.images is not None else [None] * n_lights
-    normal = parts[3]
-    length = np.sqrt((normal * normal).sum(axis=0, keepdims=True))
-    # resampling shortens normals across edges: renormalise, keep 0 off the person
-    normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)
+    normal = unit_normals(parts[3])
     return CroppedScene(
         index=scene.index,
         alpha=np.clip(parts[0], 0.0, 1.0),
@@ -100,7 +107,15 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
         lights=[np.asarray(l["sh"][:n], dtype=np.float32) for l in scene.lights],
         light_names=[light_name(l) for l in scene.lights],
         held_out=[is_held_out(l, held_out) for l in scene.lights],
+        body=body,
     )
+
+
+def unit_normals(normal: np.ndarray) -> np.ndarray:
+    """[3, S, S] normals renormalised after resampling (which shortens them across edges), 0 where
+    there was none."""
+    length = np.sqrt((normal * normal).sum(axis=0, keepdims=True))
+    return np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)
 
 
 class SceneCache:
@@ -147,10 +162,12 @@ def pack_scenes(json_paths: list[Path], out, size: int, order: int, padding: int
     for i, path in enumerate(json_paths):
         c = load_cropped(Path(path), size, order, padding, held_out)
         maps = [c.alpha, c.albedo, c.transport, c.normal] + [img for img in c.images if img is not None]
+        if c.body is not None:
+            maps.append(c.body)
         arrays[f"s{i}"] = np.concatenate(maps, axis=0).astype(np.float16)
         arrays[f"l{i}"] = np.stack(c.lights).astype(np.float32)
         records.append({"index": c.index, "names": c.light_names, "held_out": c.held_out,
-                        "traced": [img is not None for img in c.images]})
+                        "traced": [img is not None for img in c.images], "body": c.body is not None})
     key = _pack_key(list(json_paths), size, order, padding)
     arrays["meta"] = np.frombuffer(json.dumps({"key": key, "scenes": records}).encode(), dtype=np.uint8)
     out = Path(out)
@@ -178,11 +195,17 @@ class PackedScenes:
                 for traced in rec["traced"]:
                     images.append(maps[j:j + 3] if traced else None)
                     j += 3 if traced else 0
+                body = unit_normals_and_coverage(maps[j:j + 4]) if rec.get("body") else None
                 self.items.append(CroppedScene(
                     index=rec["index"], alpha=maps[0:1], albedo=maps[1:4], transport=maps[4:4 + n],
                     normal=maps[4 + n:k], images=images, lights=list(z[f"l{i}"]),
-                    light_names=rec["names"], held_out=rec["held_out"]))
+                    light_names=rec["names"], held_out=rec["held_out"], body=body))
         self.paths = list(json_paths)
 
     def __call__(self, i: int) -> CroppedScene:
         return self.items[i]
+
+
+def unit_normals_and_coverage(body: np.ndarray) -> np.ndarray:
+    """A packed [4, S, S] body prior after float16: normals unit again, coverage in [0, 1]."""
+    return np.concatenate([unit_normals(body[:3]), np.clip(body[3:4], 0.0, 1.0)])

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relight.sheet import contact_sheet as _contact_sheet
-from relight.sheet import write_sheet
+from evaluation.sheet import contact_sheet as _contact_sheet
+from evaluation.sheet import write_sheet
 from relight.fileio import atomic_write_text
 
 from model.data import EvaluationPairs
@@ -71,7 +71,7 @@ def markdown_table(results: dict[str, dict], n_pairs: int, data: str, mask: str 
 
 
 def contact_sheet(rows: list[list[np.ndarray]]) -> np.ndarray:
-    """Tiles linear [H, W, 3] images: one row per pair, sRGB-encoded, 2 px gutters (relight.sheet)."""
+    """Tiles linear [H, W, 3] images: one row per pair, sRGB-encoded, 2 px gutters (evaluation.sheet)."""
     return _contact_sheet(rows)
 
 
@@ -147,7 +147,8 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
 
     def make_pairs(sh_order: int) -> EvaluationPairs:
         return EvaluationPairs(scenes, size, sh_order, held_out_only=held_out_only,
-                               held_out=held_out_light_names(), max_pairs_per_scene=max_pairs_per_scene)
+                               held_out=held_out_light_names(), max_pairs_per_scene=max_pairs_per_scene,
+                               body_prior=ours.body_prior or any(b.body_prior for _, _, b in bases))
 
     # one pair list per SH order: the same (scene, a, b) pairs, light coefficients cut to that order
     pairs_by_order = {order: make_pairs(order)}

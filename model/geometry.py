@@ -38,6 +38,8 @@ ARCH = "geometry"
 REFERENCE_LUMINANCE = 0.8   # docs/conventions.md: a light's solid-angle mean luminance
 CLIPPED = 0.99              # encoded input above this in any channel: saturated, not fitted
 
+BODY_CHANNELS = 4  # the body prior's input channels: unit normal and coverage (model.data.body_input)
+
 # Named sizes of the geometry-first layout (docs/model.md); costs in docs/benchmarks/model.md.
 GEOMETRY_PRESETS = {
     "geo-small": {"width": 8, "depth": 4, "decoder_width": 6},
@@ -51,14 +53,16 @@ class GeometryNet(nn.Module):
     forward(image [B,3,H,W] in [-1,1]) -> dict (module docstring).
     `ridge`: the light fit's pull toward the light head, relative to the data
     (model.physics.fit_light); `reliable`: the fraction of its mean below which
-    the shading is floored when the albedo is photo / shading.
+    the shading is floored when the albedo is photo / shading. With `body_prior`
+    the input carries 4 more channels after the photo's three: the unclothed body's
+    unit normal and its coverage in [-1, 1] (model.data.body_input).
     """
 
     arch = ARCH
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
                  full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
-                 fixed_level: bool = False):
+                 fixed_level: bool = False, body_prior: bool = False):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
@@ -68,6 +72,8 @@ class GeometryNet(nn.Module):
         self.sh_order, self.width, self.depth = int(sh_order), int(width), int(depth)
         self.decoder_width, self.full_res_convs = int(decoder_width), int(full_res_convs)
         self.ridge, self.reliable, self.fixed_level = float(ridge), float(reliable), bool(fixed_level)
+        self.body_prior = bool(body_prior)
+        self.in_channels = 3 + (BODY_CHANNELS if self.body_prior else 0)
         self.n = num_coeffs(self.sh_order)
         self.size_multiple = 2 ** self.depth
         # the runtime and evaluation read these like RelightNet's
@@ -76,7 +82,7 @@ class GeometryNet(nn.Module):
         dec = [self.decoder_width * min(2 ** i, MAX_WIDTH_FACTOR) for i in range(self.depth)]
         c_bottle = channels[-1]
         gen = dict(batch_norm=True, dec_channels=dec, full_res_convs=self.full_res_convs)
-        self.encoder = Encoder(channels, self.full_res_convs)
+        self.encoder = Encoder(channels, self.full_res_convs, in_channels=self.in_channels)
         self.geometry_res = ResidualBlock(c_bottle, batch_norm=True)
         self.geometry_gen = Generator(channels, 5, **gen)          # normal xyz, visibility, alpha
         self.albedo_res = ResidualBlock(c_bottle, batch_norm=True)
@@ -84,19 +90,23 @@ class GeometryNet(nn.Module):
         self.light_head = LightDecoder(3 * c_bottle, c_bottle, self.n, decomposition=False)
 
     def config(self) -> dict:
-        return {"arch": ARCH, "sh_order": self.sh_order, "width": self.width, "depth": self.depth,
-                "decoder_width": self.decoder_width, "full_res_convs": self.full_res_convs,
-                "ridge": self.ridge, "reliable": self.reliable, "fixed_level": self.fixed_level}
+        config = {"arch": ARCH, "sh_order": self.sh_order, "width": self.width, "depth": self.depth,
+                  "decoder_width": self.decoder_width, "full_res_convs": self.full_res_convs,
+                  "ridge": self.ridge, "reliable": self.reliable, "fixed_level": self.fixed_level}
+        if self.body_prior:  # absent when off: configs of models without it stay as they were
+            config["body_prior"] = True
+        return config
 
     def check_input(self, image: torch.Tensor) -> None:
-        if image.ndim != 4 or image.shape[1] != 3:
-            raise ValueError(f"GeometryNet: image must be [B,3,H,W], got {tuple(image.shape)}")
+        if image.ndim != 4 or image.shape[1] != self.in_channels:
+            raise ValueError(f"GeometryNet: image must be [B,{self.in_channels},H,W], got {tuple(image.shape)}")
         h, w = image.shape[-2:]
         if h % self.size_multiple or w % self.size_multiple:
             raise ValueError(f"GeometryNet: H and W must be multiples of {self.size_multiple}, got {h}x{w}")
 
     def forward(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
         feats = self.encoder(image)
+        image = image[:, :3]  # the photo; the body prior's channels only feed the encoder
         bottle = feats[-1]
         g_res = self.geometry_res(bottle)
         geo = self.geometry_gen(g_res, feats)

@@ -83,9 +83,9 @@ class ResidualBlock(nn.Module):
 class Encoder(nn.Module):
     """Stem of `full_res_convs` convs at full resolution, then `depth` stages halving it."""
 
-    def __init__(self, channels: list[int], full_res_convs: int = 2, separable: bool = False):
+    def __init__(self, channels: list[int], full_res_convs: int = 2, separable: bool = False, in_channels: int = 3):
         super().__init__()
-        self.stem = nn.Sequential(ConvBlock(3, channels[0]), *(
+        self.stem = nn.Sequential(ConvBlock(in_channels, channels[0]), *(
             ConvBlock(channels[0], channels[0], separable=separable) for _ in range(full_res_convs - 1)))
         self.stages = nn.ModuleList(
             nn.Sequential(ConvBlock(channels[i], channels[i + 1], stride=2, separable=separable),

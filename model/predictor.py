@@ -42,10 +42,17 @@ class Predictor:
             raise ValueError(f"model must be a .safetensors checkpoint or an .onnx file, got {self.path.name}")
 
     @property
+    def body_prior(self) -> bool:
+        """Whether the model takes the body prior's channels after the photo's (model.data.body_input)."""
+        return bool(getattr(self.model, "body_prior", False))
+
+    @property
     def order(self) -> int | None:
         return None if self.n_coeffs is None else int(round(self.n_coeffs ** 0.5)) - 1
 
     def __call__(self, image: np.ndarray) -> dict[str, np.ndarray]:
+        if not self.body_prior:
+            image = image[:, :3]  # inputs may carry a body prior that this model does not take
         if self.model is not None:
             x = torch.from_numpy(image)
             self.model.check_input(x)

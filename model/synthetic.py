@@ -55,8 +55,9 @@ def _spheres(size: int, rng: np.random.Generator):
 
 def write_analytic_dataset(folder, n_scenes: int = 4, size: int = 32, order: int = 4,
                            lights: tuple[str, ...] = ("studio", "city", "venice"), seed: int = 0,
-                           light_cache: dict | None = None) -> list[Path]:
-    """Write scene_000000.. to `folder`; returns the JSON paths. One body per scene."""
+                           light_cache: dict | None = None, body: bool = False) -> list[Path]:
+    """Write scene_000000.. to `folder`; returns the JSON paths. One body per scene. With
+    `body`, the farm's body pass too: the spheres themselves (nothing is worn over them)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     cache = {} if light_cache is None else light_cache
@@ -92,6 +93,9 @@ def write_analytic_dataset(folder, n_scenes: int = 4, size: int = 32, order: int
             material=np.zeros((size, size, 3), np.float32), depth=depth.astype(np.float32),
             transport=transport.astype(np.float32),
         )
+        if body:
+            channels.update(body_normal=(normal * person[..., None]).astype(np.float32),
+                            body_alpha=alpha.astype(np.float32), body_depth=depth.astype(np.float32))
         meta = {"index": index, "seed": seed, "sh_order": order, "lights": light_meta,
                 "body": {"id": f"analytic-{seed}-{index}"}, "camera": {"kind": "analytic"},
                 "passes": {"asked": ["geometry", "transport", "image"], "skipped": []}}

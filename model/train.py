@@ -43,7 +43,7 @@ def build_model_config(args) -> dict:
         for name in ("width", "depth"):
             if getattr(args, name) is not None:
                 layout[name] = getattr(args, name)
-        return dict(arch=GEOMETRY, sh_order=args.order, **layout)
+        return dict(arch=GEOMETRY, sh_order=args.order, **layout, **({"body_prior": True} if args.body_prior else {}))
     layout = dict(PRESETS[args.preset])
     for name in ("width", "depth"):
         if getattr(args, name) is not None:
@@ -129,6 +129,9 @@ def parse_args(argv=None):
                    help="photo-like capture of the input (model/capture.py: real backgrounds, white balance, "
                         "exposure, blur, noise, JPEG); off by default, measured in docs/EVALUATION.md")
     p.add_argument("--no-presets", action="store_true", help="extra lights from scene lights only")
+    p.add_argument("--body-prior", action="store_true",
+                   help="geometry-first model: the unclothed body's normal and coverage as 4 more input "
+                        "channels (scenes need the farm's body pass)")
     p.add_argument("--loss-weight", action="append", metavar="NAME=VALUE")
     p.add_argument("--no-residual", action="store_true", help="ablation: without E")
     p.add_argument("--no-decomposition", action="store_true", help="ablation: without PRT +/- decomposition")
@@ -176,7 +179,7 @@ def train(args) -> Path:
         pack=args.pack, presets=not args.no_presets,
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
                      light_tint=args.light_tint, exposure_jitter=args.exposure_jitter, capture=args.capture,
-                     lambertian=args.lambertian))
+                     lambertian=args.lambertian, body_prior=args.body_prior))
     # the Trainer's validation settings depend on whether there are validation pairs
     data.prepare_data()
     data.setup("fit")

@@ -227,3 +227,31 @@ def test_exposure_jitter_scales_the_input_light_and_image_and_keeps_the_albedo(s
     assert max(scales) / min(scales) > 1.2  # the exposure really varies
     with pytest.raises(ValueError, match="exposure_jitter"):
         data.TrainingScenes([Path("x.json")], 32, 4, exposure_jitter=-1.0)
+
+
+def test_body_prior_channels_follow_the_scene_and_mirror(tmp_path):
+    """With body_prior the input carries the body's unit normal and coverage (in [-1, 1]) after the
+    photo's channels, cropped like every other map; a mirrored sample mirrors them and flips the
+    normal's x, as it does the target normal. Packs keep them."""
+    paths = write_analytic_dataset(tmp_path / "d", n_scenes=2, size=32, order=2, lights=("studio", "city"),
+                                   body=True)
+    kw = dict(padding=2, extra_lights=[], held_out=HELD_OUT, mask_prob=1.0, body_prior=True)
+    plain = data.TrainingScenes(paths, 32, 2, flip_prob=0.0, **kw).item(1, 3)
+    flipped = data.TrainingScenes(paths, 32, 2, flip_prob=1.0, **kw).item(1, 3)
+    x = plain["input"]
+    assert x.shape == (7, 32, 32)
+    inside = plain["alpha"][0] > 0.999
+    # the analytic body is the person itself: its normal is the target normal, its coverage the alpha
+    torch.testing.assert_close(x[3:6][:, inside], plain["normal"][:, inside], atol=1e-5, rtol=0)
+    torch.testing.assert_close((x[6] + 1) / 2, plain["alpha"][0], atol=1e-6, rtol=0)
+    mirror = torch.tensor([1, 1, 1, -1, 1, 1, 1.0])[:, None, None]
+    torch.testing.assert_close(flipped["input"], x.flip(-1) * mirror)
+    torch.testing.assert_close(flipped["normal"][0], -plain["normal"][0].flip(-1))
+    pairs = data.EvaluationPairs(paths, 32, 2, padding=2, held_out=HELD_OUT, body_prior=True)
+    assert pairs[0]["input"].shape == (7, 32, 32)
+    packed = data_crops.pack_scenes(paths, tmp_path / "p.npz", 32, 2, padding=2, held_out=HELD_OUT)
+    from_pack = data.TrainingScenes(paths, 32, 2, flip_prob=0.0, pack=packed, **kw).item(1, 3)["input"]
+    torch.testing.assert_close(from_pack[3:], x[3:], atol=2e-3, rtol=0)  # float16 in the pack
+    no_body = write_analytic_dataset(tmp_path / "n", n_scenes=1, size=32, order=2, lights=("studio", "city"))
+    with pytest.raises(ValueError, match="has no body pass"):
+        data.TrainingScenes(no_body, 32, 2, **kw).item(0, 0)

@@ -104,6 +104,25 @@ def test_checkpoint_round_trip_and_train_cli(dataset, tmp_path):
     assert train.main(argv[:3] + [str(tmp_path / "run2")] + argv[4:]) == 0
 
 
+def test_body_prior_feeds_only_the_encoder_and_round_trips(tmp_path):
+    """With body_prior the network takes 7 channels; the photo's physics reads the first three
+    (the light fit and the photo-consistent albedo), so changing the prior changes the outputs
+    only through the encoder, and a photo alone is refused with the channel count."""
+    net = _net(2, body_prior=True)
+    x = torch.rand(2, 7, 32, 32) * 2 - 1
+    with torch.no_grad():
+        out = net(x)
+        other = net(torch.cat([x[:, :3], -x[:, 3:]], dim=1))
+    assert out["albedo"].shape == (2, 3, 32, 32)
+    assert not torch.allclose(out["normal"], other["normal"])  # the prior reaches the geometry
+    with pytest.raises(ValueError, match=r"\[B,7,H,W\]"):
+        net.check_input(x[:, :3])
+    assert net.config()["body_prior"] is True and "body_prior" not in _net().config()
+    again = load_model(save_model(net, tmp_path / "body.safetensors"))
+    with torch.no_grad():
+        assert torch.equal(again(x)["transport"], out["transport"])
+
+
 def test_pack_holds_the_same_crops_as_the_scene_files(dataset, tmp_path):
     paths = data_splits.find_scenes(dataset)
     held = frozenset(presets.HELD_OUT)
