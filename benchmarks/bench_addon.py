@@ -5,7 +5,7 @@
 
 Makes a 24 MP JPEG (HxW, default 6000 high x 4000 wide) in a temporary folder
 (never committed): the bundled public-domain photo
-relight/data/matte_eval/obama_standing.jpg enlarged to that size (Lanczos),
+evaluation/data/matte_eval/obama_standing.jpg enlarged to that size (Lanczos),
 or with --synthetic a lit figure on a textured background. Loads it into bpy and
 drives the add-on as Blender's UI would: the modal Relight operator ticked by
 timer events, dial changes through the idle timer, the full-size relight when
@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO))
 PROBE_MS = 20.0  # a UI frame rate; finer wake-ups would mostly measure GIL hand-overs
 
 
-REAL_PHOTO = REPO / "relight" / "data" / "matte_eval" / "obama_standing.jpg"
+REAL_PHOTO = REPO / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg"
 
 
 def make_real_photo(path: Path, height: int, width: int) -> None:

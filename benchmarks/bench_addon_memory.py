@@ -17,7 +17,7 @@ Each flow runs in its own child process (so ru_maxrss is that flow's peak):
   saved preview first, then the restore's worker and the full-size layers one
   per timer call.
 
-The photo is the bundled public-domain relight/data/matte_eval/obama_standing.jpg
+The photo is the bundled public-domain evaluation/data/matte_eval/obama_standing.jpg
 enlarged to the size (made once in a temporary folder). A sampler thread reads
 the process's resident set every 2 ms and keeps, for the highest reading, what
 every thread was doing (the innermost add-on or relight functions on its stack),

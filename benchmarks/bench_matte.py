@@ -2,7 +2,7 @@
 
     python benchmarks/bench_matte.py [--threads 2] [--repeats 9] [--size 4000x3000]
 
-The bundled photo relight/data/matte_eval/obama_standing.jpg is enlarged to
+The bundled photo evaluation/data/matte_eval/obama_standing.jpg is enlarged to
 4000 x 3000 (12 MP, portrait) and relight.matte.person_matte runs on it
 (after one warm-up that also loads the model). Prints the median wall time,
 the median CPU time of the process (all threads), and the wall time of each
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     p.add_argument("--size", default="4000x3000", help="HEIGHTxWIDTH of the enlarged photo")
     args = p.parse_args(argv)
     H, W = (int(v) for v in args.size.lower().split("x"))
-    small, _ = read_photo(ROOT / "relight" / "data" / "matte_eval" / "obama_standing.jpg")
+    small, _ = read_photo(ROOT / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg")
     photo = resize_linear(small, H, W)
     run = lambda: matte.person_matte(photo, threads=args.threads)  # noqa: E731
     run()

@@ -27,9 +27,9 @@ from model import metrics
 from model.report_cli import run_report
 from relight import photo as photo_io
 from relight import sh
-from relight.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
-from relight.sheet import contact_sheet as _contact_sheet
-from relight.sheet import write_sheet
+from evaluation.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
+from evaluation.sheet import contact_sheet as _contact_sheet
+from evaluation.sheet import write_sheet
 from relight.fileio import atomic_write_text
 from relight.light import directional_light, sh_light
 from relight import quality as quality_presets

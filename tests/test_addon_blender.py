@@ -963,7 +963,7 @@ def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, 
 
 def test_automatic_mask_is_the_person_matte_shown_as_a_cut_out(addon, settings):
     from relight.matte import person_matte
-    from relight.matte_eval import EVAL_DIR
+    from evaluation.matte_eval import EVAL_DIR
 
     photo = bpy.data.images.load(str(EVAL_DIR / "grace_hopper.jpg"))
     settings.mask_mode = "AUTO"

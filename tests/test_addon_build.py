@@ -134,6 +134,9 @@ def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
     for required in ("relight/runtime.py", "relight/sh.py", "relight/envmap.py", "relight/photo.py",
                      "relight/models/models.json", "relight/data/hdri/studio.exr"):
         assert required in names
+    # the core only: evaluation-only code (evaluation/: contact sheets, the matte evaluation, its photos) stays out
+    assert all(n.startswith(("relight/", "fullbody_relight_core-")) for n in names)
+    assert not any("matte_eval" in n or n.endswith("/sheet.py") for n in names)
     # only the models Draft / Balanced / Best and the person matte run ship; the registry lists exactly them
     from relight import models as core_models
     from relight import quality as core_quality

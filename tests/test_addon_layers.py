@@ -144,7 +144,7 @@ def test_relight_and_reopen_make_and_write_one_layer_at_a_time(addon, monkeypatc
 
 
 def test_the_person_matte_check_image_is_screen_sized_on_a_large_photo(addon, monkeypatch):
-    from relight.matte_eval import EVAL_DIR
+    from evaluation.matte_eval import EVAL_DIR
 
     monkeypatch.setattr(work, "PREVIEW_LONG_SIDE", 128)  # grace_hopper.jpg, 512 x 600, counts as large
     photo = bpy.data.images.load(str(EVAL_DIR / "grace_hopper.jpg"))
@@ -166,7 +166,7 @@ def test_the_person_matte_check_image_is_screen_sized_on_a_large_photo(addon, mo
 def test_relight_again_shares_the_photo_and_its_person_matte_but_not_a_changed_photo(addon, monkeypatch):
     from PIL import Image
 
-    from relight.matte_eval import EVAL_DIR
+    from evaluation.matte_eval import EVAL_DIR
 
     Image.open(EVAL_DIR / "grace_hopper.jpg").save(addon / "grace.png")
     photo = bpy.data.images.load(str(addon / "grace.png"))

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from evaluation.matte_eval import EVAL_DIR
 from relight import matte
 from relight.models import REGISTRY_PATH
 from relight.photo import read_photo
 
-EVAL_DIR = Path(matte.__file__).resolve().parent / "data" / "matte_eval"
 
 
 def _photo(name: str) -> np.ndarray:
@@ -133,7 +133,7 @@ def test_bad_input_is_one_clear_error(image, message):
     assert "\n" not in str(info.value)
 
 
-# measured 2026-11-22 (python -m relight.matte_eval): IoU astronaut 0.953, biden 0.958, camera 0.939,
+# measured 2026-11-22 (python -m evaluation.matte_eval): IoU astronaut 0.953, biden 0.958, camera 0.939,
 # grace_hopper 0.986, obama 0.985, obama_standing 0.989, mean 0.968. Margin 0.03 for runtime and
 # library drift (onnxruntime, Pillow resampling); a matte that lost a limb or took in the background
 # falls far below (the network alpha head: mean 0.49 on the same photos; the selfie network alone
@@ -149,7 +149,7 @@ MAX_MEAN_SPILL = 0.026 * 1.25
 
 
 def test_matte_matches_the_references_of_the_bundled_photos():
-    from relight.matte_eval import boundary_f, eval_photos, iou, read_reference, spill
+    from evaluation.matte_eval import boundary_f, eval_photos, iou, read_reference, spill
 
     found = {name: (p, r) for name, p, r in eval_photos()}
     assert sorted(found) == sorted(MEASURED_IOU)
@@ -167,7 +167,7 @@ def test_matte_matches_the_references_of_the_bundled_photos():
 
 
 def test_metrics_on_known_shapes():
-    from relight.matte_eval import boundary_f, iou, spill
+    from evaluation.matte_eval import boundary_f, iou, spill
 
     ref = np.zeros((100, 100), bool)
     ref[20:60, 20:60] = True                   # 1600 px
@@ -277,7 +277,7 @@ def test_the_librarys_default_decompose_uses_the_person_matte():
     not the alpha head's (0.49 on these photos)."""
     import inspect
 
-    from relight.matte_eval import eval_photos, iou, read_reference
+    from evaluation.matte_eval import eval_photos, iou, read_reference
     from relight.runtime import Relighter
 
     assert inspect.signature(Relighter.decompose).parameters["matte"].default == "person"

@@ -9,7 +9,7 @@ printed per photo and over all.
     # Convolution2DTransposeBias); photos resized to 256 x 256 so that
     # MediaPipe's resize is the identity. Scratch env with mediapipe 0.10.21:
     /tmp/mattevenv/bin/python tools/check_matte_onnx.py mediapipe \\
-        relight/models/person_matte_selfie.onnx relight/data/matte_eval/*.jpg relight/data/matte_eval/*.png
+        relight/models/person_matte_selfie.onnx evaluation/data/matte_eval/*.jpg evaluation/data/matte_eval/*.png
 
     # pose detector and pose segmentation: against the TFLite interpreter's
     # reference kernels (ai-edge-litert; XNNPACK, MediaPipe's default, differs

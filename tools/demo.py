@@ -34,7 +34,8 @@ def relight_photo(model: Path) -> list[Path]:
 
 
 def relight_farm_scene() -> list[Path]:
-    from relight import dataset, light, photo, prt, sheet
+    from evaluation import sheet
+    from relight import dataset, light, photo, prt
 
     scenes = OUT / "scenes"
     cmd = [sys.executable, "-m", "farm", "--out", str(scenes), "--scenes", "1", "--seed", "7",

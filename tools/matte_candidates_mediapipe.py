@@ -5,7 +5,7 @@ with mediapipe 0.10.21 (numpy<2, protobuf<5):
 
     /tmp/mattevenv/bin/python tools/matte_candidates_mediapipe.py
 
-Scores each candidate's mask with relight.matte_eval's own metrics (IoU of
+Scores each candidate's mask with evaluation.matte_eval's own metrics (IoU of
 mask > 0.5, boundary F-score) and times MediaPipe's `process` call (median of
 3 after a warm-up; MediaPipe picks its own thread count):
 selfie segmentation general (256x256) and landscape (144x256), and the pose
@@ -22,7 +22,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from relight.matte_eval import boundary_f, eval_photos, iou, read_reference, spill  # noqa: E402
+from evaluation.matte_eval import boundary_f, eval_photos, iou, read_reference, spill  # noqa: E402
 
 
 def main() -> int:

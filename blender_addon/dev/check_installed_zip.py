@@ -43,7 +43,7 @@ def _inside(zip_path: str, model: str, user_dir: str) -> int:
     # a real photo (public domain, from the checkout; the zip ships no photos), so the
     # Automatic mask runs the person matte's networks from the bundled wheel too
     photo = Path(user_dir) / "photo.jpg"
-    shutil.copy(Path(__file__).resolve().parents[2] / "relight" / "data" / "matte_eval" / "grace_hopper.jpg",
+    shutil.copy(Path(__file__).resolve().parents[2] / "evaluation" / "data" / "matte_eval" / "grace_hopper.jpg",
                 photo)
     image = bpy.data.images.load(str(photo))
     settings = bpy.context.scene.relight_photo

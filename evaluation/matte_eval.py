@@ -1,9 +1,9 @@
-"""Person mattes against reference mattes on real photos: `python -m relight.matte_eval`.
+"""Person mattes against reference mattes on real photos: `python -m evaluation.matte_eval`.
 
-    python -m relight.matte_eval [--photos DIR] [--matte person|raw|selfie|pose|network|decompose]
-                                 [--threads N] [--repeat N] [--json OUT.json]
+    python -m evaluation.matte_eval [--photos DIR] [--matte person|raw|selfie|pose|network|decompose]
+                                    [--threads N] [--repeat N] [--json OUT.json]
 
-For every photo of DIR (default: the bundled set relight/data/matte_eval,
+For every photo of DIR (default: the bundled set evaluation/data/matte_eval,
 references in DIR/reference/NAME.png, white = person) prints the IoU of
 alpha > 0.5 with the reference, the boundary F-score, the spill (the matte's
 soft mass outside the reference, per reference pixel: ghosts that the 0.5
@@ -178,7 +178,7 @@ def format_table(rows: list[dict], kind: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m relight.matte_eval", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m evaluation.matte_eval", description=__doc__.split("\n\n")[0])
     p.add_argument("--photos", type=Path, default=EVAL_DIR, help="folder of photos with reference/NAME.png")
     p.add_argument("--matte", choices=MATTES, default="person")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
@@ -193,7 +193,7 @@ def main(argv=None) -> int:
 
             atomic_write_json(args.json, {"matte": args.matte, "rows": rows}, indent=2)
     except (ValueError, OSError) as exc:
-        print(f"relight.matte_eval: error: {exc}", file=sys.stderr)
+        print(f"evaluation.matte_eval: error: {exc}", file=sys.stderr)
         return 2
     return 0
 
