@@ -1,7 +1,7 @@
 """No import cycles between the project's modules (issue 19).
 
-Every `import` and `from ... import` in relight/, model/, export/, blender_addon/
-and farm/ counts, at module level or inside a function (a lazy import that
+Every `import` and `from ... import` in relight/, model/, export/, blender_addon/,
+farm/ and evaluation/ counts, at module level or inside a function (a lazy import that
 closes a loop is still a cycle: neither module can be understood without the
 other). `from package import name` points at the submodule when `name` is one,
 else at the package. The cycles are the strongly connected components of that
@@ -16,10 +16,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("relight", "model", "export", "blender_addon", "farm")
+PACKAGES = ("relight", "model", "export", "blender_addon", "farm", "evaluation")
 
 
-def _modules() -> dict[str, Path]:
+def module_files() -> dict[str, Path]:
+    """{dotted module name: its file} for every module of PACKAGES."""
     out = {}
     for package in PACKAGES:
         for path in (ROOT / package).rglob("*.py"):
@@ -30,16 +31,17 @@ def _modules() -> dict[str, Path]:
     return out
 
 
-def import_graph() -> dict[str, set[str]]:
-    """{module: modules of the project it imports}."""
-    modules = _modules()
-    graph: dict[str, set[str]] = {m: set() for m in modules}
+def imported_names() -> dict[str, set[str]]:
+    """{module: every dotted name it imports, relative imports made absolute}; for
+    `from package import name`, package.name when that is a module of the project, else
+    the package (so a library's `from torch import nn` is `torch`)."""
+    modules = module_files()
+    out: dict[str, set[str]] = {m: set() for m in modules}
     for name, path in modules.items():
         is_package = path.name == "__init__.py"
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
-            targets = []
             if isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
+                out[name].update(a.name for a in node.names)
             elif isinstance(node, ast.ImportFrom):
                 if node.level:
                     base = name.split(".") if is_package else name.split(".")[:-1]
@@ -49,13 +51,21 @@ def import_graph() -> dict[str, set[str]]:
                     module = node.module or ""
                 for alias in node.names:
                     sub = f"{module}.{alias.name}"
-                    targets.append(sub if sub in modules else module)
-            for target in targets:
-                # `import a.b.c` loads a, a.b and a.b.c: the deepest project module is the edge
-                while target and target not in modules:
-                    target = target.rpartition(".")[0]
-                if target and target != name:
-                    graph[name].add(target)
+                    out[name].add(sub if sub in modules else module)
+    return out
+
+
+def import_graph() -> dict[str, set[str]]:
+    """{module: modules of the project it imports}."""
+    modules = module_files()
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for name, targets in imported_names().items():
+        for target in targets:
+            # `import a.b.c` loads a, a.b and a.b.c: the deepest project module is the edge
+            while target and target not in modules:
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                graph[name].add(target)
     return graph
 
 
