@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.mask_ops import dilate
+
 EVAL_DIR = Path(__file__).resolve().parent / "data" / "matte_eval"
 REFERENCE_SUBDIR = "reference"
 BOUNDARY_TOLERANCE = 0.008   # of the image diagonal
@@ -63,29 +65,15 @@ def _boundary(mask: np.ndarray) -> np.ndarray:
     return mask & ~inner
 
 
-def _near(points: np.ndarray, radius: int) -> np.ndarray:
-    """Pixels within `radius` (chessboard distance) of a True pixel: separable max filter."""
-    out = points.copy()
-    for axis in (0, 1):
-        grown = out.copy()
-        for step in range(1, radius + 1):
-            src = [slice(None)] * 2
-            dst = [slice(None)] * 2
-            src[axis], dst[axis] = slice(None, -step), slice(step, None)
-            grown[tuple(dst)] |= out[tuple(src)]
-            grown[tuple(src)] |= out[tuple(dst)]
-        out = grown
-    return out
-
-
 def boundary_f(alpha: np.ndarray, reference: np.ndarray, tolerance: float = BOUNDARY_TOLERANCE) -> float:
     """Boundary F-score of alpha > 0.5 against the reference (bool), tolerance x diagonal."""
     radius = max(1, round(tolerance * float(np.hypot(*reference.shape))))
     pred_b, ref_b = _boundary(alpha > THRESHOLD), _boundary(reference)
     if not pred_b.any() or not ref_b.any():
         return float(pred_b.any() == ref_b.any())
-    precision = np.count_nonzero(pred_b & _near(ref_b, radius)) / np.count_nonzero(pred_b)
-    recall = np.count_nonzero(ref_b & _near(pred_b, radius)) / np.count_nonzero(ref_b)
+    # within `radius` (chessboard distance) of the other boundary: a dilation by a square
+    precision = np.count_nonzero(pred_b & dilate(ref_b, radius)) / np.count_nonzero(pred_b)
+    recall = np.count_nonzero(ref_b & dilate(pred_b, radius)) / np.count_nonzero(ref_b)
     return float(2 * precision * recall / (precision + recall)) if precision + recall else 0.0
 
 
