@@ -32,11 +32,9 @@ LIGHT_LIMIT = 1e18
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `image` sub-command to the `relight` command's subparsers."""
-    p = subparsers.add_parser("image", help="relight the person in a photo (or a folder of photos)",
-                              description=__doc__.split("\n\n")[0])
-    p.add_argument("photo", help="photo file (PNG/JPEG/TIFF/WebP/EXR) or a folder of them")
-    add_light_options(p)
-    add_photo_options(p)
+    p = add_relight_parser(subparsers, "image", help="relight the person in a photo (or a folder of photos)",
+                           description=__doc__.split("\n\n")[0], source="photo",
+                           source_help="photo file (PNG/JPEG/TIFF/WebP/EXR) or a folder of them")
     p.add_argument("--out", default=None,
                    help="output .png (8-bit sRGB) or .exr (linear); a folder in folder mode "
                         "(default: PHOTO_relit.png beside the photo)")
@@ -46,6 +44,17 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="print what was done to each photo (working size, augmentations, refinement, SH order, "
                         "residual) as one JSON line; the output file's metadata holds the same")
     p.set_defaults(func=run_image)
+    return p
+
+
+def add_relight_parser(subparsers, name: str, *, help: str, description: str, source: str,
+                       source_help: str) -> argparse.ArgumentParser:
+    """The parser of a sub-command that relights a person (`image`, `video`): what it reads
+    (`source`), then the light options and the photo options."""
+    p = subparsers.add_parser(name, help=help, description=description)
+    p.add_argument(source, help=source_help)
+    add_light_options(p)
+    add_photo_options(p)
     return p
 
 

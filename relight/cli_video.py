@@ -43,14 +43,12 @@ WORK_SUFFIX = ".frames"  # OUTPUT.mp4.frames/: a resumable video job's frames
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `video` sub-command to the `relight` command's subparsers."""
     from relight.cli_args import finite_float
-    from relight.cli_image import add_light_options, add_photo_options
+    from relight.cli_image import add_relight_parser
     from relight.clip import DEFAULT_STABILITY, FILTER_MODES
 
-    p = subparsers.add_parser("video", help="relight the person in a video or a folder of frames",
-                              description=__doc__.split("\n\n")[0])
-    p.add_argument("input", help="video file or folder of numbered frames")
-    add_light_options(p)
-    add_photo_options(p)
+    p = add_relight_parser(subparsers, "video", help="relight the person in a video or a folder of frames",
+                           description=__doc__.split("\n\n")[0], source="input",
+                           source_help="video file or folder of numbered frames")
     # the shared --threads counts frames analysed at once here (each network on one thread)
     p._option_string_actions["--threads"].help = ("frames analysed at once, each network on one onnxruntime "
                                                   "thread (default: the cores available)")
