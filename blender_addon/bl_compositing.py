@@ -13,10 +13,9 @@ Blender 5 composites with a node group (scene.compositing_node_group), Blender
 from __future__ import annotations
 
 import bpy
-from bpy.props import StringProperty
 
 from . import bl_photo_world, photo_light
-from .bl_photo_world import tag, tagged
+from .bl_photo_world import RelitPhotoOperator, tag, tagged
 
 CAMERA, FLOOR, COMPOSITE = "camera", "shadow_catcher", "composite"
 NODE_PREFIX = "Relight Photo "  # our nodes in a Blender 4 compositor tree (the user's stay)
@@ -143,18 +142,7 @@ def make_render_settings(scene) -> None:
     view.exposure, view.gamma = 0.0, 1.0
 
 
-def _compositing_step(context, photo, session) -> str:
-    scene = context.scene
-    bl_photo_world.make_world(scene, photo, session)
-    camera = make_camera(scene, photo, session)
-    floor = make_floor(scene, photo, session)
-    make_compositor(scene, photo, session)
-    make_render_settings(scene)
-    return (f"Render '{camera.name}' to put CG objects over '{photo.name}', lit like the person, "
-            f"shadows on '{floor.name}'")
-
-
-class RELIGHT_PHOTO_OT_compositing_setup(bpy.types.Operator):
+class RELIGHT_PHOTO_OT_compositing_setup(bpy.types.Operator, RelitPhotoOperator):
     """Set up a render over the photo: its light as the World, a camera of its size with the photo behind it,
     a shadow-catcher floor and a compositor that puts the render over the photo (Cycles, transparent film)"""
 
@@ -162,11 +150,15 @@ class RELIGHT_PHOTO_OT_compositing_setup(bpy.types.Operator):
     bl_label = "Compositing Setup"
     bl_options = {"REGISTER", "UNDO"}
 
-    image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
-                               description="Relit photo (default: the Image Editor's image)")
-
-    def execute(self, context):
-        return bl_photo_world.run_and_report(self, context, _compositing_step)
+    def step(self, context, photo, session) -> str:
+        scene = context.scene
+        bl_photo_world.make_world(scene, photo, session)
+        camera = make_camera(scene, photo, session)
+        floor = make_floor(scene, photo, session)
+        make_compositor(scene, photo, session)
+        make_render_settings(scene)
+        return (f"Render '{camera.name}' to put CG objects over '{photo.name}', lit like the person, "
+                f"shadows on '{floor.name}'")
 
 
 CLASSES = (RELIGHT_PHOTO_OT_compositing_setup,)

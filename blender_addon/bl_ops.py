@@ -16,8 +16,8 @@ from . import bl_dials, bl_images, bl_saved, engine, jobs, mask_choice, output_n
 from .bl_dials import compute_relit, schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
-from .bl_session import (POLL_SECONDS, SYNC_ENV, addon_settings, current_session, editor_image, release_job,
-                         session_of, set_status, source_image, status_of, tell, write_output)
+from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, release_job, session_of,
+                         set_status, source_image, status_of, tell, write_output)
 
 
 def mask_inputs(settings, image) -> dict:
@@ -41,7 +41,7 @@ def mask_inputs(settings, image) -> dict:
 
 # ------------------------------------------------------------------ operators
 
-class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
+class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
     """Split the photo into albedo, light transport and light, then relight it with the chosen light"""
 
     bl_idname = "relight_photo.relight"
@@ -50,15 +50,9 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
 
     image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
                                description="Photo to relight (default: the Image Editor's image)")
-    synchronous: BoolProperty(name="Synchronous", default=False, options={"SKIP_SAVE", "HIDDEN"},
-                              description="Run the network on the calling thread (tests, scripts)")
 
-    _job = None
-    _timer = None
-    _plan = None
     _pending = None     # output layers still to hand to Blender, one per timer tick
     _result = None
-    _started = 0.0
 
     # the plan gathers every input on the main thread before the worker starts
     def _make_plan(self, context) -> dict:
@@ -191,30 +185,20 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator):
         return self._done(context)
 
     def invoke(self, context, event):
-        if self.synchronous or jobs.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
+        if self.runs_here(context):
             return self.execute(context)
         try:
             self._start(context, layers_later=True)
         except ValueError as exc:
             return self._error(context, exc)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(POLL_SECONDS, window=context.window)
-        wm.modal_handler_add(self)
-        wm.progress_begin(0, 100)
-        status_of(context).running = True
-        return {"RUNNING_MODAL"}
+        context.window_manager.progress_begin(0, 100)
+        return self.start_polling(context)
 
     def _cleanup(self, context) -> None:
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
+        context.window_manager.progress_end()
         if context.workspace is not None:
             context.workspace.status_text_set(None)
-        status = status_of(context)
-        status.running, status.stage, status.progress = False, "", 0.0
-        release_job(self._job)
+        self.stop_polling(context)
 
     def _show_progress(self, context) -> None:
         progress = self._job.progress

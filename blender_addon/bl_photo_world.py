@@ -109,29 +109,33 @@ def make_world(scene, photo, session):
     return world
 
 
-def run_and_report(operator, context, build) -> set:
-    """Run build(context, photo, session) -> message for the operator; report the message or
-    the refusal (on the panel's status line too)."""
-    start = time.perf_counter()
-    try:
-        photo, session = photo_and_session(context, operator.image_name)
-        message = build(context, photo, session)
-    except ValueError as exc:
-        return tell(operator, context, str(exc))
-    except OSError as exc:  # the temporary map file (a full disk)
-        return tell(operator, context, f"Cannot write the light map: {exc.strerror or exc}.")
-    message = f"{message} ({time.perf_counter() - start:.2f} s)"
-    operator.report({"INFO"}, message)
-    set_status(context, message)
-    return {"FINISHED"}
+class RelitPhotoOperator:
+    """What the operators on a relit photo share (Photo Light -> World, Compositing Setup): the
+    photo they take, and running their step(context, photo, session) -> message with its outcome
+    or refusal reported (on the panel's status line too)."""
+
+    image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
+                               description="Relit photo (default: the Image Editor's image)")
+
+    def step(self, context, photo, session) -> str:
+        raise NotImplementedError
+
+    def execute(self, context):
+        start = time.perf_counter()
+        try:
+            photo, session = photo_and_session(context, self.image_name)
+            message = self.step(context, photo, session)
+        except ValueError as exc:
+            return tell(self, context, str(exc))
+        except OSError as exc:  # the temporary map file (a full disk)
+            return tell(self, context, f"Cannot write the light map: {exc.strerror or exc}.")
+        message = f"{message} ({time.perf_counter() - start:.2f} s)"
+        self.report({"INFO"}, message)
+        set_status(context, message)
+        return {"FINISHED"}
 
 
-def _world_step(context, photo, session) -> str:
-    world = make_world(context.scene, photo, session)
-    return f"The World '{world.name}' is now the light of '{photo.name}', strength 1"
-
-
-class RELIGHT_PHOTO_OT_light_to_world(bpy.types.Operator):
+class RELIGHT_PHOTO_OT_light_to_world(bpy.types.Operator, RelitPhotoOperator):
     """Make the light estimated in the relit photo the scene's World (an Environment Texture kept in the
     .blend), so that CG objects are lit like the person"""
 
@@ -139,11 +143,9 @@ class RELIGHT_PHOTO_OT_light_to_world(bpy.types.Operator):
     bl_label = "Photo Light -> World"
     bl_options = {"REGISTER", "UNDO"}
 
-    image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
-                               description="Relit photo (default: the Image Editor's image)")
-
-    def execute(self, context):
-        return run_and_report(self, context, _world_step)
+    def step(self, context, photo, session) -> str:
+        world = make_world(context.scene, photo, session)
+        return f"The World '{world.name}' is now the light of '{photo.name}', strength 1"
 
 
 CLASSES = (RELIGHT_PHOTO_OT_light_to_world,)

@@ -6,13 +6,13 @@ import math
 import time
 
 import bpy
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import StringProperty
 
 from relight.clip import DEFAULT_STABILITY
 
 from . import engine, jobs, quality, sequence
 from .bl_light import target_light
-from .bl_session import POLL_SECONDS, SYNC_ENV, addon_settings, editor_image, release_job, set_status, status_of, tell
+from .bl_session import WorkerOperator, addon_settings, editor_image, release_job, set_status, status_of, tell
 
 SLOT = "sequence"  # its place in state.RUNNING (a sequence and a photo can be relit at once)
 SOURCES = {"SEQUENCE", "MOVIE"}
@@ -24,7 +24,7 @@ def sequence_image(context, image_name: str = ""):
     return image if image is not None and image.source in SOURCES else None
 
 
-class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
+class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
     """Relight every frame of the movie or image sequence into a new image sequence beside the .blend
 (steady from frame to frame; Esc stops and keeps the frames done)"""
 
@@ -34,13 +34,6 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
 
     image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
                                description="Movie or image sequence to relight (default: the Image Editor's image)")
-    synchronous: BoolProperty(name="Synchronous", default=False, options={"SKIP_SAVE", "HIDDEN"},
-                              description="Run on the calling thread (tests, scripts)")
-
-    _job = None
-    _timer = None
-    _plan = None
-    _started = 0.0
 
     def _make_plan(self, context) -> dict:
         from . import state
@@ -114,32 +107,20 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
             release_job(self._job, SLOT)
 
     def invoke(self, context, event):
-        if self.synchronous or jobs.env_flag(SYNC_ENV) or bpy.app.background or context.window is None:
+        if self.runs_here(context):
             return self.execute(context)
         try:
             self._start(context)
         except ValueError as exc:
             return self._stopped(context, exc)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(POLL_SECONDS, window=context.window)
-        wm.modal_handler_add(self)
-        status_of(context).running = True
-        return {"RUNNING_MODAL"}
-
-    def _cleanup(self, context) -> None:
-        if self._timer is not None:
-            context.window_manager.event_timer_remove(self._timer)
-            self._timer = None
-        status = status_of(context)
-        status.running, status.stage, status.progress = False, "", 0.0
-        release_job(self._job, SLOT)
+        return self.start_polling(context)
 
     def modal(self, context, event):
         if event.type == "ESC":
             # stop after the frame in progress: every frame written stays whole
             self._job.cancel_token.cancel()
             self._job.wait(timeout=30)
-            self._cleanup(context)
+            self.stop_polling(context, SLOT)
             return self._stopped(context, engine.Cancelled())
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
@@ -150,7 +131,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator):
             status.stage, status.elapsed = progress.stage, time.monotonic() - self._started
             status.progress = min(0.99, progress.written / progress.total) if progress.total else 0.0
             return {"PASS_THROUGH"}
-        self._cleanup(context)
+        self.stop_polling(context, SLOT)
         if job_state is jobs.JobState.FAILED:
             return self._stopped(context, self._job.error)
         try:

@@ -1,8 +1,10 @@
 """What every part of the add-on asks of Blender's context: the settings, the status
-line, the photo in the editor and its session, and handing an output buffer to Blender."""
+line, the photo in the editor and its session, handing an output buffer to Blender, and
+what the operators that run a job on a worker thread share (WorkerOperator)."""
 
 import bpy
 import numpy as np
+from bpy.props import BoolProperty
 
 from . import bl_images, jobs, output_names, pixel_buffers, state
 
@@ -113,3 +115,39 @@ def release_job(job, slot: str = "job") -> None:
     """Forget the running job, if it is still this one."""
     if job is not None and state.RUNNING.get(slot) is job:
         del state.RUNNING[slot]
+
+
+class WorkerOperator:
+    """What Relight and Relight Sequence share: a job on a worker thread (its BackgroundJob,
+    plan and start time), run on the calling thread when asked or with no UI to poll from,
+    else polled on a timer from the operator's modal handler."""
+
+    synchronous: BoolProperty(name="Synchronous", default=False, options={"SKIP_SAVE", "HIDDEN"},
+                              description="Run on the calling thread (tests, scripts)")
+
+    _job = None
+    _timer = None
+    _plan = None
+    _started = 0.0
+
+    def runs_here(self, context) -> bool:
+        """Run on the calling thread: asked to (the property, RELIGHT_PHOTO_SYNC), or no window
+        whose timer could poll the job (background mode, scripts)."""
+        return self.synchronous or updates_immediately() or context.window is None
+
+    def start_polling(self, context) -> set:
+        """The job is started: poll it every POLL_SECONDS from the modal handler."""
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(POLL_SECONDS, window=context.window)
+        wm.modal_handler_add(self)
+        status_of(context).running = True
+        return {"RUNNING_MODAL"}
+
+    def stop_polling(self, context, slot: str = "job") -> None:
+        """The job is over: no more timer, the panel's status at rest, the job's slot free."""
+        if self._timer is not None:
+            context.window_manager.event_timer_remove(self._timer)
+            self._timer = None
+        status = status_of(context)
+        status.running, status.stage, status.progress = False, "", 0.0
+        release_job(self._job, slot)

@@ -609,7 +609,7 @@ def _modal_operator(image_name):
                                _dial_values=cls._dial_values)
     op.report = lambda kind, text: op.reports.append((set(kind), text))
     for name in ("_make_plan", "_start", "_install", "_write_next", "_done", "_error", "_cleanup",
-                 "_show_progress", "modal"):
+                 "stop_polling", "_show_progress", "modal"):
         setattr(op, name, getattr(cls, name).__get__(op))
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_FakeWindowManager(),
                                     workspace=_FakeWorkspace(), space_data=None, window=None)
