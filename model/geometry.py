@@ -62,7 +62,7 @@ class GeometryNet(nn.Module):
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
                  full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
-                 fixed_level: bool = False, body_prior: bool = False):
+                 fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
@@ -73,6 +73,9 @@ class GeometryNet(nn.Module):
         self.decoder_width, self.full_res_convs = int(decoder_width), int(full_res_convs)
         self.ridge, self.reliable, self.fixed_level = float(ridge), float(reliable), bool(fixed_level)
         self.body_prior = bool(body_prior)
+        if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or not 1 <= fit_stride <= 4:
+            raise ValueError(f"GeometryNet: fit_stride must be 1..4, got {fit_stride!r}")
+        self.fit_stride = fit_stride
         self.in_channels = 3 + (BODY_CHANNELS if self.body_prior else 0)
         self.n = num_coeffs(self.sh_order)
         self.size_multiple = 2 ** self.depth
@@ -95,6 +98,8 @@ class GeometryNet(nn.Module):
                   "ridge": self.ridge, "reliable": self.reliable, "fixed_level": self.fixed_level}
         if self.body_prior:  # absent when off: configs of models without it stay as they were
             config["body_prior"] = True
+        if self.fit_stride != 1:
+            config["fit_stride"] = self.fit_stride
         return config
 
     def check_input(self, image: torch.Tensor) -> None:
@@ -124,7 +129,13 @@ class GeometryNet(nn.Module):
         # float32 inside an fp16 graph (onnxconverter-common leaves their types alone)
         unclipped = ((2.0 * CLIPPED - 1.0 - image.max(dim=1, keepdim=True).values) * 1e6).clamp(0.0, 1.0)
         weight = alpha.detach() * unclipped
-        light_fit = physics.fit_light(transport, albedo_prior, photo, weight, light_prior, self.ridge)
+        # the light is fitted on every fit_stride-th pixel of each row and column: 25 unknowns
+        # are as well pinned by a quarter of a crop's pixels, at a quarter of the cost; in
+        # float32 while training (twice as fast; the exported graph fits in float64)
+        s = self.fit_stride
+        light_fit = physics.fit_light(transport[..., ::s, ::s], albedo_prior[..., ::s, ::s], photo[..., ::s, ::s],
+                                      weight[..., ::s, ::s], light_prior, self.ridge,
+                                      precision=torch.float32 if self.training else torch.float64)
         light = light_fit
         if self.fixed_level:
             lum = mean_luminance(light_fit)
@@ -151,7 +162,8 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
 
 # Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).
 GEOMETRY_LOSS_WEIGHTS = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2,
-                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5}
+                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0}
+FITTED_BANDS = 3  # light_fit compares bands 0-2: all a Lambertian lobe passes (band 3's A_l is 0, band 4's 0.04)
 
 
 def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dict[str, torch.Tensor]:
@@ -163,7 +175,9 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     against the true input light; transport: L1 of the lobe T against the baked
     T (what the lobe cannot represent stays); relight: L1 of albedo * (T . L_b)
     against the target image under light b (through the fit: end to end);
-    reconstruction: the same under the fitted light against the input image.
+    reconstruction: the same under the fitted light against the input image; light_fit: L1
+    of the fitted light's bands 0-2 against the true input light's, in units of the true
+    DC's luminance (the fit's answer itself, which relighting divides by; off by default).
     """
     w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
     mask = batch["alpha"]
@@ -183,6 +197,10 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
         torch.abs(torch.sqrt(prior + 1e-4) - torch.sqrt(gt_albedo + 1e-4)), interior)
     terms["alpha"] = torch.abs(pred["alpha"] - mask).mean()
     terms["light"] = torch.abs(pred["light_prior"] - batch["light"]).mean()
+    if w.get("light_fit", 0.0):
+        k = FITTED_BANDS * FITTED_BANDS
+        level = mean_luminance(batch["light"]).clamp(min=1e-3)[:, None, None]
+        terms["light_fit"] = (torch.abs(pred["light_fit"][:, :k] - batch["light"][:, :k]) / level).mean()
     terms["transport"] = masked_mean(torch.abs(pred["transport"] - batch["transport"]), interior)
     relit = pred["albedo"] * torch.einsum("bnhw,bnc->bchw", pred["transport"], batch["target_light"])
     terms["relight"] = masked_mean(torch.abs(relit - batch["target_image"]), interior)

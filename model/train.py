@@ -43,7 +43,10 @@ def build_model_config(args) -> dict:
         for name in ("width", "depth"):
             if getattr(args, name) is not None:
                 layout[name] = getattr(args, name)
-        return dict(arch=GEOMETRY, sh_order=args.order, **layout, **({"body_prior": True} if args.body_prior else {}))
+        extra = {"body_prior": True} if args.body_prior else {}
+        if args.fit_stride != 1:
+            extra["fit_stride"] = args.fit_stride
+        return dict(arch=GEOMETRY, sh_order=args.order, **layout, **extra)
     layout = dict(PRESETS[args.preset])
     for name in ("width", "depth"):
         if getattr(args, name) is not None:
@@ -129,6 +132,9 @@ def parse_args(argv=None):
                    help="photo-like capture of the input (model/capture.py: real backgrounds, white balance, "
                         "exposure, blur, noise, JPEG); off by default, measured in docs/EVALUATION.md")
     p.add_argument("--no-presets", action="store_true", help="extra lights from scene lights only")
+    p.add_argument("--fit-stride", type=int, default=1, choices=(1, 2, 3, 4),
+                   help="geometry-first model: fit the photo's light on every Nth pixel of each row and "
+                        "column (2: a quarter of the pixels, a quarter of the fit's cost)")
     p.add_argument("--body-prior", action="store_true",
                    help="geometry-first model: the unclothed body's normal and coverage as 4 more input "
                         "channels (scenes need the farm's body pass)")

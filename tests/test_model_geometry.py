@@ -161,6 +161,43 @@ def test_onnx_export_matches_torch_and_the_runtime_relights_with_it(tmp_path):
     assert np.array_equal(relit[mask == 0], photo[mask == 0])
 
 
+def test_strided_light_fit_exports_and_trains_in_float32():
+    """fit_stride 2 fits the light on a quarter of the pixels, in the ONNX graph as in torch;
+    training mode fits in float32 and lands within float32 rounding of the double fit."""
+    from export.onnx_export import max_abs_diff, onnx_outputs, torch_outputs
+
+    net = _net(4, fit_stride=2)
+    assert net.config()["fit_stride"] == 2 and "fit_stride" not in _net().config()
+    x = torch.rand(2, 3, 32, 48) * 2 - 1
+    import copy
+
+    with torch.no_grad():
+        double = net(x)["light"]
+        single = copy.deepcopy(net).train()(x)["light"]  # a copy: train mode moves BatchNorm's statistics
+    # BatchNorm in train mode uses the batch's statistics: compare the fit alone on eval features
+    with torch.no_grad():
+        out = net(x)
+        photo = physics.linear_from_network_input(x)
+        w = out["alpha"] * 1.0
+        args = (out["transport"][..., ::2, ::2], out["albedo_prior"][..., ::2, ::2], photo[..., ::2, ::2],
+                w[..., ::2, ::2], out["light_prior"], net.ridge)
+        f64 = physics.fit_light(*args)
+        f32 = physics.fit_light(*args, precision=torch.float32)
+    assert torch.allclose(out["light"], double)
+    assert float((f32 - f64).abs().max() / f64.abs().max()) < 1e-4
+    assert not torch.equal(single, double)  # train mode is another path (BatchNorm, float32)
+    import tempfile
+    from pathlib import Path
+
+    from export.onnx_export import export_onnx
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path, _ = export_onnx(net, Path(tmp) / "strided.onnx")
+        xs = x[:1].numpy()
+        diff = max_abs_diff(torch_outputs(net, xs), onnx_outputs(path, xs))
+    assert max(diff.values()) < 1e-4, diff
+
+
 def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dataset):
     """Perfect transport and light: no normal, visibility or light error; a turned one: large."""
     pairs = data.EvaluationPairs(data_splits.find_scenes(dataset), 32, 4, padding=2,
