@@ -2,15 +2,17 @@
 
     .venv/bin/python benchmarks/bench_train.py [--size 256] [--batch 4] [--steps 3] [--variants]
         [--preset default|small|paper] [--width W]
-    .venv/bin/python benchmarks/bench_train.py --geometry geo-default --size 128 --batch 8 --steps 6
+    .venv/bin/python benchmarks/bench_train.py --geometry geo-default --size 128 --batch 8 --steps 6 \
+        [--data data/train128 --pack runs/pack128.npz] [--compile] [--bf16]
 
 --geometry times the geometry-first GeometryNet (the shipped model) with its
 training losses under the CPU settings that matter: torch threads (1 = how the
-comparison trainings ran, two at a time; 2 = both cores in one run),
-channels-last memory format, and torch.compile.
+comparison trainings ran, two at a time; 2 = both cores in one run), the light
+fit's precision in training (float64 before issue 25, float32 now) and its pixel
+stride (--fit-stride), channels-last memory format, torch.compile and bf16.
 
-Random inputs with the shapes of real samples (the data pipeline is timed
-separately: --data DIR times model.data.TrainingScenes items). Prints a
+Random inputs with the shapes of real samples, or with --pack the batches of
+model.train's own data module (the data pipeline inside the timed step). Prints a
 markdown table; copy it with the command into docs/benchmarks/model.md.
 """
 
@@ -83,16 +85,21 @@ def geometry_batch(batch: int, size: int, n: int) -> dict:
 
 
 def time_geometry(preset: str, batch: int, size: int, steps: int, threads: int, channels_last: bool,
-                  compiled: bool, warmup: int = 2, bf16: bool = False) -> float:
-    """Median images/s of GeometryNet training steps (the losses of model.geometry)."""
+                  compiled: bool, warmup: int = 2, bf16: bool = False, fit_stride: int = 1,
+                  fit_float64: bool = False, loader=None) -> float:
+    """Median images/s of GeometryNet training steps (the losses of model.geometry); `loader`:
+    batches from the real data pipeline (timed with the step), else one random batch."""
     from model.geometry import GEOMETRY_PRESETS, GeometryNet, geometry_losses
     from model.train import loss_weights_from_args, parse_args
 
     torch.set_num_threads(threads)
     torch.manual_seed(0)
-    model = GeometryNet(sh_order=4, **GEOMETRY_PRESETS[preset])
+    model = GeometryNet(sh_order=4, fit_stride=fit_stride, **GEOMETRY_PRESETS[preset])
+    if fit_float64:  # training as it was before issue 25: the light fit in float64
+        model.train_fit_precision = torch.float64
     weights = loss_weights_from_args(parse_args(["--data", ".", "--out", ".", "--preset", preset]))
     data = geometry_batch(batch, size, 25)
+    batches = iter(loader) if loader is not None else None
     if channels_last:
         model = model.to(memory_format=torch.channels_last)
         data["input"] = data["input"].contiguous(memory_format=torch.channels_last)
@@ -102,6 +109,8 @@ def time_geometry(preset: str, batch: int, size: int, steps: int, threads: int, 
     times = []
     for i in range(warmup + steps):
         t0 = time.perf_counter()
+        if batches is not None:
+            data = next(batches)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
             pred = step_model(data["input"])
         terms = geometry_losses({k: v.float() for k, v in pred.items()}, data, weights)
@@ -119,18 +128,38 @@ def geometry_table(args) -> None:
     print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, GeometryNet {args.geometry}, "
           f"{args.size}x{args.size}, batch {args.batch}, median of {args.steps} steps after 2 warm-ups, "
           f"load average before {os.getloadavg()[0]:.2f}\n")
-    print("| threads | channels-last | torch.compile | bf16 autocast | train images/s | ratio to 1 thread, plain |")
-    print("|---|---|---|---|---|---|")
-    base = None
+    loader = None
+    if args.pack:  # the real pipeline: model.train's data module on the pack, its augmentations
+        from pathlib import Path
+
+        from model.train_data import SceneDataModule
+
+        data = SceneDataModule([args.data], size=args.size, order=4, batch=args.batch, seed=1, pack=Path(args.pack),
+                               augment={"light_tint": 0.15})
+        data.prepare_data()
+        data.setup("fit")
+        loader = data.train_dataloader()
+        print(f"batches from model.train's data module on {args.pack} ({args.data})\n")
+    print("| threads | light fit in training | fit stride | channels-last | torch.compile | bf16 autocast "
+          "| train images/s | ratio to 1 thread, before | ratio to 2 threads, before |")
+    print("|---|---|---|---|---|---|---|---|---|")
     yes = lambda flag: "yes" if flag else "no"
-    rows = [(1, False, False, False), (2, False, False, False), (2, True, False, False), (2, True, False, True)]
+    # (threads, float64 fit, fit stride, channels-last, compile, bf16): before issue 25's change, then after
+    rows = [(1, True, 1, False, False, False), (2, True, 1, False, False, False),
+            (1, False, 1, False, False, False), (1, False, 2, False, False, False),
+            (2, False, 2, False, False, False), (2, False, 2, True, False, False)]
     if args.compile:  # minutes of compiling, and slower here: measured once (docs/benchmarks/model.md)
-        rows.append((2, False, True, False))
-    for threads, channels_last, compiled, bf16 in rows:
+        rows.append((2, False, 2, False, True, False))
+    if args.bf16:
+        rows.append((2, False, 2, True, False, True))
+    before = {}
+    for threads, f64, stride, channels_last, compiled, bf16 in rows:
         ips = time_geometry(args.geometry, args.batch, args.size, args.steps, threads, channels_last, compiled,
-                            bf16=bf16)
-        base = base or ips
-        print(f"| {threads} | {yes(channels_last)} | {yes(compiled)} | {yes(bf16)} | {ips:.2f} | {ips / base:.2f} |",
+                            bf16=bf16, fit_stride=stride, fit_float64=f64, loader=loader)
+        if f64:
+            before[threads] = ips
+        print(f"| {threads} | {'float64' if f64 else 'float32'} | {stride} | {yes(channels_last)} | {yes(compiled)} "
+              f"| {yes(bf16)} | {ips:.2f} | {ips / before[1]:.2f} | {ips / before.get(2, float('nan')):.2f} |",
               flush=True)
 
 
@@ -146,6 +175,8 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--data", help="also time TrainingScenes items from this dataset folder")
     p.add_argument("--compile", action="store_true", help="with --geometry: also time torch.compile")
+    p.add_argument("--bf16", action="store_true", help="with --geometry: also time bf16 autocast")
+    p.add_argument("--pack", help="with --geometry and --data: batches from model.train's data module on this pack")
     p.add_argument("--geometry", choices=("geo-small", "geo-default"),
                    help="time this GeometryNet preset under thread / channels-last / compile settings instead")
     args = p.parse_args()

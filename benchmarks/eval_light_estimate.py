@@ -87,7 +87,8 @@ def main(argv=None) -> int:
     rows = {k: {"psnr": [], "si": [], "colour": [], "level": []} for k in
             ("network's fitted light", "network's light, estimator's colour and level",
              "network's light and level, estimator's colour",
-             "estimator's light", "network's light, true colour and level (bound)", "true light (bound)")}
+             "estimator's light", "half network's, half estimator's light",
+             "network's light, true colour and level (bound)", "true light (bound)")}
     for pair in pairs:
         d = relighter.decompose(pair["photo"], mask=pair["alpha"], working_size=args.working_size)
         est = estimate(estimator_input(d.photo_working, d.alpha)).astype(np.float32)
@@ -97,6 +98,8 @@ def main(argv=None) -> int:
             "network's light, estimator's colour and level": with_light_colour(d, est),
             "network's light and level, estimator's colour": with_light_colour(d, est, level=False),
             "estimator's light": dataclasses.replace(d, light=est, albedo=consistent_albedo(d, d.transport, est)),
+            "half network's, half estimator's light": dataclasses.replace(
+                d, light=(half := 0.5 * (d.light + est)), albedo=consistent_albedo(d, d.transport, half)),
             "network's light, true colour and level (bound)": with_light_colour(d, true),
             "true light (bound)": dataclasses.replace(d, light=true, albedo=consistent_albedo(d, d.transport, true)),
         }

@@ -57,6 +57,7 @@ class PhotoResult:
     coverage: float                    # mean matte over the crop the network saw
     light_luminance: float             # mean luminance of the predicted light
     light_motion: float                # metrics.spatial_change of the person, directional light 0 vs 180 deg
+    backlight_ratio: float             # metrics.luminance_ratio of the person lit from 180 deg to lit from 0 deg
     colour_cast: float                 # metrics.colour_cast_deg: relit under white lights against the photo
     reconstruction: dict[str, float] | None  # l1, l2, psnr; None when the matte is empty
     tiles: list[np.ndarray]            # linear [H, W, 3] images for the contact sheet
@@ -78,16 +79,19 @@ def column_labels() -> list[str]:
             + [f"{p} {r:g} deg" for p in SHEET_PRESETS for r in SHEET_ROTATIONS])
 
 
-def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
-    """Decompose one photo, measure its reconstruction and relight it for the sheet."""
+def evaluate_photo(relighter: Relighter, path: Path, options: dict | None = None) -> PhotoResult:
+    """Decompose one photo (`options`: Relighter.decompose's keywords, a quality preset's), measure
+    its reconstruction and relight it for the sheet."""
+    options = dict(options or {})
     image, file_mask = photo_io.read_photo(path)
     # as `relight image` does: the file's alpha, else the person segmenter's matte; where it
     # finds nobody or cannot run (a test card, an image under 32 px), the network's alpha head
     source = "file alpha" if file_mask is not None else "person segmenter"
     try:
-        dec = relighter.decompose(image, mask=file_mask, matte="person")
+        dec = relighter.decompose(image, mask=file_mask, matte="person", **options)
     except ValueError:  # relight.matte.NoPersonError, or too small for the segmenter
-        dec, source = relighter.decompose(image, matte="network"), "network alpha (no person found)"
+        options.pop("matte_method", None)
+        dec, source = relighter.decompose(image, matte="network", **options), "network alpha (no person found)"
     # the network's own resolution: the full-resolution result borrows the photo's
     # detail (runtime docstring), which would flatter a reconstruction measured there
     rerendered = dec.relight_working(dec.light)
@@ -103,6 +107,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         tiles.append(dec.relight(light))
         working[azimuth] = dec.relight_working(light)
     motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
+    backlight = metrics.luminance_ratio(working[180.0], working[0.0], dec.alpha) if dec.alpha.any() else float("nan")
     cast = (float(np.mean([metrics.colour_cast_deg(working[a], dec.photo_working, dec.alpha) for a in working]))
             if dec.alpha.any() else float("nan"))
     for name in SHEET_PRESETS:
@@ -112,7 +117,7 @@ def evaluate_photo(relighter: Relighter, path: Path) -> PhotoResult:
         name=path.name, size=image.shape[:2], working_size=dec.working_size,
         matte=source,
         coverage=float(dec.alpha.mean()), light_luminance=float(sh.mean_luminance(dec.light)),
-        light_motion=motion, colour_cast=cast,
+        light_motion=motion, backlight_ratio=backlight, colour_cast=cast,
         reconstruction=recon, tiles=tiles)
 
 
@@ -130,27 +135,33 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
             "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
             "this measures self-consistency, not relighting accuracy.")
     lines = [f"# Real photos (`{model}`)", "", note, "",
-             "| photo | size | matte | matte coverage | light mean luminance | light motion | colour cast deg "
-             "| L1 | L2 | PSNR |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| photo | size | matte | matte coverage | light mean luminance | light motion | backlight ratio "
+             "| colour cast deg | L1 | L2 | PSNR |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         m = r.reconstruction
         cells = ["-", "-", "- (empty matte)"] if m is None else \
             [f"{100 * m['l1']:.2f}", f"{100 * m['l2']:.3f}", f"{m['psnr']:.2f}"]
         lines.append(f"| {r.name} | {r.size[1]}x{r.size[0]} | {r.matte} | {100 * r.coverage:.0f}% | "
-                     f"{r.light_luminance:.3f} | {r.light_motion:.3f} | {r.colour_cast:.1f} | "
+                     f"{r.light_luminance:.3f} | {r.light_motion:.3f} | {r.backlight_ratio:.3f} | "
+                     f"{r.colour_cast:.1f} | "
                      + " | ".join(cells) + " |")
     measured = [r.reconstruction for r in results if r.reconstruction is not None]
     if len(measured) > 1:
         means = {k: float(np.mean([m[k] for m in measured])) for k in ("l1", "l2", "psnr")}
         motion = float(np.mean([r.light_motion for r in results]))
         cast = float(np.nanmean([r.colour_cast for r in results]))
-        lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {cast:.1f} | {100 * means['l1']:.2f} | "
+        backlight = float(np.nanmean([r.backlight_ratio for r in results]))
+        lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {backlight:.3f} | {cast:.1f} | "
+                     f"{100 * means['l1']:.2f} | "
                      f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
     lines += ["", "Light motion: model.metrics.spatial_change of the relit person (working resolution, "
               "weighted by the matte) between a directional light at 0 and at 180 degrees "
               "(relight.light.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
               "same number for ground-truth renders of held-out scenes.", "",
+              "Backlight ratio: model.metrics.luminance_ratio of the relit person's mean luminance lit "
+              "from behind (180 degrees) to lit from the camera's side (0 degrees); `python -m "
+              "model.evaluate` prints it for ground-truth renders too.", "",
               "Colour cast: model.metrics.colour_cast_deg, the angle between the person's mean colour "
               "relit under the four white directional lights and in the photo (0: colours kept up to "
               "exposure).", "",
@@ -173,7 +184,9 @@ def evaluate_photos(model_path, photos, out, *, quality: str = "balanced", worki
         raise ValueError(f"tile must be an integer in [16, 2048], got {tile!r}")
     size = quality_presets.preset(quality).working_size if working_size is None else working_size
     relighter = Relighter(model_path, threads=threads, working_size=size)
-    results = [evaluate_photo(relighter, p) for p in paths]
+    options = quality_presets.preset(quality).decompose_options()
+    options["working_size"] = size  # the preset's test-time work, at the size asked for
+    results = [evaluate_photo(relighter, p, options) for p in paths]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_sheet(out / sheet_name, contact_sheet([r.tiles for r in results], column_labels(), tile))
@@ -183,7 +196,8 @@ def evaluate_photos(model_path, photos, out, *, quality: str = "balanced", worki
               "presets": list(SHEET_PRESETS), "rotations_deg": list(SHEET_ROTATIONS),
               "photos": [{"name": r.name, "size": list(r.size), "working_size": list(r.working_size),
                           "matte": r.matte, "coverage": r.coverage, "light_mean_luminance": r.light_luminance,
-                          "light_motion": r.light_motion, "colour_cast_deg": r.colour_cast,
+                          "light_motion": r.light_motion, "backlight_ratio": r.backlight_ratio,
+                          "colour_cast_deg": r.colour_cast,
                           "reconstruction": r.reconstruction} for r in results]}
     atomic_write_text(out / "photos.json", json.dumps(record, indent=1) + "\n")
     return results

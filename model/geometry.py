@@ -76,6 +76,9 @@ class GeometryNet(nn.Module):
         if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or not 1 <= fit_stride <= 4:
             raise ValueError(f"GeometryNet: fit_stride must be 1..4, got {fit_stride!r}")
         self.fit_stride = fit_stride
+        # the fit's precision in training (the exported graph fits in float64); benchmarks set
+        # float64 here to time what training was before (benchmarks/bench_train.py)
+        self.train_fit_precision = torch.float32
         self.in_channels = 3 + (BODY_CHANNELS if self.body_prior else 0)
         self.n = num_coeffs(self.sh_order)
         self.size_multiple = 2 ** self.depth
@@ -135,7 +138,7 @@ class GeometryNet(nn.Module):
         s = self.fit_stride
         light_fit = physics.fit_light(transport[..., ::s, ::s], albedo_prior[..., ::s, ::s], photo[..., ::s, ::s],
                                       weight[..., ::s, ::s], light_prior, self.ridge,
-                                      precision=torch.float32 if self.training else torch.float64)
+                                      precision=self.train_fit_precision if self.training else torch.float64)
         light = light_fit
         if self.fixed_level:
             lum = mean_luminance(light_fit)

@@ -33,6 +33,20 @@ def light_motion(albedo: np.ndarray, transport: np.ndarray, residual: np.ndarray
                  order: int) -> float:
     """metrics.spatial_change of albedo * (T . L) + E . L between a directional light at
     MOTION_AZIMUTHS[0] and [1]: how visibly a turned light moves over the person."""
+    imgs = turned_light_images(albedo, transport, residual, order)
+    return metrics.spatial_change(imgs[0], imgs[1], channels_last(weight))
+
+
+def backlight_ratio(albedo: np.ndarray, transport: np.ndarray, residual: np.ndarray | None, weight: np.ndarray,
+                    order: int) -> float:
+    """metrics.luminance_ratio of the person lit from behind (MOTION_AZIMUTHS[1]) to lit from
+    the camera's side ([0]): how much a light from behind darkens the front we see."""
+    imgs = turned_light_images(albedo, transport, residual, order)
+    return metrics.luminance_ratio(imgs[1], imgs[0], channels_last(weight))
+
+
+def turned_light_images(albedo, transport, residual, order: int) -> list[np.ndarray]:
+    """albedo * (T . L) + E . L (>= 0, channels last) under the directional light at each of MOTION_AZIMUTHS."""
     from relight.light import directional_light
 
     imgs = []
@@ -42,7 +56,7 @@ def light_motion(albedo: np.ndarray, transport: np.ndarray, residual: np.ndarray
         if residual is not None:
             img = img + shading_np(residual, L, False)
         imgs.append(np.maximum(img, 0.0))
-    return metrics.spatial_change(imgs[0], imgs[1], channels_last(weight))
+    return imgs
 
 
 def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
@@ -63,7 +77,9 @@ def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
             "visibility_l1": float(vis.mean()),
             "light_rel_l2": float(np.linalg.norm(light - true) / max(np.linalg.norm(true), 1e-12)),
             "light_motion": light_motion(pred["albedo"], pred["transport"], pred.get("residual"), weight, order),
-            "light_motion_gt": light_motion(sample["albedo"], sample["transport"], None, weight, order)}
+            "light_motion_gt": light_motion(sample["albedo"], sample["transport"], None, weight, order),
+            "backlight_ratio": backlight_ratio(pred["albedo"], pred["transport"], pred.get("residual"), weight, order),
+            "backlight_ratio_gt": backlight_ratio(sample["albedo"], sample["transport"], None, weight, order)}
 
 
 BREAKDOWN_ROWS = (
@@ -135,15 +151,18 @@ def parametric_transport_error(sample: dict, order: int) -> float:
 
 def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
     lines = ["| method | normal mean (deg) | normal median (deg) | visibility L1 | input light rel. L2 | "
-             "light motion 0->180 deg (GT renders) |",
-             "|---|---|---|---|---|---|"]
+             "light motion 0->180 deg (GT renders) | backlight ratio (GT renders) |",
+             "|---|---|---|---|---|---|---|"]
     for method, m in results.items():
         lines.append(f"| {method} | {m['normal_mean_deg']:.1f} | {m['normal_median_deg']:.1f} | "
                      f"{m['visibility_l1']:.3f} | {m['light_rel_l2']:.3f} | "
-                     f"{m['light_motion']:.3f} ({m['light_motion_gt']:.3f}) |")
+                     f"{m['light_motion']:.3f} ({m['light_motion_gt']:.3f}) | "
+                     f"{m['backlight_ratio']:.3f} ({m['backlight_ratio_gt']:.3f}) |")
     lines += ["", f"Parametric ceiling: the lobe of the true normal and visibility reproduces the baked T "
                   f"to a relative L2 error of {ceiling:.3f}.",
               "Light motion: model.metrics.spatial_change of the person relit by a directional light "
               "(relight.light.directional_light) at 0 and at 180 degrees, after per-channel gains; in brackets "
-              "the same for the ground truth, albedo * (T . L) from the farm's buffers."]
+              "the same for the ground truth, albedo * (T . L) from the farm's buffers. Backlight ratio: "
+              "model.metrics.luminance_ratio of the person lit from behind (180 degrees) to lit from the "
+              "camera's side (0 degrees): how much a light from behind darkens the front we see."]
     return "\n".join(lines) + "\n"

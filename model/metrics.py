@@ -51,6 +51,19 @@ def spatial_change(first, second, mask=None) -> float:
     return float(np.sqrt(err / ref)) if ref > 0 else 0.0
 
 
+def luminance_ratio(numerator, denominator, mask=None) -> float:
+    """Mask-weighted mean Rec.709 luminance of `numerator` over that of `denominator` (how much
+    darker one relit image is than another: a light from behind against one from the front)."""
+    from relight.colour import LUMINANCE_WEIGHTS
+
+    weights = np.asarray(LUMINANCE_WEIGHTS, np.float64)
+    a = np.asarray(numerator, np.float64).reshape(-1, 3) @ weights
+    b = np.asarray(denominator, np.float64).reshape(-1, 3) @ weights
+    w = np.ones(len(a)) if mask is None else np.asarray(mask, np.float64).reshape(-1)
+    below = float((b * w).sum())
+    return float((a * w).sum()) / below if below > 0 else float("nan")
+
+
 PSNR_PEAK = 1.0
 MSE_FLOOR = 1e-10  # PSNR cap: 10 log10(1 / 1e-10) = 100 dB
 

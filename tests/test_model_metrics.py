@@ -59,6 +59,20 @@ def test_bad_input_raises_value_error(pred, target, mask, match):
         metrics.l1(pred, target, mask)
 
 
+def test_luminance_ratio_is_the_weighted_mean_luminance_ratio():
+    a = np.zeros((2, 2, 3))
+    a[0, 0] = [1.0, 1.0, 1.0]
+    b = np.full((2, 2, 3), 0.5)
+    mask = np.array([[1.0, 0.0], [1.0, 0.0]])
+    # masked means: a -> (1 + 0) / 2 = 0.5 luminance, b -> 0.5
+    assert metrics.luminance_ratio(a, b, mask) == pytest.approx(1.0)
+    assert metrics.luminance_ratio(a, b) == pytest.approx(0.25 / 0.5)
+    green = np.zeros((1, 1, 3))
+    green[..., 1] = 1.0
+    assert metrics.luminance_ratio(green, np.ones((1, 1, 3))) == pytest.approx(0.7152)
+    assert np.isnan(metrics.luminance_ratio(b, np.zeros((2, 2, 3))))
+
+
 def test_spatial_change_ignores_colour_and_exposure_but_sees_moving_light():
     rng = np.random.default_rng(5)
     a = rng.uniform(0.1, 1.0, (16, 16, 3))
