@@ -47,7 +47,7 @@ from bench_tradeoffs import pareto_front, replace_section  # noqa: E402
 TRAINED_SIZE = 128     # the shipped network's training crops: the baseline ("network alone")
 DRAFT_DB = 0.5         # Draft: at most this much below the baseline (paired mean PSNR)
 BEST_SECONDS = 3.0
-SAMPLE_KEYS = ("input_linear", "alpha", "target_light", "target_image", "light")
+SAMPLE_KEYS = ("input_linear", "alpha", "target_light", "target_image", "light", "albedo")
 
 
 @dataclass(frozen=True)
@@ -108,7 +108,7 @@ def load_pairs(data, count: int, per_scene: int = 4) -> list[dict]:
         s = {k: (item[k].numpy() if hasattr(item[k], "numpy") else np.asarray(item[k])) for k in SAMPLE_KEYS}
         out.append({"photo": _hwc(s["input_linear"]), "alpha": _hwc(s["alpha"])[..., 0],
                     "target": _hwc(s["target_image"]), "light_b": s["target_light"].astype(np.float64),
-                    "light_a": s["light"].astype(np.float64)})
+                    "light_a": s["light"].astype(np.float64), "albedo": _hwc(s["albedo"])})
     return out
 
 

@@ -55,7 +55,8 @@ def estimator_fn(path: str | None):
         import onnxruntime as ort
 
         session = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-        return lambda x: session.run(None, {"x": x})[0][0]
+        return lambda x: dict(zip(("light", "albedo_mean"),
+                                  (v[0] for v in session.run(["light", "albedo_mean"], {"x": x}))))
     import torch
 
     from model.checkpoint import load_model
@@ -64,7 +65,7 @@ def estimator_fn(path: str | None):
 
     def run(x):
         with torch.no_grad():
-            return net(torch.from_numpy(x)).numpy()[0]
+            return {k: v.numpy()[0] for k, v in net(torch.from_numpy(x)).items()}
     return run
 
 
@@ -77,7 +78,7 @@ def main(argv=None) -> int:
     p.add_argument("--working-size", type=int, default=128)
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
-    from relight.light_estimate import estimator_input, with_light_colour
+    from relight.light_estimate import INTERIOR, estimator_input, with_albedo_level, with_light_colour
     from relight.refine import consistent_albedo
     from relight.runtime import Relighter
 
@@ -88,12 +89,35 @@ def main(argv=None) -> int:
             ("network's fitted light", "network's light, estimator's colour and level",
              "network's light and level, estimator's colour",
              "estimator's light", "half network's, half estimator's light",
+             "network's light, shading level of the estimator's", "network's light, shading level of the true (bound)",
+             "network's light, estimator's mean albedo (shipped)", "network's light, true mean albedo (bound)",
              "network's light, true colour and level (bound)", "true light (bound)")}
     for pair in pairs:
         d = relighter.decompose(pair["photo"], mask=pair["alpha"], working_size=args.working_size)
-        est = estimate(estimator_input(d.photo_working, d.alpha)).astype(np.float32)
+        answer = estimate(estimator_input(d.photo_working, d.alpha))
+        est = answer["light"].astype(np.float32)
+        y0, y1, x0, x1 = d.box
+        from relight.resample import resize_linear
+
+        true_albedo = resize_linear(pair["albedo"][y0:y1, x0:x1], *d.working_size)
+        full = d.alpha >= INTERIOR
+        true_mean = true_albedo[full].mean(axis=0) if full.any() else true_albedo.reshape(-1, 3).mean(0)
         true = pair["light_a"].astype(np.float32)
+        def shading_matched(target):
+            # per-channel gains making the mean shading over the person the target light's (both
+            # through the network's transport): the level the photo's pixels see, not the DC term
+            w = d.alpha.reshape(-1)
+            t = d.transport.reshape(-1, d.transport.shape[-1])
+            own = (w[:, None] * (t @ d.light)).sum(0)
+            want = (w[:, None] * (t @ target)).sum(0)
+            new = (d.light * np.where(own > 1e-9, want / np.maximum(own, 1e-9), 1.0)[None]).astype(np.float32)
+            return dataclasses.replace(d, light=new, albedo=consistent_albedo(d, d.transport, new))
+
         variants = {
+            "network's light, estimator's mean albedo (shipped)": with_albedo_level(d, answer["albedo_mean"]),
+            "network's light, true mean albedo (bound)": with_albedo_level(d, true_mean),
+            "network's light, shading level of the estimator's": shading_matched(est),
+            "network's light, shading level of the true (bound)": shading_matched(true),
             "network's fitted light": d,
             "network's light, estimator's colour and level": with_light_colour(d, est),
             "network's light and level, estimator's colour": with_light_colour(d, est, level=False),

@@ -1,7 +1,7 @@
 """Export the light estimator (model/light_estimator.py) to ONNX and check it against torch.
 
-One input `x` [B, 4, 64, 64] (relight.light_estimate.estimator_input), one output `light`
-[B, n, 3]; the metadata says what it is, so the runtime's registry and a person can tell it
+One input `x` [B, 4, 64, 64] (relight.light_estimate.estimator_input), two outputs `light`
+[B, n, 3] and `albedo_mean` [B, 3]; the metadata says what it is, so the runtime's registry and a person can tell it
 from a relighting network.
 """
 
@@ -22,6 +22,18 @@ FORMAT = "relight-light-estimator/1"
 PARITY_TOLERANCE = 1e-4  # relative to the light's largest coefficient
 
 
+class _Outputs(torch.nn.Module):
+    """The estimator's dict as the graph's two outputs, in order."""
+
+    def __init__(self, net):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x):
+        out = self.net(x)
+        return out["light"], out["albedo_mean"]
+
+
 def export_light_estimator(net, out, training_data: str) -> tuple[Path, str]:
     """Write `out` (.onnx, + .sha256) atomically; returns (path, SHA-256)."""
     import onnx
@@ -31,24 +43,25 @@ def export_light_estimator(net, out, training_data: str) -> tuple[Path, str]:
     tmp = Path(out).with_suffix(".trace.onnx")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        torch.onnx.export(net, (example,), str(tmp), input_names=["x"], output_names=["light"],
-                          dynamic_axes={"x": {0: "batch"}, "light": {0: "batch"}}, opset_version=OPSET,
-                          dynamo=False)
+        torch.onnx.export(_Outputs(net), (example,), str(tmp), input_names=["x"],
+                          output_names=["light", "albedo_mean"],
+                          dynamic_axes={"x": {0: "batch"}, "light": {0: "batch"}, "albedo_mean": {0: "batch"}},
+                          opset_version=OPSET, dynamo=False)
     model = onnx.load(str(tmp))
     tmp.unlink()
     set_metadata(model, {
         "relight.format": FORMAT, "relight.conventions": CONVENTION_VERSION,
         "relight.sh_order": str(net.order), "relight.network_config": json.dumps(net.config(), sort_keys=True),
         "relight.input_spec": "x [B, 4, 64, 64] float32: relight.light_estimate.estimator_input; "
-                              "output light [B, n, 3], camera frame",
+                              "outputs light [B, n, 3] (camera frame) and albedo_mean [B, 3]",
         "relight.code_version": code_version(), "relight.training_data": training_data,
     })
     return save_atomic(model, out)
 
 
 def parity(net, path) -> float:
-    """Largest |ONNX - torch| over random inputs and the bundled photo's crop, relative to the
-    largest |coefficient|."""
+    """Largest |ONNX - torch| over random inputs and the bundled photo's crop, relative to each
+    output's largest |value|."""
     import onnxruntime as ort
 
     from relight.light_estimate import estimator_input
@@ -62,7 +75,8 @@ def parity(net, path) -> float:
     worst = 0.0
     for x in inputs:
         with torch.no_grad():
-            want = net(torch.from_numpy(x)).numpy()
-        got = session.run(None, {"x": x})[0]
-        worst = max(worst, float(np.abs(got - want).max() / max(np.abs(want).max(), 1e-12)))
+            want = net(torch.from_numpy(x))
+        for name, got in zip(("light", "albedo_mean"), session.run(["light", "albedo_mean"], {"x": x})):
+            ref = want[name].numpy()
+            worst = max(worst, float(np.abs(got - ref).max() / max(np.abs(ref).max(), 1e-12)))
     return worst

@@ -1,17 +1,20 @@
 """The photo's light read off the person alone (issue 25): a small network that sees the
-masked person crop at 64 px and answers its SH light, trained for the light's colour and
-level, which the geometry-first network's fit takes from its albedo prior.
+masked person crop at 64 px and answers what the geometry-first network's light fit takes
+from its albedo prior, the light's colour and level as the person's pixels see them.
 
     LightEstimator(order=4, width=32)
     forward(x [B, 4, 64, 64]: the masked crop, sRGB-encoded in [-1, 1], and the matte in [-1, 1])
-        -> light [B, n, 3]
+        -> {"light": [B, n, 3], "albedo_mean": [B, 3]}
 
-Five stride-2 convolutions (GroupNorm, SiLU), global average pooling, one linear layer.
-The output is scale-equivariant by construction: the head predicts the log of the DC term
-per channel and the other coefficients relative to the DC's luminance, so a photo twice as
-bright gives a light twice as bright in every band. Measured against the shipped network's
-light and against estimators that also see the background (benchmarks/study_light_context.py,
-docs/EVALUATION.md): the person alone is the best input.
+Five stride-2 convolutions (GroupNorm, SiLU), global average pooling, one linear layer to
+the SH light and the person's mean albedo per channel (over its fully covered pixels).
+The light is scale-equivariant by construction: the head predicts the log of the DC term
+per channel and the other coefficients relative to the DC's luminance. The mean albedo is
+what the runtime uses (relight.light_estimate.with_albedo_level): the fitted light scaled
+per channel so that the photo-consistent albedo has that mean, which measured far better
+than giving the light the estimated DC (docs/EVALUATION.md). Measured against estimators
+that also see the background (benchmarks/study_light_context.py): the person alone is the
+best input.
 """
 
 from __future__ import annotations
@@ -44,29 +47,42 @@ class LightEstimator(nn.Module):
             layers += [nn.Conv2d(c, out, 3, stride=2, padding=1), nn.GroupNorm(8, out), nn.SiLU()]
             c = out
         self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d(1), nn.Flatten())
-        self.head = nn.Linear(c, self.n * 3)
+        self.head = nn.Linear(c, self.n * 3 + 3)
         self.register_buffer("luminance", torch.tensor([float(w) for w in LUMINANCE_WEIGHTS]))
 
     def config(self) -> dict:
         return {"arch": ARCH, "order": self.order, "width": self.width}
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        raw = self.head(self.features(x)).view(-1, self.n, 3)
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = self.head(self.features(x))
+        raw = out[:, :self.n * 3].view(-1, self.n, 3)
         dc = torch.exp(raw[:, :1].clamp(max=20.0))                    # [B,1,3] > 0
         level = (dc * self.luminance).sum(dim=-1, keepdim=True)       # [B,1,1] its luminance
-        return torch.cat([dc, raw[:, 1:] * level], dim=1)
+        # the mean albedo in (0, 1): a sigmoid of the head's last three values
+        return {"light": torch.cat([dc, raw[:, 1:] * level], dim=1), "albedo_mean": torch.sigmoid(out[:, self.n * 3:])}
 
 
-def light_losses(pred: torch.Tensor, true: torch.Tensor) -> dict[str, torch.Tensor]:
+def light_losses(pred: torch.Tensor, true: torch.Tensor, albedo_mean: torch.Tensor | None = None,
+                 true_albedo_mean: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """L1 of the log DC per channel (colour and level, in stops / ln 2) plus L1 of the other
-    coefficients relative to the true DC's luminance (the light's shape, scale-free)."""
+    coefficients relative to the true DC's luminance (the light's shape, scale-free); with
+    the albedo means [B, 3], L1 of their logs too."""
     luminance = torch.tensor([float(w) for w in LUMINANCE_WEIGHTS], dtype=true.dtype, device=true.device)
     log_dc = torch.log(pred[:, 0].clamp(min=LOG_DC_FLOOR)) - torch.log(true[:, 0].clamp(min=LOG_DC_FLOOR))
     level = (true[:, :1] * luminance).sum(dim=-1, keepdim=True).clamp(min=LOG_DC_FLOOR)
     shape = (pred[:, 1:] - true[:, 1:]).abs() / level
     terms = {"log_dc": log_dc.abs().mean(), "shape": shape.mean()}
-    terms["total"] = terms["log_dc"] + terms["shape"]
+    if albedo_mean is not None:
+        terms["albedo_mean"] = (torch.log(albedo_mean.clamp(min=LOG_DC_FLOOR))
+                                - torch.log(true_albedo_mean.clamp(min=LOG_DC_FLOOR))).abs().mean()
+    terms["total"] = sum(terms.values())
     return terms
+
+
+def albedo_colour_error_deg(est: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    """[B] degrees between estimated and true mean albedo colours [B, 3]."""
+    cos = (est * true).sum(-1) / (est.norm(dim=-1) * true.norm(dim=-1)).clamp(min=1e-12)
+    return torch.rad2deg(torch.arccos(cos.clamp(-1.0, 1.0)))
 
 
 def colour_error_deg(est: torch.Tensor, true: torch.Tensor) -> torch.Tensor:

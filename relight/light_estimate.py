@@ -8,8 +8,8 @@ alone (model/light_estimator.py) reads them better off the same person (docs/EVA
 a square and shrunk to 64 px, plus the matte:
 
     x = estimator_input(crop, matte)        # [1, 4, 64, 64] float32
-    light = LightEstimate().run(x)           # [n, 3], camera frame, or None without the model
-    d = with_light_colour(d, light)          # the network's light recoloured, its albedo re-derived
+    answer = LightEstimate().run(x)          # {"light": [n, 3], "albedo_mean": [3]}, or None without the model
+    d = with_albedo_level(d, answer["albedo_mean"])   # the network's light rescaled, its albedo re-derived
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from relight.models import REGISTRY_PATH
 from relight.prt import to_network_input
 from relight.resample import resize_linear
 
-__all__ = ["INPUT_SIZE", "MODEL_NAME", "MODEL_FILE", "LightEstimate", "estimator_input", "with_light_colour"]
+__all__ = ["INPUT_SIZE", "MODEL_NAME", "MODEL_FILE", "LightEstimate", "estimator_input", "with_albedo_level",
+           "with_light_colour"]
 
 INPUT_SIZE = 64
 MODEL_NAME, MODEL_FILE = "light-estimator", "light_estimator.onnx"
@@ -81,15 +82,49 @@ class LightEstimate:
                                                    registry_path=self.registry_path)[0]
             return self._sessions[key]
 
-    def run(self, x: np.ndarray) -> np.ndarray | None:
-        """The light [n, 3] for one estimator_input; None when no estimator is installed."""
+    def run(self, x: np.ndarray) -> dict[str, np.ndarray] | None:
+        """{"light": [n, 3], "albedo_mean": [3]} for one estimator_input; None when no estimator
+        is installed."""
         if not self.available:
             return None
         session = self._session()
-        light = session.run(None, {session.get_inputs()[0].name: x})[0][0]
-        if not np.all(np.isfinite(light)):
+        names = [o.name for o in session.get_outputs()]
+        values = session.run(names, {session.get_inputs()[0].name: x})
+        out = {name: v[0].astype(np.float32) for name, v in zip(names, values)}
+        if set(out) != {"light", "albedo_mean"}:
+            raise ValueError(f"{self.path}: not a light estimator (outputs {sorted(out)})")
+        if not all(np.all(np.isfinite(v)) for v in out.values()):
             raise ValueError("the light estimator produced NaN/Inf: its weights are broken")
-        return light.astype(np.float32)
+        return out
+
+
+INTERIOR = 0.999  # alpha from which a pixel is all person: the mean albedo is taken over these
+
+
+def with_albedo_level(d, albedo_mean: np.ndarray):
+    """Decomposition `d` with its light scaled per channel so that its photo-consistent albedo's
+    mean over the person's fully covered pixels is `albedo_mean` [3]: the light's colour and
+    level as the photo's pixels see them (the mean shading), which the network's fit takes
+    from its albedo prior. Its shape (the fit's answer to the photo's shading) is kept; the
+    albedo is re-derived by the network's own rule (relight.refine.consistent_albedo). Only
+    for the geometry-first network (E zero); others are returned unchanged."""
+    import dataclasses
+
+    from relight.refine import consistent_albedo
+
+    if d.has_residual:
+        return d
+    w = d.alpha >= INTERIOR
+    if not w.any():
+        w = d.alpha > 0
+    if not w.any():
+        return d
+    own = d.albedo[w].astype(np.float64).mean(axis=0)
+    want = np.clip(np.asarray(albedo_mean, np.float64), 1e-3, 1.0)
+    # albedo = photo / shading: scaling channel c of the light by g divides its albedo by g
+    gains = np.where(own > 1e-6, own / want, 1.0)
+    new = (d.light.astype(np.float64) * gains[None, :]).astype(np.float32)
+    return dataclasses.replace(d, light=new, albedo=consistent_albedo(d, d.transport, new))
 
 
 def with_light_colour(d, light: np.ndarray, level: bool = True):

@@ -135,8 +135,9 @@ class Relighter(ModelSession):
             return d, "network (no light estimator installed)"
         if d.has_residual:
             return d, "network (the estimator's colour applies to the geometry-first network only)"
-        light = self._light_estimator.run(light_estimate.estimator_input(d.photo_working, d.alpha))
-        return light_estimate.with_light_colour(d, light), "network's shape, estimator's colour and level"
+        answer = self._light_estimator.run(light_estimate.estimator_input(d.photo_working, d.alpha))
+        return (light_estimate.with_albedo_level(d, answer["albedo_mean"]),
+                "network's light, scaled to the estimator's mean albedo")
 
     def find_person(self, photo: np.ndarray) -> Box:
         """Crop box around the person, from a low-resolution pass of the network's alpha
@@ -170,9 +171,9 @@ class Relighter(ModelSession):
         `augment` ([(scale, mirrored)], relight.tta.AUGMENTATIONS) runs the network again on
         the crop mirrored and/or resized and averages the answers; `refine` (iterations, 0:
         off) refits the photo's light to its shading gradients (relight.refine);
-        `light_estimate` gives the photo's light the colour and level that the light
-        estimator reads off the person (relight.light_estimate; skipped, and said so, when
-        no estimator is installed). What was done is recorded in the result's `choices`
+        `light_estimate` scales the photo's light per channel to the person's mean albedo
+        that the light estimator reads off the person (relight.light_estimate; skipped, and
+        said so, when no estimator is installed). What was done is recorded in the result's `choices`
         (the output's metadata).
         """
         if matte not in MATTE_SOURCES:

@@ -25,9 +25,11 @@ def test_the_network_answers_a_positive_dc_and_bands_in_units_of_its_luminance()
     net = LightEstimator(order=2, width=8).eval()
     x = torch.rand(3, 4, 64, 64) * 2 - 1
     with torch.no_grad():
-        light = net(x)
-        raw = net.head(net.features(x)).view(3, 9, 3)
+        out = net(x)
+        head = net.head(net.features(x))
+    light, raw = out["light"], head[:, :27].view(3, 9, 3)
     assert light.shape == (3, 9, 3) and bool((light[:, 0] > 0).all())
+    torch.testing.assert_close(out["albedo_mean"], torch.sigmoid(head[:, 27:]))
     torch.testing.assert_close(light[:, 0], torch.exp(raw[:, 0]))
     level = (light[:, 0] * torch.tensor(LUMINANCE_WEIGHTS, dtype=torch.float32)).sum(-1)
     torch.testing.assert_close(light[:, 1:], raw[:, 1:] * level[:, None, None])
@@ -101,6 +103,28 @@ def test_recolouring_keeps_the_lights_shape_and_the_photo():
     np.testing.assert_allclose(after[both], before[both], rtol=2e-3, atol=1e-5)
 
 
+def test_albedo_level_sets_the_mean_albedo_and_keeps_the_lights_shape():
+    from relight.runtime import Relighter
+
+    photo, alpha = _photo_and_mask()
+    d = Relighter(threads=1).decompose(photo, mask=alpha, working_size=64)
+    full = d.alpha >= light_estimate.INTERIOR
+    own = d.albedo[full].mean(axis=0)
+    target = own * np.array([0.8, 1.0, 1.2])
+    new = light_estimate.with_albedo_level(d, target)
+    # every band of channel c is scaled by own_c / target_c: the shape per channel is kept
+    np.testing.assert_allclose(new.light, d.light * (own / target)[None, :], rtol=1e-5, atol=1e-7)
+    # the albedo is divided by the same gains wherever the rule neither clips it at 1 nor
+    # floors the shading (at 0.25 of its mean luminance: keep a margin)
+    shade_d, shade_new = (d.transport @ d.light)[full], (new.transport @ new.light)[full]
+
+    def unfloored(shade):
+        return shade > 0.3 * shade.mean(axis=-1).mean()
+    free = (d.albedo[full] < 0.999) & (new.albedo[full] < 0.999) & unfloored(shade_d) & unfloored(shade_new)
+    assert free.mean() > 0.8
+    np.testing.assert_allclose(new.albedo[full][free], (d.albedo[full] * (target / own))[free], rtol=1e-4)
+
+
 def test_train_export_and_the_runtime_use_the_estimator(tmp_path):
     """Three training steps on the analytic scenes, the ONNX export with its parity check and
     registration, then Relighter.decompose(light_estimate=True) in a registry that holds it:
@@ -135,10 +159,12 @@ def test_train_export_and_the_runtime_use_the_estimator(tmp_path):
                    read_metadata(out), registry_path=registry / "models.json")
     r = Relighter(registry / "geometry.onnx", threads=1, registry_path=registry / "models.json")
     d = r.decompose(photo, mask=alpha, working_size=64, light_estimate=True)
-    assert d.choices["light"] == "network's shape, estimator's colour and level"
+    assert d.choices["light"] == "network's light, scaled to the estimator's mean albedo"
     import onnxruntime as ort
 
-    want = ort.InferenceSession(str(out)).run(None, {"x": light_estimate.estimator_input(d.photo_working,
-                                                                                          d.alpha)})[0][0]
-    np.testing.assert_allclose(d.light[0], want[0], rtol=1e-5)
+    x = light_estimate.estimator_input(d.photo_working, d.alpha)
+    albedo_mean = ort.InferenceSession(str(out)).run(["albedo_mean"], {"x": x})[0][0]
+    plain = r.decompose(photo, mask=alpha, working_size=64)
+    want = light_estimate.with_albedo_level(plain, albedo_mean)
+    np.testing.assert_allclose(d.light, want.light, rtol=1e-6)
     assert r.decompose(photo, mask=alpha, working_size=64).choices["light"] == "network"
