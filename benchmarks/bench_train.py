@@ -135,11 +135,12 @@ def geometry_table(args) -> None:
         from model.train_data import SceneDataModule
 
         data = SceneDataModule([args.data], size=args.size, order=4, batch=args.batch, seed=1, pack=Path(args.pack),
-                               augment={"light_tint": 0.15})
+                               augment={"light_tint": 0.15}, workers=args.workers)
         data.prepare_data()
         data.setup("fit")
         loader = data.train_dataloader()
-        print(f"batches from model.train's data module on {args.pack} ({args.data})\n")
+        print(f"batches from model.train's data module on {args.pack} ({args.data}), "
+              f"{args.workers} loader worker processes\n")
     print("| threads | light fit in training | fit stride | channels-last | torch.compile | bf16 autocast "
           "| train images/s | ratio to 1 thread, before | ratio to 2 threads, before |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -177,6 +178,7 @@ def main() -> None:
     p.add_argument("--compile", action="store_true", help="with --geometry: also time torch.compile")
     p.add_argument("--bf16", action="store_true", help="with --geometry: also time bf16 autocast")
     p.add_argument("--pack", help="with --geometry and --data: batches from model.train's data module on this pack")
+    p.add_argument("--workers", type=int, default=0, help="with --pack: the data module's loader processes")
     p.add_argument("--geometry", choices=("geo-small", "geo-default"),
                    help="time this GeometryNet preset under thread / channels-last / compile settings instead")
     args = p.parse_args()

@@ -91,6 +91,8 @@ def main(argv=None) -> int:
              "estimator's light", "half network's, half estimator's light",
              "network's light, shading level of the estimator's", "network's light, shading level of the true (bound)",
              "network's light, estimator's mean albedo (shipped)", "network's light, true mean albedo (bound)",
+             "network's light, mean albedo halfway to the estimator's (geometric)",
+             "network's light and albedo level, estimator's albedo colour",
              "network's light, true colour and level (bound)", "true light (bound)")}
     for pair in pairs:
         d = relighter.decompose(pair["photo"], mask=pair["alpha"], working_size=args.working_size)
@@ -113,8 +115,15 @@ def main(argv=None) -> int:
             new = (d.light * np.where(own > 1e-9, want / np.maximum(own, 1e-9), 1.0)[None]).astype(np.float32)
             return dataclasses.replace(d, light=new, albedo=consistent_albedo(d, d.transport, new))
 
+        own_mean = d.albedo[full].mean(axis=0) if full.any() else d.albedo.reshape(-1, 3).mean(0)
+        est_mean = np.asarray(answer["albedo_mean"], np.float64)
+        luma = np.array([0.2126, 0.7152, 0.0722])
         variants = {
             "network's light, estimator's mean albedo (shipped)": with_albedo_level(d, answer["albedo_mean"]),
+            "network's light, mean albedo halfway to the estimator's (geometric)":
+                with_albedo_level(d, np.sqrt(own_mean * est_mean)),
+            "network's light and albedo level, estimator's albedo colour":
+                with_albedo_level(d, est_mean * float(own_mean @ luma) / float(est_mean @ luma)),
             "network's light, true mean albedo (bound)": with_albedo_level(d, true_mean),
             "network's light, shading level of the estimator's": shading_matched(est),
             "network's light, shading level of the true (bound)": shading_matched(true),
