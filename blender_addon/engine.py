@@ -98,7 +98,7 @@ def known_sh_order(model_path: str) -> int | None:
 
 
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
-              cancel: CancelToken | None = None, augment=(), refine: int = 0, light_estimate: bool = False):
+              cancel: CancelToken | None = None, augment=(), refine: int = 0):
     """Run the network (the slow step; called on the worker thread): once, or once per
     augmentation of the quality preset, and refine the light when it says so.
 
@@ -115,7 +115,7 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
         # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
         # NETWORK (and another photo's light) passes None for the network's own alpha
         decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
-                                            augment=augment, refine=refine, light_estimate=light_estimate)
+                                            augment=augment, refine=refine)
     except Exception:
         if cancel is not None and cancel.cancelled:
             cancel.stopped_inference = True  # onnxruntime gave up the run it was in
@@ -124,8 +124,7 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     finally:
         if cancel is not None:
             del relighter.run  # the class's own method again
-    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine, light_estimate)] = \
-        time.monotonic() - start
+    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine)] = time.monotonic() - start
     return decomposition
 
 
@@ -281,10 +280,9 @@ def saved_preview(arrays: dict, meta: dict):
                                  arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
 
 
-def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0,
-                     light_estimate: bool = False) -> float | None:
+def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0) -> float | None:
     """How long the last run of this model at this size (and test-time work) took, if there was one."""
-    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine, light_estimate))
+    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine))
 
 
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:

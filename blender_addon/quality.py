@@ -27,10 +27,9 @@ def enum_items() -> list[tuple[str, str, str]]:
 
 def network_options(key: str) -> dict:
     """The preset's test-time work beyond its working size: Relighter.decompose's `augment`
-    (mirrored / rescaled runs averaged), `refine` (light refinement iterations) and
-    `light_estimate` (the light estimator's colour and level)."""
+    (mirrored / rescaled runs averaged) and `refine` (light refinement iterations)."""
     p = core_quality.preset(key)
-    return {"augment": p.augment, "refine": p.refine, "light_estimate": p.light_estimate}
+    return {"augment": p.augment, "refine": p.refine}
 
 
 def model_path_for(quality_key: str, override: str = "") -> Path:

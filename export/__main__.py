@@ -61,8 +61,6 @@ def main(argv: list[str] | None = None) -> int:
                                         onnx_outputs, read_metadata, torch_outputs)
 
         net = load_model(args.weights)
-        if getattr(net, "arch", None) == "light-estimator":
-            return _export_light_estimator(net, out, args)
         if args.fp16 and getattr(net, "arch", None) == "geometry":
             # its light fit runs in float64 (model.physics.fit_light), which
             # onnxconverter-common's fp16 pass cannot keep apart; fp16 graphs were
@@ -106,32 +104,6 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"export: error: {exc}", file=sys.stderr)
         return 1
-    return 0
-
-
-def _export_light_estimator(net, out: Path, args) -> int:
-    """The light estimator (model/light_estimator.py): export, parity, registration."""
-    from export.light_estimator import PARITY_TOLERANCE as LIGHT_TOLERANCE, export_light_estimator, parity
-    from export.onnx_export import read_metadata
-    from model.checkpoint import read_metadata as read_ckpt_metadata
-
-    if args.fp16 or args.default:
-        raise ValueError("the light estimator exports fp32 only and is never the default relighting model")
-    record = read_ckpt_metadata(args.weights).get("training", {})
-    training = args.training_data or f"model.train_light on {record.get('data')}, {record.get('steps')} steps"
-    path, digest = export_light_estimator(net, out, str(training))
-    worst = parity(net, path)
-    print(f"wrote {path} (sha256 {digest}); parity vs torch (random inputs and {REAL_PHOTO.name}): "
-          f"max abs diff {worst:.3g} of the largest coefficient")
-    if worst > LIGHT_TOLERANCE:
-        path.unlink()
-        print(f"export: error: ONNX differs from torch by {worst:.3g} > {LIGHT_TOLERANCE}; removed the file",
-              file=sys.stderr)
-        return 1
-    if args.register:
-        from relight.models import register_model
-
-        print(f"registered {args.register} in {register_model(args.register, path, digest, read_metadata(path))}")
     return 0
 
 

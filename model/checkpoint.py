@@ -59,17 +59,13 @@ def read_metadata(path: str | os.PathLike) -> dict:
 
 def build_network(config: dict) -> torch.nn.Module:
     """The network a checkpoint config describes: GeometryNet when config["arch"] is
-    "geometry", LightEstimator when it is "light-estimator", else RelightNet (checkpoints
-    from before the geometry-first model have no "arch")."""
+    "geometry", else RelightNet (checkpoints from before the geometry-first model
+    have no "arch")."""
     from model.geometry import ARCH as GEOMETRY, GeometryNet
-    from model.light_estimator import ARCH as LIGHT_ESTIMATOR, LightEstimator
 
     config = dict(config)
-    arch = config.pop("arch", None)
-    if arch == GEOMETRY:
+    if config.pop("arch", None) == GEOMETRY:
         return GeometryNet(**config)
-    if arch == LIGHT_ESTIMATOR:
-        return LightEstimator(**config)
     unknown = set(config) - set(CONFIG_KEYS)
     if unknown:
         raise ValueError(f"unknown config keys {sorted(unknown)}")

@@ -31,12 +31,11 @@ class QualityPreset:
     augment: tuple = ()  # relight.tta augmentations: [(scale, mirrored)] run and averaged
     refine: int = 0      # relight.refine iterations on the photo's light (0: off)
     matte_method: str = "ensemble"  # relight.matte's person segmenter ("selfie": faster)
-    light_estimate: bool = False    # the light estimator's colour and level (relight.light_estimate)
 
     def decompose_options(self) -> dict:
         """Relighter.decompose's keyword arguments for this preset."""
         return {"working_size": self.working_size, "augment": self.augment, "refine": self.refine,
-                "matte_method": self.matte_method, "light_estimate": self.light_estimate}
+                "matte_method": self.matte_method}
 
 
 # Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set

@@ -102,7 +102,6 @@ class Relighter(ModelSession):
         path = Path(model_path) if model_path is not None else default_model_path(registry_path)
         self.working_size = check_working_size(working_size)
         super().__init__(path, threads, providers, registry_path)
-        self._light_estimator = None  # opened on first use (relight.light_estimate)
 
     def _run_image(self, linear: np.ndarray, mask: np.ndarray | None) -> dict[str, np.ndarray]:
         """Network outputs for one linear [h, w, 3] image, padded to size_multiple, unpadded after."""
@@ -125,20 +124,6 @@ class Relighter(ModelSession):
         size (linear [h, w, 3]) and its matte ([h, w] or None): relight.tta's augmented runs."""
         return self._run_image(crop, matte)
 
-    def _estimated_light(self, d: Decomposition) -> tuple[Decomposition, str]:
-        """d with the light estimator's colour and level (relight.light_estimate), and what was done."""
-        from relight import light_estimate
-
-        if self._light_estimator is None:
-            self._light_estimator = light_estimate.LightEstimate(self.threads, self.registry_path)
-        if not self._light_estimator.available:
-            return d, "network (no light estimator installed)"
-        if d.has_residual:
-            return d, "network (the estimator's colour applies to the geometry-first network only)"
-        answer = self._light_estimator.run(light_estimate.estimator_input(d.photo_working, d.alpha))
-        return (light_estimate.with_albedo_level(d, answer["albedo_mean"]),
-                "network's light, scaled to the estimator's mean albedo")
-
     def find_person(self, photo: np.ndarray) -> Box:
         """Crop box around the person, from a low-resolution pass of the network's alpha
         head; the whole frame when it finds nobody."""
@@ -152,7 +137,7 @@ class Relighter(ModelSession):
 
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
-                  augment=(), refine: int = 0, light_estimate: bool = False) -> Decomposition:
+                  augment=(), refine: int = 0) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
@@ -170,11 +155,8 @@ class Relighter(ModelSession):
 
         `augment` ([(scale, mirrored)], relight.tta.AUGMENTATIONS) runs the network again on
         the crop mirrored and/or resized and averages the answers; `refine` (iterations, 0:
-        off) refits the photo's light to its shading gradients (relight.refine);
-        `light_estimate` scales the photo's light per channel to the person's mean albedo
-        that the light estimator reads off the person (relight.light_estimate; skipped, and
-        said so, when no estimator is installed). What was done is recorded in the result's `choices`
-        (the output's metadata).
+        off) refits the photo's light to its shading gradients (relight.refine). What was
+        done is recorded in the result's `choices` (the output's metadata).
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
@@ -217,10 +199,6 @@ class Relighter(ModelSession):
 
             d = tta.augment(self, d, tuple(augment))
         choices["augment"] = [[float(s), bool(m)] for s, m in augment]
-        if light_estimate:
-            d, choices["light"] = self._estimated_light(d)
-        else:
-            choices["light"] = "network"
         if refine:
             from relight.refine import refine as refine_light
 

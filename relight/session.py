@@ -69,7 +69,6 @@ class ModelSession:
     def __init__(self, path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
                  registry_path: str | os.PathLike = REGISTRY_PATH):
         self.model_path = Path(path)
-        self.threads, self.registry_path = threads, registry_path  # other models of the request open alike
         self.session, self.sha256 = open_session(self.model_path, threads, providers, registry_path)
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
         self._read_metadata()
