@@ -23,8 +23,7 @@ model.data_splits. Per training sample (draws: model.data_augment):
     2^N(0, sigma^2) (exposure; the albedo target is unchanged);
   * with probability `flip_prob` a horizontal mirror (exact: mirror_signs);
   * with `body_prior`, the unclothed body's normal and coverage (the farm's body pass,
-    body_input's encoding) appended to the input's channels;
-  * with `skin`, the skin mask (model.data_crops.skin_mask) as a target.
+    body_input's encoding) appended to the input's channels.
 Splits: by body (validation bodies never train) and by light (held-out maps
 never reach training: asserted on every training sample).
 """
@@ -63,13 +62,6 @@ def body_input(scene: CroppedScene) -> np.ndarray:
     return out
 
 
-def skin_target(scene: CroppedScene) -> np.ndarray:
-    """[1, S, S] the scene's skin mask (model.data_crops.skin_mask), a target of the skin probe."""
-    if scene.skin is None:
-        raise ValueError(f"scene {scene.index} has no body pass (the skin mask needs the farm's body pass)")
-    return scene.skin
-
-
 def network_input(linear_chw: np.ndarray, alpha: np.ndarray | None) -> np.ndarray:
     """relight.prt.to_network_input of a channels-first linear image, masked by alpha [1, H, W] when given."""
     hwc = linear_chw.transpose(1, 2, 0)
@@ -85,7 +77,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
-                 body_prior: bool = False, skin: bool = False):
+                 body_prior: bool = False):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -105,7 +97,7 @@ class TrainingScenes(torch.utils.data.Dataset):
         # 0.5-0.8 dB on held-out scenes and did not lessen the colour cast on real photos
         # (docs/EVALUATION.md, "Training people like the people in photos")
         self.capture = capture
-        self.body_prior, self.skin = bool(body_prior), bool(skin)
+        self.body_prior = bool(body_prior)
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
@@ -189,12 +181,9 @@ class TrainingScenes(torch.utils.data.Dataset):
             "normal": scene.normal, "light": light_a, "target_light": light_b, "target_image": image_b,
             "light_name": name_a, "target_light_name": name_b,
         }
-        if self.skin:
-            sample["skin"] = skin_target(scene)
         if rng.uniform() < self.flip_prob:  # horizontal mirror, exact for T and L (mirror_signs)
-            for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal", "skin"):
-                if key in sample:
-                    sample[key] = sample[key][..., ::-1]
+            for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal"):
+                sample[key] = sample[key][..., ::-1]
             sample["transport"] = sample["transport"] * self.signs[:, None, None]
             sample["normal"] = sample["normal"] * MIRROR_X[:, None, None]
             if self.body_prior:  # the body normal's x flips too (input channel 3)
@@ -214,8 +203,8 @@ class EvaluationPairs(torch.utils.data.Dataset):
 
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
                  held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4,
-                 body_prior: bool = False, skin: bool = False):
-        self.size, self.order, self.body_prior, self.skin = size, order, bool(body_prior), bool(skin)
+                 body_prior: bool = False):
+        self.size, self.order, self.body_prior = size, order, bool(body_prior)
         self.held_out = held_out_light_names() if held_out is None else held_out
         self.load = functools.partial(load_cropped, size=size, order=order, padding=padding,
                                       held_out=self.held_out, verify_hash=True)
@@ -252,8 +241,6 @@ class EvaluationPairs(torch.utils.data.Dataset):
             "normal": scene.normal, "alpha": scene.alpha, "light": scene.lights[a], "target_light": scene.lights[b],
             "target_image": scene.images[b],
         }
-        if self.skin:
-            sample["skin"] = skin_target(scene)
         out = _to_tensors(sample)
         out.update(scene_index=scene.index, light_a=scene.light_names[a], light_b=scene.light_names[b])
         return out

@@ -65,19 +65,6 @@ class CroppedScene:
     light_names: list[str]
     held_out: list[bool]
     body: np.ndarray | None = None  # [4, S, S]: the unclothed body's unit normal and coverage (farm body pass)
-    skin: np.ndarray | None = None  # [1, S, S]: where the camera sees the body itself (skin_mask), with the body pass
-
-
-SKIN_DEPTH_TOLERANCE = 0.002  # metres: the rendered surface is the unclothed body itself
-
-
-def skin_mask(scene) -> np.ndarray:
-    """[H, W, 1] float32: 1 where the camera sees the unclothed body itself (its skin, lips,
-    eyes, nails: the body pass's depth within SKIN_DEPTH_TOLERANCE of the rendered surface's,
-    both fully covered), 0 elsewhere. Needs the farm's body pass."""
-    seen = ((scene.body_alpha[..., 0] >= 1.0) & (scene.alpha[..., 0] > 0.999)
-            & (np.abs(scene.body_depth[..., 0] - scene.depth[..., 0]) < SKIN_DEPTH_TOLERANCE))
-    return seen.astype(np.float32)[..., None]
 
 
 def load_cropped(json_path: Path, size: int, order: int, padding: int,
@@ -92,8 +79,8 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
     stacked = [scene.alpha, scene.albedo, scene.transport[..., :n], scene.normal]
     widths = [1, 3, n, 3]
     if scene.body_normal is not None:
-        stacked += [scene.body_normal, scene.body_alpha, skin_mask(scene)]
-        widths += [3, 1, 1]
+        stacked += [scene.body_normal, scene.body_alpha]
+        widths += [3, 1]
     if scene.images is not None:
         stacked += list(scene.images)
         widths += [3] * len(scene.images)
@@ -103,11 +90,10 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
     for width in widths:
         parts.append(planes[k:k + width])
         k += width
-    body = skin = None
+    body = None
     if scene.body_normal is not None:
         body = np.concatenate([unit_normals(parts[4]), np.clip(parts[5], 0.0, 1.0)])
-        skin = np.clip(parts[6], 0.0, 1.0)
-        parts = parts[:4] + parts[7:]
+        parts = parts[:4] + parts[6:]
     n_lights = len(scene.lights)
     images = parts[4:] if scene.images is not None else [None] * n_lights
     normal = unit_normals(parts[3])
@@ -121,7 +107,7 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
         lights=[np.asarray(l["sh"][:n], dtype=np.float32) for l in scene.lights],
         light_names=[light_name(l) for l in scene.lights],
         held_out=[is_held_out(l, held_out) for l in scene.lights],
-        body=body, skin=skin,
+        body=body,
     )
 
 
@@ -150,7 +136,7 @@ class SceneCache:
         return scene
 
 
-PACK_FORMAT = "relight-pack/2"  # 2: a body pass's maps hold the skin mask after the body prior
+PACK_FORMAT = "relight-pack/1"
 
 
 def _pack_key(json_paths: list[Path], size: int, order: int, padding: int) -> dict:
@@ -177,7 +163,7 @@ def pack_scenes(json_paths: list[Path], out, size: int, order: int, padding: int
         c = load_cropped(Path(path), size, order, padding, held_out)
         maps = [c.alpha, c.albedo, c.transport, c.normal] + [img for img in c.images if img is not None]
         if c.body is not None:
-            maps += [c.body, c.skin]
+            maps.append(c.body)
         arrays[f"s{i}"] = np.concatenate(maps, axis=0).astype(np.float16)
         arrays[f"l{i}"] = np.stack(c.lights).astype(np.float32)
         records.append({"index": c.index, "names": c.light_names, "held_out": c.held_out,
@@ -210,11 +196,10 @@ class PackedScenes:
                     images.append(maps[j:j + 3] if traced else None)
                     j += 3 if traced else 0
                 body = unit_normals_and_coverage(maps[j:j + 4]) if rec.get("body") else None
-                skin = np.clip(maps[j + 4:j + 5], 0.0, 1.0) if rec.get("body") else None
                 self.items.append(CroppedScene(
                     index=rec["index"], alpha=maps[0:1], albedo=maps[1:4], transport=maps[4:4 + n],
                     normal=maps[4 + n:k], images=images, lights=list(z[f"l{i}"]),
-                    light_names=rec["names"], held_out=rec["held_out"], body=body, skin=skin))
+                    light_names=rec["names"], held_out=rec["held_out"], body=body))
         self.paths = list(json_paths)
 
     def __call__(self, i: int) -> CroppedScene:

@@ -39,12 +39,6 @@ REFERENCE_LUMINANCE = 0.8   # docs/conventions.md: a light's solid-angle mean lu
 CLIPPED = 0.99              # encoded input above this in any channel: saturated, not fitted
 
 BODY_CHANNELS = 4  # the body prior's input channels: unit normal and coverage (model.data.body_input)
-# The skin probe (skin_probe=True): skin albedo varies in level between people far more than in
-# colour (the farm's tones are 3.4 degrees from their mean colour on average), so the colour of
-# photo / shading over the skin says the light's colour (benchmarks/study_skin_probe.py).
-SKIN_COLOUR = (1.506, 0.889, 0.605)  # the farm's mean skin colour, Rec.709 luminance 1 (farm/material_specs.py)
-SKIN_FULL_SHARE = 0.03   # skin pixels (share of the person) from which the probe acts fully; below, less
-SKIN_MAX_LOG_GAIN = 0.5  # the probe recolours a channel by at most e^0.5 either way
 
 # Named sizes of the geometry-first layout (docs/model.md); costs in docs/benchmarks/model.md.
 GEOMETRY_PRESETS = {
@@ -68,8 +62,7 @@ class GeometryNet(nn.Module):
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
                  full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
-                 fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1,
-                 skin_probe: bool = False):
+                 fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
@@ -83,7 +76,6 @@ class GeometryNet(nn.Module):
         if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or not 1 <= fit_stride <= 4:
             raise ValueError(f"GeometryNet: fit_stride must be 1..4, got {fit_stride!r}")
         self.fit_stride = fit_stride
-        self.skin_probe = bool(skin_probe)
         # the fit's precision in training (the exported graph fits in float64); benchmarks set
         # float64 here to time what training was before (benchmarks/bench_train.py)
         self.train_fit_precision = torch.float32
@@ -98,8 +90,7 @@ class GeometryNet(nn.Module):
         gen = dict(batch_norm=True, dec_channels=dec, full_res_convs=self.full_res_convs)
         self.encoder = Encoder(channels, self.full_res_convs, in_channels=self.in_channels)
         self.geometry_res = ResidualBlock(c_bottle, batch_norm=True)
-        # normal xyz, visibility, alpha (and the skin's logit with the skin probe)
-        self.geometry_gen = Generator(channels, 6 if self.skin_probe else 5, **gen)
+        self.geometry_gen = Generator(channels, 5, **gen)          # normal xyz, visibility, alpha
         self.albedo_res = ResidualBlock(c_bottle, batch_norm=True)
         self.albedo_gen = Generator(channels, 3, **gen)
         self.light_head = LightDecoder(3 * c_bottle, c_bottle, self.n, decomposition=False)
@@ -112,8 +103,6 @@ class GeometryNet(nn.Module):
             config["body_prior"] = True
         if self.fit_stride != 1:
             config["fit_stride"] = self.fit_stride
-        if self.skin_probe:
-            config["skin_probe"] = True
         return config
 
     def check_input(self, image: torch.Tensor) -> None:
@@ -157,36 +146,12 @@ class GeometryNet(nn.Module):
             light = light_fit * (REFERENCE_LUMINANCE / lum.clamp(min=0.02))[:, None, None]
         shading = torch.einsum("bnhw,bnc->bchw", transport, light)
         albedo = physics.photo_consistent_albedo(photo, shading, weight, self.reliable)
-        extra = {}
-        if self.skin_probe:
-            skin = torch.sigmoid(geo[:, 5:6])
-            light = light * skin_gains(albedo, skin.detach() * weight, weight)[:, None, :]
-            shading = torch.einsum("bnhw,bnc->bchw", transport, light)
-            albedo = physics.photo_consistent_albedo(photo, shading, weight, self.reliable)
-            extra["skin"] = skin
         return {
             "albedo": albedo, "transport": transport, "residual": transport * 0.0,
             "light": light, "alpha": alpha,
             "normal": normal, "visibility": visibility, "albedo_prior": albedo_prior,
-            "light_prior": light_prior, "light_fit": light_fit, **extra,
+            "light_prior": light_prior, "light_fit": light_fit,
         }
-
-
-def skin_gains(albedo: torch.Tensor, skin_weight: torch.Tensor, person_weight: torch.Tensor) -> torch.Tensor:
-    """[B, 3] per-channel light gains that give the photo-consistent albedo's mean over the skin
-    the colour SKIN_COLOUR, its luminance kept (dividing the albedo by g multiplies the light by
-    g); acting in proportion to the skin seen up to SKIN_FULL_SHARE of the person, at most
-    e^SKIN_MAX_LOG_GAIN either way. albedo [B,3,H,W]; weights [B,1,H,W]."""
-    from relight.colour import LUMINANCE_WEIGHTS
-
-    luma = torch.tensor([float(w) for w in LUMINANCE_WEIGHTS], dtype=albedo.dtype, device=albedo.device)
-    prior = torch.tensor(SKIN_COLOUR, dtype=albedo.dtype, device=albedo.device)
-    seen = skin_weight.sum(dim=(2, 3))                                        # [B,1]
-    mean = (albedo * skin_weight).sum(dim=(2, 3)) / (seen + 1e-6)             # [B,3]
-    want = prior * (mean * luma).sum(dim=-1, keepdim=True)                    # [B,3], mean's luminance
-    log_gain = (torch.log(mean + 1e-4) - torch.log(want + 1e-4)).clamp(-SKIN_MAX_LOG_GAIN, SKIN_MAX_LOG_GAIN)
-    share = (seen / (SKIN_FULL_SHARE * person_weight.sum(dim=(2, 3)) + 1e-6)).clamp(0.0, 1.0)
-    return torch.exp(log_gain * share)
 
 
 def mean_luminance(light: torch.Tensor) -> torch.Tensor:
@@ -200,7 +165,7 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
 
 # Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).
 GEOMETRY_LOSS_WEIGHTS = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2,
-                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0, "skin": 1.0}
+                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0}
 FITTED_BANDS = 3  # light_fit compares bands 0-2: all a Lambertian lobe passes (band 3's A_l is 0, band 4's 0.04)
 
 
@@ -215,8 +180,7 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     against the target image under light b (through the fit: end to end);
     reconstruction: the same under the fitted light against the input image; light_fit: L1
     of the fitted light's bands 0-2 against the true input light's, in units of the true
-    DC's luminance (the fit's answer itself, which relighting divides by; off by default);
-    skin (with the skin probe): L1 of the skin mask everywhere.
+    DC's luminance (the fit's answer itself, which relighting divides by; off by default).
     """
     w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
     mask = batch["alpha"]
@@ -235,8 +199,6 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     terms["albedo"] = masked_mean(torch.abs(prior - gt_albedo), interior) + masked_mean(
         torch.abs(torch.sqrt(prior + 1e-4) - torch.sqrt(gt_albedo + 1e-4)), interior)
     terms["alpha"] = torch.abs(pred["alpha"] - mask).mean()
-    if "skin" in pred:
-        terms["skin"] = torch.abs(pred["skin"] - batch["skin"]).mean()
     terms["light"] = torch.abs(pred["light_prior"] - batch["light"]).mean()
     if w.get("light_fit", 0.0):
         k = FITTED_BANDS * FITTED_BANDS

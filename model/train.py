@@ -44,8 +44,6 @@ def build_model_config(args) -> dict:
             if getattr(args, name) is not None:
                 layout[name] = getattr(args, name)
         extra = {"body_prior": True} if args.body_prior else {}
-        if args.skin_probe:
-            extra["skin_probe"] = True
         if args.fit_stride != 1:
             extra["fit_stride"] = args.fit_stride
         return dict(arch=GEOMETRY, sh_order=args.order, **layout, **extra)
@@ -137,9 +135,6 @@ def parse_args(argv=None):
     p.add_argument("--fit-stride", type=int, default=1, choices=(1, 2, 3, 4),
                    help="geometry-first model: fit the photo's light on every Nth pixel of each row and "
                         "column (2: a quarter of the pixels, a quarter of the fit's cost)")
-    p.add_argument("--skin-probe", action="store_true",
-                   help="geometry-first model: a skin head, and the light recoloured so the albedo over the "
-                        "skin has skin's colour (scenes need the farm's body pass)")
     p.add_argument("--body-prior", action="store_true",
                    help="geometry-first model: the unclothed body's normal and coverage as 4 more input "
                         "channels (scenes need the farm's body pass)")
@@ -190,7 +185,7 @@ def train(args) -> Path:
         pack=args.pack, presets=not args.no_presets,
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
                      light_tint=args.light_tint, exposure_jitter=args.exposure_jitter, capture=args.capture,
-                     lambertian=args.lambertian, body_prior=args.body_prior, skin=args.skin_probe))
+                     lambertian=args.lambertian, body_prior=args.body_prior))
     # the Trainer's validation settings depend on whether there are validation pairs
     data.prepare_data()
     data.setup("fit")

@@ -99,8 +99,7 @@ class SceneDataModule(L.LightningDataModule):
             try:
                 self.val_set = EvaluationPairs(self.val_paths, self.size, self.order, padding=self.padding,
                                                held_out=self.held_out,
-                                               body_prior=bool(self.augment.get("body_prior")),
-                                               skin=bool(self.augment.get("skin")))
+                                               body_prior=bool(self.augment.get("body_prior")))
             except ValueError as exc:  # validation scenes without two path-traced lights
                 print(f"model.train: no validation ({exc})", file=sys.stderr)
 

@@ -198,66 +198,6 @@ def test_strided_light_fit_exports_and_trains_in_float32():
     assert max(diff.values()) < 1e-4, diff
 
 
-def test_skin_gains_give_the_skin_its_colour_and_act_only_on_seen_skin():
-    from model.geometry import SKIN_COLOUR, SKIN_FULL_SHARE, SKIN_MAX_LOG_GAIN, skin_gains
-
-    prior = torch.tensor(SKIN_COLOUR)
-    person = torch.ones(1, 1, 10, 10)
-    skin = torch.zeros(1, 1, 10, 10)
-    skin[..., :5, :] = 1.0  # half the person is skin
-    albedo = (0.3 * prior).view(1, 3, 1, 1).expand(1, 3, 10, 10).clone()
-    torch.testing.assert_close(skin_gains(albedo, skin, person), torch.ones(1, 3), atol=1e-3, rtol=0)
-    # a light too blue makes the skin's albedo too red: the gains are that error (luminance kept)
-    tint = torch.tensor([1.2, 1.0, 0.8])
-    albedo_tinted = albedo * tint.view(1, 3, 1, 1)
-    g = skin_gains(albedo_tinted, skin, person)
-    luma = torch.tensor([0.2126, 0.7152, 0.0722])
-    want = tint / float((prior * tint) @ luma)  # mean / (prior x its luminance), prior's luminance 1
-    torch.testing.assert_close(g[0], want, rtol=2e-3, atol=0)
-    # no skin: no change; a sliver of skin (a tenth of the full share): a tenth of the log gain
-    torch.testing.assert_close(skin_gains(albedo_tinted, skin * 0, person), torch.ones(1, 3))
-    sliver = torch.zeros(1, 1, 10, 10)
-    sliver[0, 0, 0, :] = 1.0
-    sliver *= (0.1 * SKIN_FULL_SHARE * 100) / 10  # 0.1 of the full share's pixels in weight
-    torch.testing.assert_close(torch.log(skin_gains(albedo_tinted, sliver, person)), 0.1 * torch.log(g), rtol=1e-3,
-                               atol=1e-5)
-    # a wild colour is clamped
-    wild = albedo * torch.tensor([10.0, 1.0, 0.1]).view(1, 3, 1, 1)
-    assert float(torch.log(skin_gains(wild, skin, person)).abs().max()) <= SKIN_MAX_LOG_GAIN + 1e-6
-
-
-def test_skin_probe_network_learns_its_mask_and_exports(tmp_path):
-    """The skin head trains on the skin mask of the body pass (the analytic scenes' body is
-    seen everywhere, so skin is the interior); the skin probe's graph exports with parity."""
-    from export.onnx_export import export_onnx, max_abs_diff, onnx_outputs, torch_outputs
-
-    folder = tmp_path / "d"
-    write_analytic_dataset(folder, n_scenes=2, size=32, order=4, lights=("studio", "city"), body=True)
-    ds = data.TrainingScenes(data_splits.find_scenes(folder), 16, 4, padding=1, extra_lights=[],
-                             held_out=frozenset(presets.HELD_OUT), skin=True)
-    batch = torch.utils.data.default_collate([ds.item(0, 0), ds.item(1, 0)])
-    # skin is the fully covered person, resampled with the crop: inside the alpha, and all of its interior
-    assert bool((batch["skin"] <= batch["alpha"] + 0.02).all())
-    assert float(batch["skin"][batch["alpha"] > 0.999].mean()) > 0.9
-    batch = {k: v for k, v in batch.items() if isinstance(v, torch.Tensor)}
-    torch.manual_seed(0)
-    net = GeometryNet(sh_order=4, width=8, depth=2, decoder_width=8, skin_probe=True).train()
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    first = None
-    for _ in range(200):
-        terms = geometry_losses(net(batch["input"]), batch)
-        first = float(terms["skin"]) if first is None else first
-        opt.zero_grad()
-        terms["total"].backward()
-        opt.step()
-    assert float(terms["skin"]) < 0.5 * first
-    net.eval()
-    path, _ = export_onnx(net, tmp_path / "skin.onnx")
-    x = batch["input"][:1].numpy()
-    diff = max_abs_diff(torch_outputs(net, x), onnx_outputs(path, x))
-    assert max(diff.values()) < 1e-4, diff
-
-
 def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dataset):
     """Perfect transport and light: no normal, visibility or light error; a turned one: large."""
     pairs = data.EvaluationPairs(data_splits.find_scenes(dataset), 32, 4, padding=2,
