@@ -56,6 +56,45 @@ def recoloured(d, wanted_colour: np.ndarray, where: np.ndarray):
     return dataclasses.replace(d, light=light, albedo=consistent_albedo(d, d.transport, light))
 
 
+FACE_RADIUS = 0.5  # the face probe's disc: this times the distance between the eyes
+
+
+def face_disc(photo: np.ndarray, landmarks_model: str, shape) -> np.ndarray | None:
+    """[h, w] bool: a disc on the face (between the nose and the eyes, FACE_RADIUS x the eyes'
+    distance) of the largest person, from MediaPipe's pose landmarks (the pose segmentation
+    network exported with its landmark output, tools/convert_mediapipe_matte.py), mapped into
+    a grid of `shape` over the photo; None when no face is seen (nose or eyes not visible)."""
+    import math
+
+    import onnxruntime as ort
+
+    from relight import matte
+    from relight.colour import srgb_encode
+    from relight.resample import area_shrink, sample_points
+
+    small = srgb_encode(area_shrink(photo, matte.GUIDE_SIZE)).astype(np.float32)
+    found = matte._detect(matte._session("detector"), small)
+    if not found:
+        return None
+    cx, cy, side, rotation = matte._roi(found[0])
+    c, s = math.cos(rotation), math.sin(rotation)
+    t = ((np.arange(matte.NET_SIDE, dtype=np.float64) + 0.5) / matte.NET_SIDE - 0.5) * side
+    u, v = np.meshgrid(t, t)
+    crop = sample_points(small, c * u - s * v + cx, s * u + c * v + cy)
+    session = ort.InferenceSession(landmarks_model, providers=["CPUExecutionProvider"])
+    marks = session.run(["landmarks"], {"image": matte._nchw(crop)})[0].reshape(-1, 5)[:33]
+    if min(marks[0, 3], marks[2, 3], marks[5, 3]) < 0.0:  # visibility logits of nose and eye centres
+        return None
+    uu, vv = (marks[:, 0] / matte.NET_SIDE - 0.5) * side, (marks[:, 1] / matte.NET_SIDE - 0.5) * side
+    x, y = c * uu - s * vv + cx, s * uu + c * vv + cy          # in `small`'s pixels
+    scale_y, scale_x = shape[0] / small.shape[0], shape[1] / small.shape[1]
+    eyes = np.array([(x[2] + x[5]) / 2, (y[2] + y[5]) / 2])
+    centre = 0.7 * np.array([x[0], y[0]]) + 0.3 * eyes
+    radius = FACE_RADIUS * math.hypot(x[2] - x[5], y[2] - y[5])
+    yy, xx = (np.mgrid[0:shape[0], 0:shape[1]] + 0.5)
+    return ((xx / scale_x - centre[0]) ** 2 + (yy / scale_y - centre[1]) ** 2) <= radius ** 2
+
+
 def colour_error(light: np.ndarray, true: np.ndarray) -> float:
     a, b = light[0], true[0]
     return float(np.degrees(np.arccos(np.clip(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12), -1, 1))))
@@ -68,6 +107,8 @@ def main(argv=None) -> int:
     p.add_argument("--working-size", type=int, default=128)
     p.add_argument("--pairs-per-scene", type=int, default=4)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--landmarks-model", default=None,
+                   help="the pose segmentation network with its landmark output: adds the face probe's rows")
     args = p.parse_args(argv)
     from model import metrics
     from model.data_splits import find_scenes
@@ -79,7 +120,8 @@ def main(argv=None) -> int:
     relighter = Relighter(args.model, threads=args.threads)
     rows = {k: {"psnr": [], "si": [], "colour": []} for k in
             ("network's light", "recoloured by the skin prior", "recoloured by the true skin colour (bound)",
-             "recoloured by the true mean albedo's colour (bound)")}
+             "recoloured by the true mean albedo's colour (bound)", "recoloured by the skin prior over the face disc")}
+    faces = {"found": 0, "skin share": []}
     skin_share = []
     for path in find_scenes(args.data):
         scene = read_scene(path, verify_hash=False)
@@ -102,12 +144,23 @@ def main(argv=None) -> int:
                 continue
             true_albedo = resize_linear(scene.albedo[y0:y1, x0:x1], h, w)
             skin_share.append(skin.sum() / max(person.sum(), 1))
+            face = None
+            if args.landmarks_model:
+                disc = face_disc(image, args.landmarks_model, image.shape[:2])
+                if disc is not None:
+                    face = (resize_linear(disc[y0:y1, x0:x1].astype(np.float32), h, w) > 0.99) & (d.alpha >= 0.999)
+                    if face.sum() >= 2:
+                        faces["found"] += 1
+                        faces["skin share"].append(float(skin[face].mean()))
+                    else:
+                        face = None
             variants = {
                 "network's light": d,
                 "recoloured by the skin prior": recoloured(d, prior, skin),
                 "recoloured by the true skin colour (bound)": recoloured(d, true_albedo[skin].mean(axis=0), skin),
                 "recoloured by the true mean albedo's colour (bound)":
                     recoloured(d, true_albedo[person].mean(axis=0), person),
+                "recoloured by the skin prior over the face disc": d if face is None else recoloured(d, prior, face),
             }
             true_light = np.asarray(scene.lights[a]["sh"], np.float64)
             for b, target in enumerate(scene.images):
@@ -124,6 +177,10 @@ def main(argv=None) -> int:
     print(f"# {len(skin_share)} held-out photos of {args.data}, each relit to its scene's other lights; "
           f"skin {100 * np.mean(skin_share):.1f}% of the person's pixels on average (min "
           f"{100 * np.min(skin_share):.1f}%); skin prior colour {np.round(prior, 3).tolist()}\n")
+    if args.landmarks_model:
+        print(f"face disc found on {faces['found']} of {len(skin_share)} photos; the farm's skin mask covers "
+              f"{100 * np.mean(faces['skin share'] or [np.nan]):.0f}% of it on average (where not found: the "
+              f"network's light)\n")
     print("| the photo's light | colour error (deg, mean / median) | relit PSNR | SI PSNR |")
     print("|---|---|---|---|")
     for name, r in rows.items():

@@ -78,6 +78,8 @@ def against_litert(tflite: str, model: str, photos: list[str]) -> float:
         else:
             logits = interpreter.get_tensor(by_name["Identity_2"]["index"]).astype(np.float64)
             refs = [(1.0 / (1.0 + np.exp(-np.clip(logits, -80, 80)))).transpose(0, 3, 1, 2)]
+            if "landmarks" in outputs:  # the landmark regressors, in pixels of the 256 x 256 input
+                refs.append(interpreter.get_tensor(by_name["Identity"]["index"]))
         diffs = [float(np.abs(g - r).max()) for g, r in zip(got, refs)]
         worst = max(worst, *diffs)
         print(f"{path}: max |onnx - tflite| = " + ", ".join(f"{n} {d:.2e}" for n, d in zip(outputs, diffs)))

@@ -17,6 +17,11 @@ scratch virtual environment (never the project's: mediapipe pins numpy<2 and pro
         --output Identity_2:mask --sigmoid --fp16-weights \
         --out relight/models/person_matte_pose_segmentation.onnx
 
+The same network with its 33 body landmarks too (not shipped; benchmarks/study_skin_probe.py
+measured a face probe with it): --output Identity_2:mask --output Identity:landmarks
+--sigmoid-output mask (within 1.4e-3 of the TFLite reference kernels, landmarks in pixels of
+the 256 x 256 input; 29% more time than the mask alone).
+
 The TFLite graph is read with the `tflite` package (flatbuffer accessors) and
 rebuilt op by op with onnx.helper, in NCHW, keeping only the operators the
 chosen outputs depend on: TFLite weights are transposed, sparse constants
@@ -131,10 +136,11 @@ def _same_pads(in_hw, k_hw, s_hw, d_hw=(1, 1)):
 
 
 def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, str]] | None = None,
-            sigmoid: bool = False, signed_input: bool = False, fp16_weights: bool = False) -> None:
+            sigmoid: bool | frozenset = False, signed_input: bool = False, fp16_weights: bool = False) -> None:
     """Write the ONNX graph of the TFLite outputs named in `outputs_wanted` ((TFLite name,
     ONNX name) pairs; default: the only output, as "mask") with only the operators they
-    depend on. `sigmoid` turns a single output's logits into probabilities;
+    depend on. `sigmoid` turns outputs' logits into probabilities: True for every output,
+    or the ONNX names of those it applies to;
     `signed_input` maps the [0, 1] input to the [-1, 1] the network was trained on.
     `fp16_weights` stores weight tensors that were float16 in the TFLite file as float16
     again (each behind a Cast to float32): half the bytes, the same values."""
@@ -300,7 +306,7 @@ def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, s
                                           kernel_shape=list(k), strides=[stride_h, stride_w],
                                           pads=pads_b + pads_e))
             del padding  # the explicit pads above already give the output size TFLite records
-        elif kind == "AVERAGE_POOL_2D":
+        elif kind in ("AVERAGE_POOL_2D", "MAX_POOL_2D"):
             opts = tflite.Pool2DOptions()
             o = op.BuiltinOptions()
             opts.Init(o.Bytes, o.Pos)
@@ -309,9 +315,12 @@ def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, s
             s = [opts.StrideH(), opts.StrideW()]
             pads = _same_pads((h, wd), k, s) if opts.Padding() == tflite.Padding.SAME else [0, 0, 0, 0]
             target = activation(out, opts.FusedActivationFunction())
-            # TFLite averages over the valid pixels only
-            nodes.append(helper.make_node("AveragePool", [name[ins[0]]], [target], kernel_shape=k, strides=s,
-                                          pads=pads, count_include_pad=0))
+            if kind == "MAX_POOL_2D":  # ONNX's MaxPool, like TFLite's, never takes a padded value
+                nodes.append(helper.make_node("MaxPool", [name[ins[0]]], [target], kernel_shape=k, strides=s,
+                                              pads=pads))
+            else:  # TFLite averages over the valid pixels only
+                nodes.append(helper.make_node("AveragePool", [name[ins[0]]], [target], kernel_shape=k, strides=s,
+                                              pads=pads, count_include_pad=0))
         elif kind in ("ADD", "MUL"):
             opts = (tflite.AddOptions if kind == "ADD" else tflite.MulOptions)()
             o = op.BuiltinOptions()
@@ -367,10 +376,12 @@ def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, s
         nodes.insert(0, helper.make_node("Identity", ["image"], [name[int(inp)]]))
     nodes[:0] = casts
     graph_outputs = []
+    sigmoid_names = {o for _, o in outputs_wanted} if sigmoid is True else set(sigmoid or ())
     for tfl_name, onnx_name in outputs_wanted:
         t = by_name[tfl_name]
         dims = shape[t] if len(shape[t]) != 4 else [shape[t][0], shape[t][3], shape[t][1], shape[t][2]]
-        nodes.append(helper.make_node("Sigmoid" if sigmoid else "Identity", [name[t]], [onnx_name]))
+        nodes.append(helper.make_node("Sigmoid" if onnx_name in sigmoid_names else "Identity", [name[t]],
+                                      [onnx_name]))
         graph_outputs.append(helper.make_tensor_value_info(onnx_name, TensorProto.FLOAT, dims))
     g = helper.make_graph(nodes, "person_matte", [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, c, h, w])],
                           graph_outputs, inits)
@@ -385,8 +396,8 @@ def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, s
         "relight.matte.version": f"mediapipe {MEDIAPIPE_VERSION}, {tflite_path.stem}, converted to ONNX opset {OPSET}",
         "relight.matte.licence": "Apache-2.0 (Google LLC, MediaPipe)",
         "relight.matte.input_spec": "image [1, 3, H, W] float32, RGB sRGB-encoded in [0, 1]; outputs "
-                                    + ", ".join(o for _, o in outputs_wanted)
-                                    + (" (probabilities)" if sigmoid else ""),
+                                    + ", ".join(o + (" (probabilities)" if o in sigmoid_names else "")
+                                                for _, o in outputs_wanted),
     }
     for k, v in meta.items():
         m.metadata_props.add(key=k, value=v)
@@ -403,11 +414,14 @@ def main(argv=None) -> int:
     p.add_argument("--output", action="append", default=None, metavar="TFLITE_NAME:ONNX_NAME",
                    help="a TFLite output to convert and its ONNX name (repeatable; default: the only one, as mask)")
     p.add_argument("--sigmoid", action="store_true", help="the outputs are logits: end with a Sigmoid")
+    p.add_argument("--sigmoid-output", action="append", default=None, metavar="ONNX_NAME",
+                   help="only this output is logits (repeatable): end it with a Sigmoid")
     p.add_argument("--signed-input", action="store_true", help="the network takes [-1, 1]: map [0, 1] to it")
     p.add_argument("--fp16-weights", action="store_true", help="keep float16 weights as float16 (exact, half size)")
     args = p.parse_args(argv)
     wanted = None if args.output is None else [tuple(o.split(":", 1)) for o in args.output]
-    convert(args.tflite, args.out, wanted, args.sigmoid, args.signed_input, args.fp16_weights)
+    sigmoid = True if args.sigmoid else frozenset(args.sigmoid_output or ())
+    convert(args.tflite, args.out, wanted, sigmoid, args.signed_input, args.fp16_weights)
     return 0
 
 
