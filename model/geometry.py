@@ -62,7 +62,8 @@ class GeometryNet(nn.Module):
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
                  full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
-                 fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1):
+                 fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1,
+                 front_facing: bool = False):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
@@ -76,6 +77,7 @@ class GeometryNet(nn.Module):
         if isinstance(fit_stride, bool) or not isinstance(fit_stride, int) or not 1 <= fit_stride <= 4:
             raise ValueError(f"GeometryNet: fit_stride must be 1..4, got {fit_stride!r}")
         self.fit_stride = fit_stride
+        self.front_facing = bool(front_facing)
         # the fit's precision in training (the exported graph fits in float64); benchmarks set
         # float64 here to time what training was before (benchmarks/bench_train.py)
         self.train_fit_precision = torch.float32
@@ -103,6 +105,8 @@ class GeometryNet(nn.Module):
             config["body_prior"] = True
         if self.fit_stride != 1:
             config["fit_stride"] = self.fit_stride
+        if self.front_facing:
+            config["front_facing"] = True
         return config
 
     def check_input(self, image: torch.Tensor) -> None:
@@ -119,6 +123,11 @@ class GeometryNet(nn.Module):
         g_res = self.geometry_res(bottle)
         geo = self.geometry_gen(g_res, feats)
         raw_normal = geo[:, :3]
+        if self.front_facing:
+            # a surface the camera sees faces it (camera frame: the view axis is +Y), so its
+            # normal's y is <= 0; without this, dark clothing in photos came out as surfaces
+            # turned away from the camera (unlit) rather than as dark cloth
+            raw_normal = torch.cat([raw_normal[:, :1], -torch.abs(raw_normal[:, 1:2]), raw_normal[:, 2:]], dim=1)
         normal = raw_normal / torch.sqrt((raw_normal * raw_normal).sum(dim=1, keepdim=True) + 1e-8)
         visibility = torch.sigmoid(geo[:, 3:4])
         alpha = torch.sigmoid(geo[:, 4:5])

@@ -46,6 +46,8 @@ def build_model_config(args) -> dict:
         extra = {"body_prior": True} if args.body_prior else {}
         if args.fit_stride != 1:
             extra["fit_stride"] = args.fit_stride
+        if args.front_facing:
+            extra["front_facing"] = True
         return dict(arch=GEOMETRY, sh_order=args.order, **layout, **extra)
     layout = dict(PRESETS[args.preset])
     for name in ("width", "depth"):
@@ -135,6 +137,9 @@ def parse_args(argv=None):
     p.add_argument("--fit-stride", type=int, default=1, choices=(1, 2, 3, 4),
                    help="geometry-first model: fit the photo's light on every Nth pixel of each row and "
                         "column (2: a quarter of the pixels, a quarter of the fit's cost)")
+    p.add_argument("--front-facing", action="store_true",
+                   help="geometry-first model: normals turned toward the camera (y <= 0), as every visible "
+                        "surface's is")
     p.add_argument("--body-prior", action="store_true",
                    help="geometry-first model: the unclothed body's normal and coverage as 4 more input "
                         "channels (scenes need the farm's body pass)")

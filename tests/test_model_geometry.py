@@ -198,6 +198,27 @@ def test_strided_light_fit_exports_and_trains_in_float32():
     assert max(diff.values()) < 1e-4, diff
 
 
+def test_front_facing_normals_never_turn_away_from_the_camera(tmp_path):
+    """front_facing mirrors a normal's y onto the camera's side (y <= 0), as every visible
+    surface's is; elsewhere the outputs are the unconstrained network's."""
+    from export.onnx_export import export_onnx, max_abs_diff, onnx_outputs, torch_outputs
+
+    free = _net(5)
+    front = _net(5, front_facing=True)
+    front.load_state_dict(free.state_dict())
+    x = torch.rand(2, 3, 32, 32) * 2 - 1
+    with torch.no_grad():
+        a, b = free(x)["normal"], front(x)["normal"]
+    assert bool((a[:, 1] > 0).any())  # the untrained network turns some away
+    assert float(b[:, 1].max()) <= 0.0
+    torch.testing.assert_close(b[:, 1], -a[:, 1].abs())
+    torch.testing.assert_close(b[:, ::2], a[:, ::2])
+    assert front.config()["front_facing"] is True and "front_facing" not in free.config()
+    path, _ = export_onnx(front, tmp_path / "front.onnx")
+    diff = max_abs_diff(torch_outputs(front, x[:1].numpy()), onnx_outputs(path, x[:1].numpy()))
+    assert max(diff.values()) < 1e-4, diff
+
+
 def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dataset):
     """Perfect transport and light: no normal, visibility or light error; a turned one: large."""
     pairs = data.EvaluationPairs(data_splits.find_scenes(dataset), 32, 4, padding=2,

@@ -37,21 +37,19 @@ SCENES, SEED, RES, LIGHTS, SAMPLES, ORDER = 3, 20250, 128, 2, 16, 4
 # The runtime's working size: the default quality preset's, as a user gets it (relight/quality.py).
 WORKING_SIZE = 128
 
-# measured: geometry.onnx (sha256 3487569b083a): mean PSNR model 21.06 dB, identity 20.22 dB,
-# exposure-matched 22.98 dB over 6 pairs (`.venv/bin/python tests/test_shipped_model.py`).
-# The shipped model beats identity (+0.84 dB) but NOT exposure-matched identity on these six
-# pairs (-1.93 dB; on the 96 held-out pairs of docs/EVALUATION.md it is 0.10 dB behind).
-# Rule: tolerance = half the measured gain over identity (0.42 dB); each margin = measured
-# advantage - tolerance, rounded down to 0.1 dB. So the guard demands a real gain over
-# identity and, against exposure-matched identity, that the model does not fall further
-# behind than measured by more than that tolerance.
-MARGIN_OVER_IDENTITY_DB: float | None = 0.4
-MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = -2.4
-# measured, mean over the 6 images of each image's median normal error: geometry.onnx 22.4 deg;
-# the paper-decomposition models, whose T came out near flat, 33.8 (the 2026-11-21 default) and
-# 36.1 (trained with the geometry model's first 190 scenes and budget). Bound: half way to the
-# nearer, rounded down.
-MAX_MEDIAN_NORMAL_ERROR_DEG: float | None = 28.0
+# measured: geometry.onnx (sha256 982994b24958): mean PSNR model 18.49 dB, identity 13.91 dB,
+# exposure-matched 15.68 dB over 6 pairs (`.venv/bin/python tests/test_shipped_model.py`; the farm's
+# people of issue 20 make these scenes harder than the ones the margins were first measured on).
+# Rule: tolerance = half the measured gain over identity (2.29 dB); each margin = measured
+# advantage - tolerance, rounded down to 0.1 dB. So the guard demands a real gain over identity
+# and over exposure-matched identity, each at least half of what the shipped model shows.
+MARGIN_OVER_IDENTITY_DB: float | None = 2.2
+MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = 0.5
+# measured, mean over the 6 images of each image's median normal error: geometry.onnx 21.3 deg
+# (the model shipped before: 23.0); the paper-decomposition models, whose T came out near flat,
+# 33.8 (the 2026-11-21 default) and 36.1 (trained with the first geometry model's 190 scenes and
+# budget). Bound: half way to the nearer, rounded down.
+MAX_MEDIAN_NORMAL_ERROR_DEG: float | None = 27.5
 
 
 # ------------------------------------------------------------------ the measurement

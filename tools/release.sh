@@ -4,11 +4,13 @@
 # the light fit on every second pixel (docs/benchmarks/model.md), export it as the registry's
 # default and evaluate it on the held-out scenes.
 # Usage: tools/release.sh OUT_DIR   (env: STEPS, BATCH, THREADS, PY)
+# The shipped weights (2026-11-25) were trained before --front-facing existed and exported with it
+# switched on in their config (weights unchanged; held-out results identical, docs/EVALUATION.md).
 # A GPU runs it too (model.train --device cuda); the data and the pack are made here, on the CPU.
 set -euo pipefail
 out=$1
 py=${PY:-.venv/bin/python}
-STEPS=${STEPS:-4000}; BATCH=${BATCH:-8}; THREADS=${THREADS:-2}
+STEPS=${STEPS:-6000}; BATCH=${BATCH:-8}; THREADS=${THREADS:-2}
 mkdir -p "$out"
 
 # data: 441 + 882 training scenes at 128 px (2 lights, 16 spp; two seeds), 24 held-out scenes at
@@ -23,7 +25,7 @@ mkdir -p "$out"
 resume() { [[ -f "$1/checkpoints/last.ckpt" ]] && echo --resume || true; }
 "$py" -m model.train --data "$out/train128" "$out/train128b" --out "$out/geometry" --preset geo-default \
     --size 128 --steps "$STEPS" --batch "$BATCH" --lr 1e-3 --lr-schedule cosine --warmup 200 \
-    --light-tint 0.15 --fit-stride 2 --threads "$THREADS" --seed 1 --val-every 1000 --ckpt-every 250 \
+    --light-tint 0.15 --fit-stride 2 --front-facing --threads "$THREADS" --seed 1 --val-every 1000 --ckpt-every 250 \
     --pack "$out/pack.npz" --quiet $(resume "$out/geometry") > "$out/geometry.log" 2>&1
 
 "$py" -m export "$out/geometry/model.safetensors" --out relight/models/geometry.onnx --register geometry \
