@@ -56,6 +56,7 @@ class Candidate:
     augment: tuple = ()
     refine: int = 0
     matte_method: str = "ensemble"
+    until_agreed: float | None = None  # relight.tta: stop after the first run when it agrees
 
     @property
     def label(self) -> str:
@@ -64,6 +65,8 @@ class Candidate:
             mirrored = any(m for _, m in self.augment)
             parts.append("mirror" if self.augment == ((1.0, True),) else
                          f"{len(self.augment) + 1} runs{'' if mirrored else ' (scales)'}")
+            if self.until_agreed is not None:
+                parts[-1] += f" (2 when the mirror agrees within {self.until_agreed:g})"
         if self.refine:
             parts.append(f"refine {self.refine}")
         if self.matte_method != "ensemble":
@@ -81,7 +84,8 @@ def candidates() -> list[Candidate]:
     out += [Candidate(TRAINED_SIZE, mirror), Candidate(TRAINED_SIZE, tta.AUGMENTATIONS),
             Candidate(TRAINED_SIZE, refine=2), Candidate(TRAINED_SIZE, refine=8),
             Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, scales, 8),
-            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8)]
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8),
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED)]
     return out
 
 
@@ -89,7 +93,7 @@ def decompose(relighter, photo, candidate: Candidate, mask=None):
     """The decomposition a candidate gives (relight.runtime does the same for a preset)."""
     return relighter.decompose(photo, mask=mask, working_size=candidate.working_size,
                                matte_method=candidate.matte_method, augment=candidate.augment,
-                               refine=candidate.refine)
+                               refine=candidate.refine, augment_until_agreed=candidate.until_agreed)
 
 
 def _hwc(chw) -> np.ndarray:

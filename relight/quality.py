@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from relight.tta import AUGMENTATIONS
+from relight.tta import AGREED, AUGMENTATIONS
 
 __all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset"]
 
@@ -31,30 +31,33 @@ class QualityPreset:
     augment: tuple = ()  # relight.tta augmentations: [(scale, mirrored)] run and averaged
     refine: int = 0      # relight.refine iterations on the photo's light (0: off)
     matte_method: str = "ensemble"  # relight.matte's person segmenter ("selfie": faster)
+    augment_until_agreed: float | None = None  # stop the augmentations when the first agrees (relight.tta.AGREED)
 
     def decompose_options(self) -> dict:
         """Relighter.decompose's keyword arguments for this preset."""
         return {"working_size": self.working_size, "augment": self.augment, "refine": self.refine,
-                "matte_method": self.matte_method}
+                "matte_method": self.matte_method, "augment_until_agreed": self.augment_until_agreed}
 
 
-# Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set
-# (docs/TRADEOFFS.md, "Speed for accuracy", 2026-11-25; 96 pairs, paired against the network
-# alone at its trained size): Balanced = the network once at 128 px, the size it was trained
-# at (20.71 dB, SI 24.52); Best = the most accurate front point within 3 s: 160 px, the
-# network run six times (the crop mirrored and at 0.75x / 1.25x) and averaged, then the
-# light refined for 8 iterations (+0.60 +- 0.24 dB, SI +1.08); Draft = the fastest front
-# point within 0.5 dB of Balanced: 80 px with the selfie segmenter alone (-0.45 +- 0.24 dB;
-# its matte is less exact: mean IoU 0.944 against 0.97, docs/MATTE.md).
+# Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set with the
+# release of issue 25 (docs/TRADEOFFS.md, "Speed for accuracy", 2026-11-25; 96 pairs, paired
+# against the network alone at its trained size): Balanced = the network once at 128 px, the
+# size it was trained at (21.57 dB, SI 24.39); Best = the most accurate front point within 3 s:
+# the network six times (the crop mirrored, and at 0.75x / 1.25x) and averaged, the last four
+# skipped when the mirrored run agrees with the first (relight.tta.AGREED: 26% of photos, for
+# 0.005 dB) (+0.71 +- 0.16 dB, SI +0.94); light refinement (+0.10 alone, -0.05 after the six
+# runs) no longer pays and is left to --refine; Draft = the fastest front point within 0.5 dB of
+# Balanced: 96 px with the selfie segmenter alone (-0.35 +- 0.21 dB; its matte is less exact:
+# mean IoU 0.944 against 0.97, docs/MATTE.md).
 PRESETS: tuple[QualityPreset, ...] = (
-    QualityPreset("draft", "Draft", "geometry", 80,
-                  "Fastest: the network sees the person at 80 px; a quicker, rougher person matte",
+    QualityPreset("draft", "Draft", "geometry", 96,
+                  "Fastest: the network sees the person at 96 px; a quicker, rougher person matte",
                   matte_method="selfie"),
     QualityPreset("balanced", "Balanced", "geometry", 128,
                   "The network sees the person once at 128 px, the size it was trained at"),
-    QualityPreset("best", "Best", "geometry", 160,
-                  "Slowest: six network runs (mirrored, three sizes) averaged, then the photo's light "
-                  "refined to its shading", augment=AUGMENTATIONS, refine=8),
+    QualityPreset("best", "Best", "geometry", 128,
+                  "Slowest: up to six network runs (mirrored, three sizes) averaged; two when the "
+                  "mirrored run agrees with the first", augment=AUGMENTATIONS, augment_until_agreed=AGREED),
 )
 DEFAULT = "balanced"
 

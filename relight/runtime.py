@@ -137,7 +137,7 @@ class Relighter(ModelSession):
 
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
-                  augment=(), refine: int = 0) -> Decomposition:
+                  augment=(), refine: int = 0, augment_until_agreed: float | None = None) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
@@ -154,7 +154,9 @@ class Relighter(ModelSession):
         "selfie": faster, less exact).
 
         `augment` ([(scale, mirrored)], relight.tta.AUGMENTATIONS) runs the network again on
-        the crop mirrored and/or resized and averages the answers; `refine` (iterations, 0:
+        the crop mirrored and/or resized and averages the answers, stopping after the first
+        when its answer is within `augment_until_agreed` of the network's own (relight.tta.
+        disagreement; None: all run); `refine` (iterations, 0:
         off) refits the photo's light to its shading gradients (relight.refine). What was
         done is recorded in the result's `choices` (the output's metadata).
         """
@@ -194,11 +196,15 @@ class Relighter(ModelSession):
         choices = {"working_size": size, "network_input": [h, w], "person_px": max(y1 - y0, x1 - x0),
                    "matte": "mask" if found is None and mask is not None else
                    (f"person ({matte_method})" if found is not None else "network")}
+        ran = list(augment)
         if augment:
             from relight import tta
 
-            d = tta.augment(self, d, tuple(augment))
-        choices["augment"] = [[float(s), bool(m)] for s, m in augment]
+            d, count = tta.augment(self, d, tuple(augment), augment_until_agreed)
+            ran = ran[:count]
+        choices["augment"] = [[float(s), bool(m)] for s, m in ran]
+        if augment_until_agreed is not None and len(ran) < len(augment):
+            choices["augment_stopped"] = f"the first run agreed within {augment_until_agreed:g}"
         if refine:
             from relight.refine import refine as refine_light
 

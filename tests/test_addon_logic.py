@@ -25,9 +25,10 @@ EPS32 = float(np.finfo(np.float32).eps)
 def test_quality_presets_are_ordered_and_match_the_runtime_sizes():
     from relight import quality as core_quality
 
-    sizes = [quality.preset(key).working_size for key, _, _ in quality.enum_items()]
-    assert sizes == sorted(sizes) and len(set(sizes)) == 3
-    assert sizes == [core_quality.preset(key).working_size for key in ("draft", "balanced", "best")]
+    presets = [quality.preset(key) for key, _, _ in quality.enum_items()]
+    work = [(p.working_size, len(p.augment), p.refine) for p in presets]  # fastest first, strictly more work
+    assert work == sorted(work) and len(set(work)) == 3
+    assert presets == [core_quality.preset(key) for key in ("draft", "balanced", "best")]
     assert quality.preset(quality.DEFAULT_QUALITY).key == "balanced"
     assert [i[0] for i in quality.enum_items()] == ["DRAFT", "BALANCED", "BEST"]
     with pytest.raises(ValueError, match="unknown quality preset 'ULTRA'"):

@@ -16,8 +16,9 @@ def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
     from relight.runtime import DEFAULT_WORKING_SIZE
 
     keys = [p.key for p in quality.PRESETS]
-    sizes = [p.working_size for p in quality.PRESETS]
-    assert keys == ["draft", "balanced", "best"] and sizes == sorted(sizes) and len(set(sizes)) == 3
+    # fastest first: each preset does strictly more work (working size, then network runs)
+    work = [(p.working_size, len(p.augment), p.refine) for p in quality.PRESETS]
+    assert keys == ["draft", "balanced", "best"] and work == sorted(work) and len(set(work)) == 3
     assert DEFAULT_WORKING_SIZE == quality.preset(quality.DEFAULT).working_size
     assert [key for key, _, _ in addon_quality.enum_items()] == [p.key.upper() for p in quality.PRESETS]
     assert all(addon_quality.preset(p.key.upper()) is p for p in quality.PRESETS)  # one table
