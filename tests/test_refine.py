@@ -175,3 +175,44 @@ def test_augment_refuses_bad_augmentations():
     for bad in ([(1.0,)], [(0.1, True)], [(1.0, "yes")], [("1", True)], [1.0]):
         with pytest.raises(ValueError, match="augmentations"):
             tta.augment(None, d, bad)
+
+
+class _Answers:
+    """A stand-in network for relight.tta.augment: every run answers the same transport (on
+    its own grid, flipped for a mirrored crop so that it is the same scene) and `light`."""
+
+    def __init__(self, d, light):
+        self.d, self.light, self.calls = d, light, 0
+
+    def run_crop(self, crop, matte):
+        self.calls += 1
+        from relight.resample import resize_linear
+
+        h, w = crop.shape[:2]
+        t = self.d.transport if (h, w) == self.d.working_size else resize_linear(self.d.transport, h, w)
+        mirrored = not np.array_equal(crop, self.d.photo_working) and (h, w) == self.d.working_size
+        signs = tta.mirror_x(ORDER)
+        return {"transport": t[:, ::-1] * signs if mirrored else t,
+                "light": self.light * signs[:, None] if mirrored else self.light}
+
+
+def test_augmentation_stops_after_the_first_run_only_when_it_agrees():
+    """Only what the photo needs: with stop_when_agreed the runs after the first are skipped
+    when the first's shading is within that of the network's own (relative RMS over the
+    matte, tta.disagreement), and all run when it is not."""
+    light = lobe_light([0, -1, 0], [1, 1, 1], 0.2)
+    d, *_ = synthetic(light, light)
+    assert tta.disagreement(d, d.transport, d.light) == 0.0
+    # twice the light: the shading doubles everywhere, a relative change of exactly 1
+    assert tta.disagreement(d, d.transport, d.light * 2) == pytest.approx(1.0, rel=1e-6)
+    same = _Answers(d, d.light)
+    out, runs = tta.augment(same, d, tta.AUGMENTATIONS, stop_when_agreed=tta.AGREED)
+    assert runs == 1 and same.calls == 1
+    np.testing.assert_allclose(out.light, d.light, rtol=1e-6, atol=1e-7)
+    other = _Answers(d, d.light * 1.5)  # the mirror says half as much light again: 0.5 > AGREED
+    out, runs = tta.augment(other, d, tta.AUGMENTATIONS, stop_when_agreed=tta.AGREED)
+    assert runs == len(tta.AUGMENTATIONS) and other.calls == len(tta.AUGMENTATIONS)
+    # all six averaged: the first run's light and five at 1.5x
+    np.testing.assert_allclose(out.light, d.light * (1 + 5 * 1.5) / 6, rtol=1e-5, atol=1e-7)
+    _, runs = tta.augment(_Answers(d, d.light), d, tta.AUGMENTATIONS)  # no early stop asked
+    assert runs == len(tta.AUGMENTATIONS)
