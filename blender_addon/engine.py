@@ -98,24 +98,30 @@ def known_sh_order(model_path: str) -> int | None:
 
 
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
-              cancel: CancelToken | None = None, augment=(), refine: int = 0):
+              cancel: CancelToken | None = None, augment=(), refine: int = 0,
+              augment_until_agreed: float | None = None, ensemble=()):
     """Run the network (the slow step; called on the worker thread): once, or once per
-    augmentation of the quality preset, and refine the light when it says so.
+    augmentation of the quality preset (and per network of its ensemble), and refine the
+    light when it says so.
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
     CancelToken.cancel() terminates, so Esc stops even a running network pass.
     Relighter.decompose calls its `run` without run options, so `run` is
-    shadowed on the instance for this call (one network job runs at a time).
+    shadowed on the instance (and on the ensemble's networks) for this call (one network
+    job runs at a time).
     """
     start = time.monotonic()
+    networks = [relighter] + [relighter.member(name) for name in ensemble]
     if cancel is not None:
         cancel.check()
-        relighter.run = _cancellable_run(relighter, cancel)
+        for net in networks:
+            net.run = _cancellable_run(net, cancel)
     try:
         # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
         # NETWORK (and another photo's light) passes None for the network's own alpha
         decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
-                                            augment=augment, refine=refine)
+                                            augment=augment, refine=refine,
+                                            augment_until_agreed=augment_until_agreed, ensemble=ensemble)
     except Exception:
         if cancel is not None and cancel.cancelled:
             cancel.stopped_inference = True  # onnxruntime gave up the run it was in
@@ -123,8 +129,10 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
         raise
     finally:
         if cancel is not None:
-            del relighter.run  # the class's own method again
-    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine)] = time.monotonic() - start
+            for net in networks:
+                del net.run  # the class's own method again
+    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine, tuple(ensemble))] = \
+        time.monotonic() - start
     return decomposition
 
 
@@ -280,9 +288,10 @@ def saved_preview(arrays: dict, meta: dict):
                                  arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
 
 
-def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0) -> float | None:
+def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0,
+                     augment_until_agreed: float | None = None, ensemble=()) -> float | None:
     """How long the last run of this model at this size (and test-time work) took, if there was one."""
-    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine))
+    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine, tuple(ensemble)))
 
 
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:

@@ -27,9 +27,12 @@ def enum_items() -> list[tuple[str, str, str]]:
 
 def network_options(key: str) -> dict:
     """The preset's test-time work beyond its working size: Relighter.decompose's `augment`
-    (mirrored / rescaled runs averaged) and `refine` (light refinement iterations)."""
+    (mirrored / rescaled runs averaged), `augment_until_agreed` (the rest skipped when the
+    first agrees), `ensemble` (other networks averaged in) and `refine` (light refinement
+    iterations): Relighter.decompose's keywords, as a hashable-valued dict."""
     p = core_quality.preset(key)
-    return {"augment": p.augment, "refine": p.refine}
+    return {"augment": p.augment, "refine": p.refine, "augment_until_agreed": p.augment_until_agreed,
+            "ensemble": tuple(p.ensemble)}
 
 
 def model_path_for(quality_key: str, override: str = "") -> Path:

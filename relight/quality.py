@@ -32,11 +32,13 @@ class QualityPreset:
     refine: int = 0      # relight.refine iterations on the photo's light (0: off)
     matte_method: str = "ensemble"  # relight.matte's person segmenter ("selfie": faster)
     augment_until_agreed: float | None = None  # stop the augmentations when the first agrees (relight.tta.AGREED)
+    ensemble: tuple = ()  # registry names of other networks whose answers join the average
 
     def decompose_options(self) -> dict:
         """Relighter.decompose's keyword arguments for this preset."""
         return {"working_size": self.working_size, "augment": self.augment, "refine": self.refine,
-                "matte_method": self.matte_method, "augment_until_agreed": self.augment_until_agreed}
+                "matte_method": self.matte_method, "augment_until_agreed": self.augment_until_agreed,
+                "ensemble": self.ensemble}
 
 
 # Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set with the

@@ -102,6 +102,24 @@ class Relighter(ModelSession):
         path = Path(model_path) if model_path is not None else default_model_path(registry_path)
         self.working_size = check_working_size(working_size)
         super().__init__(path, threads, providers, registry_path)
+        self._open = dict(threads=threads, providers=providers, registry_path=registry_path)
+        self._members: dict[str, Relighter] = {}  # the ensemble's other networks, opened on first use
+
+    def member(self, name: str) -> "Relighter":
+        """Another relighting network of the registry (by name) to average with this one's
+        answers (decompose's `ensemble`), opened once; it must use the same SH order."""
+        if name not in self._members:
+            from relight.models import load_registry
+
+            registry_path = Path(self._open["registry_path"])
+            entry = load_registry(registry_path)["models"].get(name)
+            if entry is None:
+                raise ValueError(f"ensemble model {name!r} is not in {registry_path}")
+            other = Relighter(registry_path.parent / entry["file"], working_size=self.working_size, **self._open)
+            if other.sh_order != self.sh_order:
+                raise ValueError(f"ensemble model {name!r} has SH order {other.sh_order}, not {self.sh_order}")
+            self._members[name] = other
+        return self._members[name]
 
     def _run_image(self, linear: np.ndarray, mask: np.ndarray | None) -> dict[str, np.ndarray]:
         """Network outputs for one linear [h, w, 3] image, padded to size_multiple, unpadded after."""
@@ -137,7 +155,8 @@ class Relighter(ModelSession):
 
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
-                  augment=(), refine: int = 0, augment_until_agreed: float | None = None) -> Decomposition:
+                  augment=(), refine: int = 0, augment_until_agreed: float | None = None,
+                  ensemble=()) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
@@ -156,7 +175,9 @@ class Relighter(ModelSession):
         `augment` ([(scale, mirrored)], relight.tta.AUGMENTATIONS) runs the network again on
         the crop mirrored and/or resized and averages the answers, stopping after the first
         when its answer is within `augment_until_agreed` of the network's own (relight.tta.
-        disagreement; None: all run); `refine` (iterations, 0:
+        disagreement; None: all run); `ensemble` (registry names of other relighting networks,
+        `member`) adds their answers on the same crops (the plain one and the runs made) to the
+        average; `refine` (iterations, 0:
         off) refits the photo's light to its shading gradients (relight.refine). What was
         done is recorded in the result's `choices` (the output's metadata).
         """
@@ -197,12 +218,17 @@ class Relighter(ModelSession):
                    "matte": "mask" if found is None and mask is not None else
                    (f"person ({matte_method})" if found is not None else "network")}
         ran = list(augment)
-        if augment:
+        if augment or ensemble:
             from relight import tta
 
-            d, count = tta.augment(self, d, tuple(augment), augment_until_agreed)
-            ran = ran[:count]
+            done = tta.runs(self, d, tuple(augment), augment_until_agreed) if augment else []
+            ran = ran[:len(done)]
+            for name in ensemble:  # each other network: the plain crop and the runs made
+                done += tta.runs(self.member(name), d, ((1.0, False), *ran))
+            d = tta.average(d, done)
         choices["augment"] = [[float(s), bool(m)] for s, m in ran]
+        if ensemble:
+            choices["ensemble"] = [str(name) for name in ensemble]
         if augment_until_agreed is not None and len(ran) < len(augment):
             choices["augment_stopped"] = f"the first run agreed within {augment_until_agreed:g}"
         if refine:

@@ -22,7 +22,7 @@ from relight import sh
 from relight.refine import consistent_albedo
 from relight.resample import resize_linear
 
-__all__ = ["mirror_x", "average", "augment", "disagreement", "AUGMENTATIONS", "AGREED"]
+__all__ = ["mirror_x", "average", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
 
 # (scale of the working size, mirrored) for each run after the first: the augmentations
 # measured in docs/TRADEOFFS.md ("Best")
@@ -81,6 +81,13 @@ def augment(relighter, base, augmentations=AUGMENTATIONS, stop_when_agreed: floa
     `stop_when_agreed`, the runs after the first are skipped when the first changes the
     shading by at most that (`disagreement`). Returns (the averaged decomposition, how many
     of `augmentations` ran)."""
+    done = runs(relighter, base, augmentations, stop_when_agreed)
+    return average(base, done), len(done)
+
+
+def runs(relighter, base, augmentations, stop_when_agreed: float | None = None) -> list:
+    """The network's answers [(run, mirrored)] on base's crop for each augmentation (see
+    `augment`), not yet averaged: other networks' runs may join them (an ensemble)."""
     for item in augmentations:
         if (not isinstance(item, (tuple, list)) or len(item) != 2 or not isinstance(item[1], (bool, np.bool_))
                 or not isinstance(item[0], (int, float)) or not 0.25 <= item[0] <= 4.0):
@@ -91,7 +98,7 @@ def augment(relighter, base, augmentations=AUGMENTATIONS, stop_when_agreed: floa
         matte = base.mask[y0:y1, x0:x1]
     else:  # the network's own alpha: resampled from base's grid
         matte = None
-    runs, crops = [], {}
+    done, crops = [], {}
     for scale, mirrored in augmentations:
         h, w = _fit(y1 - y0, x1 - x0, max(16, round(max(base.working_size) * scale)))
         if (h, w) not in crops:
@@ -102,11 +109,11 @@ def augment(relighter, base, augmentations=AUGMENTATIONS, stop_when_agreed: floa
         if mirrored:
             small, small_matte = small[:, ::-1], small_matte[:, ::-1]
         out = relighter.run_crop(np.ascontiguousarray(small), np.ascontiguousarray(small_matte))
-        runs.append((_Run(out["transport"], out["light"], base.sh_order, (h, w)), mirrored))
-        if stop_when_agreed is not None and len(runs) == 1 and \
-                disagreement(base, *_in_frame(base, runs[0][0], mirrored)) <= stop_when_agreed:
+        done.append((_Run(out["transport"], out["light"], base.sh_order, (h, w)), mirrored))
+        if stop_when_agreed is not None and len(done) == 1 and \
+                disagreement(base, *_in_frame(base, done[0][0], mirrored)) <= stop_when_agreed:
             break
-    return average(base, runs), len(runs)
+    return done
 
 
 def disagreement(base, transport: np.ndarray, light: np.ndarray) -> float:

@@ -225,3 +225,48 @@ def test_best_stays_finite_on_extreme_photos(kind):
         assert report["residual_after"] <= report["residual_before"]
     relit = d.relight(np.asarray([[1.0, 0.9, 0.8]] + [[0.2, 0.2, 0.2]] * 24, np.float32))
     assert np.all(np.isfinite(relit)) and relit.min() >= 0.0
+
+
+def test_an_ensemble_averages_the_other_networks_answers_on_the_same_crop(tmp_path):
+    """Relighter.decompose(ensemble=(name,)): the registry's other network runs on the same
+    crop (and on each augmentation made) and its transport and light join the average; the
+    choice is recorded; a network of another SH order, or a name the registry lacks, is
+    refused. Here: the shipped network and a small geometry-first one with other weights."""
+    import shutil
+
+    import torch
+
+    from export.onnx_export import export_onnx, read_metadata
+    from model.geometry import GeometryNet
+    from relight import models
+
+    registry = tmp_path / "models"
+    registry.mkdir()
+    shipped = ROOT / "relight" / "models"
+    shutil.copy(shipped / "geometry.onnx", registry / "geometry.onnx")
+    entries = json.loads((shipped / "models.json").read_text())
+    entries["models"] = {"geometry": entries["models"]["geometry"]}
+    (registry / "models.json").write_text(json.dumps(entries))
+    torch.manual_seed(3)
+    path, digest = export_onnx(GeometryNet(sh_order=4, width=4, depth=4, decoder_width=4).eval(),
+                               registry / "other.onnx")
+    models.register_model("other", path, digest, read_metadata(path), registry_path=registry / "models.json")
+    torch.manual_seed(4)
+    path2, digest2 = export_onnx(GeometryNet(sh_order=2, width=4, depth=4, decoder_width=4).eval(),
+                                 registry / "order2.onnx")
+    models.register_model("order2", path2, digest2, read_metadata(path2), registry_path=registry / "models.json")
+    photo = np.asarray(Image.open(ASTRONAUT).convert("RGB").resize((96, 96)), np.float32) / 255.0
+    mask = np.zeros((96, 96), np.float32)
+    mask[10:90, 20:76] = 1.0
+    main_net = Relighter(registry / "geometry.onnx", threads=1, registry_path=registry / "models.json")
+    other = Relighter(registry / "other.onnx", threads=1, registry_path=registry / "models.json")
+    alone = main_net.decompose(photo, mask=mask, working_size=64)
+    theirs = other.decompose(photo, mask=mask, working_size=64)
+    both = main_net.decompose(photo, mask=mask, working_size=64, ensemble=("other",))
+    assert both.choices["ensemble"] == ["other"]
+    np.testing.assert_allclose(both.light, (alone.light + theirs.light) / 2, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(both.transport, (alone.transport + theirs.transport) / 2, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="SH order 2"):
+        main_net.decompose(photo, mask=mask, working_size=64, ensemble=("order2",))
+    with pytest.raises(ValueError, match="not in"):
+        main_net.decompose(photo, mask=mask, working_size=64, ensemble=("nobody",))
