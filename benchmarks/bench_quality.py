@@ -57,6 +57,7 @@ class Candidate:
     refine: int = 0
     matte_method: str = "ensemble"
     until_agreed: float | None = None  # relight.tta: stop after the first run when it agrees
+    ensemble: tuple = ()  # registry names of other networks averaged in (Relighter.member)
 
     @property
     def label(self) -> str:
@@ -71,10 +72,14 @@ class Candidate:
             parts.append(f"refine {self.refine}")
         if self.matte_method != "ensemble":
             parts.append(f"{self.matte_method} matte")
+        if self.ensemble:
+            parts.append(f"+ {len(self.ensemble)} other network{'s' if len(self.ensemble) > 1 else ''}")
         return ", ".join(parts)
 
 
-def candidates() -> list[Candidate]:
+def candidates(ensemble: tuple = ()) -> list[Candidate]:
+    """The candidates timed and scored; with `ensemble` (registry names), the network alone and
+    Best's runs with those networks averaged in too."""
     from relight import tta
 
     mirror = ((1.0, True),)
@@ -86,6 +91,10 @@ def candidates() -> list[Candidate]:
             Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, scales, 8),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED)]
+    if ensemble:
+        out += [Candidate(TRAINED_SIZE, ensemble=tuple(ensemble)),
+                Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED, ensemble=tuple(ensemble)),
+                Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, ensemble=tuple(ensemble))]
     return out
 
 
@@ -93,7 +102,8 @@ def decompose(relighter, photo, candidate: Candidate, mask=None):
     """The decomposition a candidate gives (relight.runtime does the same for a preset)."""
     return relighter.decompose(photo, mask=mask, working_size=candidate.working_size,
                                matte_method=candidate.matte_method, augment=candidate.augment,
-                               refine=candidate.refine, augment_until_agreed=candidate.until_agreed)
+                               refine=candidate.refine, augment_until_agreed=candidate.until_agreed,
+                               ensemble=candidate.ensemble)
 
 
 def _hwc(chw) -> np.ndarray:
@@ -257,10 +267,12 @@ def main(argv=None) -> int:
                         "re-time on a quiet machine without recomputing it")
     p.add_argument("--doc", default=None, help="write the table into this markdown file's bench_quality section")
     p.add_argument("--plot", default=None, help="write the front as a PNG plot here")
+    p.add_argument("--ensemble", nargs="*", default=(), metavar="NAME",
+                   help="registry names of other networks: adds candidates that average them in")
     args = p.parse_args(argv)
     from relight.runtime import Relighter
 
-    cands = candidates()
+    cands = candidates(tuple(args.ensemble))
     pairs = load_pairs(args.data, args.pairs, args.per_scene)
     if not pairs:
         print(f"error: no held-out pairs in {args.data}", file=sys.stderr)

@@ -145,11 +145,12 @@ def _zip_write(zf: zipfile.ZipFile, arcname: str, data: bytes) -> None:
 
 def shipped_models(registry: dict) -> list[str]:
     """The registry names the add-on needs: those the quality presets run (Draft,
-    Balanced, Best), the registry's default and the person matte's networks (the
-    Automatic mask); no other model goes into the zip."""
+    Balanced, Best, and the networks of a preset's ensemble), the registry's default and the
+    person matte's networks (the Automatic mask); no other model goes into the zip."""
     from relight import quality as core_quality
 
     names = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS}
+    names.update(name for p in core_quality.PRESETS for name in p.ensemble)
     names.add(registry.get("default"))
     try:
         from relight.matte import MODELS as MATTE_MODELS
