@@ -201,7 +201,7 @@ def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str
     ORDER = r.sh_order
     d = r.decompose(_photo(512, 512), np.ones((512, 512), np.float32))
     L = np.random.default_rng(1).normal(0, 0.3, (25, 3))
-    L[0] = 3.0  # a light with a positive mean, like a normalised map
+    L[0] = 3.0  # a light with a positive mean, like a normalized map
     px = 512 * 512
     row("dot product rho(T.L')+E.L' at working res (all pixels in matte)", px,
         pair(d, lambda x: x.relight_working(L)))

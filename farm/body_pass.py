@@ -10,7 +10,7 @@ horizontally: pixel (row i, column j) of R covers x in [j, j+1] / R - 1/2 and z 
 a pixel's SUPERSAMPLE^2 rays that hit the body (box filter; Cycles' alpha uses a wider
 Blackman-Harris filter, so edges differ by about a pixel). `body_normal` is the
 smooth-shaded normal (the mesh's vertex normals, interpolated as Cycles does) averaged
-over the hits and renormalised, 0 where nothing was hit; `body_depth` the mean hit
+over the hits and renormalized, 0 where nothing was hit; `body_depth` the mean hit
 distance along the view axis (Y), 0 where nothing was hit.
 """
 
@@ -37,7 +37,7 @@ class BodyBuffers:
 
 
 def film_directions(resolution: int, focal_mm: float, supersample: int = SUPERSAMPLE) -> np.ndarray:
-    """[R, R, s*s, 3] float32 ray directions (camera frame, not normalised) through the
+    """[R, R, s*s, 3] float32 ray directions (camera frame, not normalized) through the
     sub-pixel centres of each pixel, row 0 at the top of the image."""
     s = int(supersample)
     offsets = (np.arange(s) + 0.5) / s

@@ -37,7 +37,7 @@ class Camera:
         return (np.asarray(points) - self.location) @ self.world_to_camera.T
 
     def project(self, points: np.ndarray) -> np.ndarray:
-        """Camera-frame points -> normalised image coords in [-0.5, 0.5] (x right, y up), square film."""
+        """Camera-frame points -> normalized image coords in [-0.5, 0.5] (x right, y up), square film."""
         p = self.to_camera(points)
         scale = self.focal_mm / SENSOR_MM
         return np.stack([p[:, 0] / p[:, 1], p[:, 2] / p[:, 1]], axis=1) * scale

@@ -112,7 +112,7 @@ def load_cropped(json_path: Path, size: int, order: int, padding: int,
 
 
 def unit_normals(normal: np.ndarray) -> np.ndarray:
-    """[3, S, S] normals renormalised after resampling (which shortens them across edges), 0 where
+    """[3, S, S] normals renormalized after resampling (which shortens them across edges), 0 where
     there was none."""
     length = np.sqrt((normal * normal).sum(axis=0, keepdims=True))
     return np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0).astype(np.float32)

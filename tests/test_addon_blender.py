@@ -186,7 +186,7 @@ def test_rotating_the_light_follows_the_sh_rotation(addon, settings):
     settings.rotation = math.radians(90.0)  # property update: no network run
     assert session(name) is network_runs
     after = pixels(f"{name}.relit")[..., :3]
-    rotated = sh_light("studio", ORDER, rotation_deg=90.0)  # the map recipe: project, rotate, normalise
+    rotated = sh_light("studio", ORDER, rotation_deg=90.0)  # the map recipe: project, rotate, normalize
     expected = network_runs.decomposition.relight(rotated)
     np.testing.assert_allclose(after, expected, atol=TIGHT)
     assert np.abs(after - before).max() > 1e-2  # the light really moved

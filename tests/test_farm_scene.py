@@ -60,7 +60,7 @@ def test_scene_files_hold_every_channel_with_sane_values(scene_pair):
     assert 0.0 <= alpha.min() and alpha.max() <= 1.0
     inside = alpha > 0.999
     assert 0.05 < inside.mean() < 0.7  # a person, not an empty or filled frame
-    # Normals: unit inside (renormalised mean of unit normals), zero outside.
+    # Normals: unit inside (renormalized mean of unit normals), zero outside.
     length = np.linalg.norm(s.normal, axis=-1)
     assert np.allclose(length[inside], 1.0, atol=1e-4)
     assert np.all(s.normal[alpha == 0.0] == 0.0)

@@ -148,7 +148,7 @@ def test_relight_image_agrees_with_relight_sh_on_those_maps(tmp_path, model, cap
         out = tmp_path / f"{path.stem}.png"
         base = ["image", str(_photo(tmp_path / "p.png")), "--light", str(path), "--model", model,
                 "--matte", "network", "--quality", "draft", "--out", str(out)]
-        assert main(base) == 0, capsys.readouterr().err  # normalised (the default): an ordinary light
+        assert main(base) == 0, capsys.readouterr().err  # normalized (the default): an ordinary light
         assert out.exists()
         out.unlink()
         # as is, its radiance would overflow float32 in the relit image: one line, nothing written

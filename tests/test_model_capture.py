@@ -88,7 +88,7 @@ def test_blur_noise_and_jpeg_magnitudes():
     img[:, 16, 16] = 1.0
     b = capture.gaussian_blur(img, 1.0)
     assert b.sum() == pytest.approx(3.0, rel=1e-5)  # energy kept away from the edges
-    # Peak of a normalised 2D Gaussian of sigma 1 sampled on the grid: (sum_k e^{-k^2/2})^-2.
+    # Peak of a normalized 2D Gaussian of sigma 1 sampled on the grid: (sum_k e^{-k^2/2})^-2.
     norm = sum(math.exp(-k * k / 2) for k in range(-3, 4))
     assert b[0, 16, 16] == pytest.approx(1.0 / norm**2, rel=1e-5)
     flat = np.full((3, 64, 64), 0.18, np.float32)

@@ -152,7 +152,7 @@ def model_relighter(model_path: Path):
     def relight_pair(scene, a, b):
         dec = relighter.decompose(scene.images[a], mask=scene.alpha[..., 0])
         light_b = scene.lights[b]["sh"][:(relighter.sh_order + 1) ** 2]
-        return dec.relight(light_b)  # SH array: used as given (camera frame, no normalisation)
+        return dec.relight(light_b)  # SH array: used as given (camera frame, no normalization)
 
     return relight_pair
 
