@@ -28,6 +28,10 @@ class Predictor:
 
             self.session = ModelSession(self.path)
             self.n_coeffs = num_coeffs(self.session.sh_order)
+            from relight.level import METADATA_KEY, LevelPrior
+
+            # the model's level prior (relight.level) is part of what it answers, as in the runtime
+            self.level_prior = LevelPrior.from_metadata(self.session.metadata.get(METADATA_KEY))
             t = self.session.output_channels("transport")
             # the T* ablation exports 3n transport channels (docs/model.md)
             self.tstar = self.n_coeffs > 1 and t == 3 * self.n_coeffs
@@ -38,6 +42,7 @@ class Predictor:
             self.model = load_model(self.path)
             self.tstar = self.model.tstar
             self.n_coeffs = self.model.n
+            self.level_prior = None  # a checkpoint has none: it is calibrated on the exported model
         else:
             raise ValueError(f"model must be a .safetensors checkpoint or an .onnx file, got {self.path.name}")
 
@@ -63,4 +68,22 @@ class Predictor:
             out = self.session.run(image)
         except Exception as exc:  # onnxruntime raises its own types (e.g. a size the graph rejects)
             raise ValueError(f"{self.path.name} failed on an input of shape {image.shape}: {exc}") from None
-        return {k: out[k] for k in OUTPUTS}
+        out = {k: out[k] for k in OUTPUTS}
+        if self.level_prior is not None and not np.any(out["residual"]):
+            out = _with_level_prior(self.level_prior, image, out)
+        return out
+
+
+def _with_level_prior(prior, image: np.ndarray, out: dict) -> dict:
+    """The outputs with each image's light divided by the prior's gains and its albedo
+    re-derived (relight.level.apply on the runtime's Decomposition does the same)."""
+    from relight.refine import albedo_from_input
+
+    light, albedo = out["light"].copy(), out["albedo"].copy()
+    for b in range(image.shape[0]):
+        transport = out["transport"][b].transpose(1, 2, 0)
+        alpha = out["alpha"][b, 0]
+        gains = prior.gains(transport, light[b], alpha)
+        light[b] = light[b] / gains[None, :]
+        albedo[b] = albedo_from_input(image[b].transpose(1, 2, 0), alpha, transport, light[b]).transpose(2, 0, 1)
+    return {**out, "light": light, "albedo": albedo}

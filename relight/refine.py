@@ -29,7 +29,7 @@ import numpy as np
 from relight.colour import srgb_decode, srgb_encode
 from relight.prt import to_network_input
 
-__all__ = ["RefineReport", "consistent_albedo", "refine", "refine_light", "photo_consistent_albedo"]
+__all__ = ["RefineReport", "albedo_from_input", "consistent_albedo", "refine", "refine_light", "photo_consistent_albedo"]
 
 LOG_EPS = 1e-6        # added before the log: finite everywhere, negligible where pixels are fitted
 DARK = 0.02           # pixels darker than this x the person's median are noise, not shading: not fitted
@@ -184,9 +184,17 @@ def consistent_albedo(d, transport: np.ndarray, light: np.ndarray) -> np.ndarray
     as the (masked) network input encodes it, weighted by the alpha head where that input
     is not saturated (model.geometry)."""
     encoded = to_network_input(d.photo_working, d.alpha)
+    return albedo_from_input(encoded, d.network_alpha if d.network_alpha is not None else d.alpha,
+                             transport, light)
+
+
+def albedo_from_input(encoded: np.ndarray, alpha: np.ndarray, transport: np.ndarray,
+                      light: np.ndarray) -> np.ndarray:
+    """The geometry-first network's albedo [h, w, 3] from its own input (encoded [h, w, 3] in
+    [-1, 1]), its alpha head [h, w], a transport [h, w, n] and a light [n, 3]: the
+    photo-consistent rule weighted by alpha where the input is not saturated."""
     seen = srgb_decode((encoded + 1.0) * 0.5)
-    base = d.network_alpha if d.network_alpha is not None else d.alpha
-    weight = base * np.clip((2.0 * CLIPPED - 1.0 - encoded.max(axis=-1)) * 1e6, 0.0, 1.0)
+    weight = alpha * np.clip((2.0 * CLIPPED - 1.0 - encoded.max(axis=-1)) * 1e6, 0.0, 1.0)
     return photo_consistent_albedo(seen, transport @ light, weight)
 
 

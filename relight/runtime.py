@@ -27,8 +27,10 @@ from relight import quality
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR
 from relight.decomposition import Decomposition, RelightStats  # noqa: F401 (the runtime's result types)
-from relight.models import REGISTRY_PATH, default_model_path
+from relight.level import METADATA_KEY, LevelPrior
+from relight.level import apply as apply_level
 from relight.linear_photo import check_photo
+from relight.models import REGISTRY_PATH, default_model_path
 from relight.prt import to_network_input
 from relight.resample import resize_linear
 from relight.session import ModelSession
@@ -104,6 +106,7 @@ class Relighter(ModelSession):
         super().__init__(path, threads, providers, registry_path)
         self._open = dict(threads=threads, providers=providers, registry_path=registry_path)
         self._members: dict[str, Relighter] = {}  # the ensemble's other networks, opened on first use
+        self.level_prior = LevelPrior.from_metadata(self.metadata.get(METADATA_KEY))  # None: the model has none
 
     def member(self, name: str) -> "Relighter":
         """Another relighting network of the registry (by name) to average with this one's
@@ -156,7 +159,7 @@ class Relighter(ModelSession):
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
                   matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
                   augment=(), refine: int = 0, augment_until_agreed: float | None = None,
-                  ensemble=()) -> Decomposition:
+                  ensemble=(), level: bool = True) -> Decomposition:
         """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
@@ -177,9 +180,10 @@ class Relighter(ModelSession):
         when its answer is within `augment_until_agreed` of the network's own (relight.tta.
         disagreement; None: all run); `ensemble` (registry names of other relighting networks,
         `member`) adds their answers on the same crops (the plain one and the runs made) to the
-        average; `refine` (iterations, 0:
-        off) refits the photo's light to its shading gradients (relight.refine). What was
-        done is recorded in the result's `choices` (the output's metadata).
+        average; `level` shrinks the light's level and colour toward the model's training lights
+        (relight.level, when the model carries a LevelPrior; False: the network's as it is);
+        `refine` (iterations, 0: off) refits the photo's light to its shading gradients
+        (relight.refine). What was done is recorded in the result's `choices` (the output's metadata).
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
@@ -231,6 +235,12 @@ class Relighter(ModelSession):
             choices["ensemble"] = [str(name) for name in ensemble]
         if augment_until_agreed is not None and len(ran) < len(augment):
             choices["augment_stopped"] = f"the first run agreed within {augment_until_agreed:g}"
+        if level and self.level_prior is not None:
+            d, gains = apply_level(d, self.level_prior)
+            choices["level"] = "off (the network's E is not zero)" if gains is None else \
+                {"gains": [round(float(g), 4) for g in gains]}
+        else:
+            choices["level"] = "off" if self.level_prior is not None else "off (the model has no level prior)"
         if refine:
             from relight.refine import refine as refine_light
 

@@ -1,0 +1,130 @@
+"""The level prior (relight.level): its regression, its bounds, what applying it changes and
+what it keeps, and the runtime and model.evaluate's predictor applying a model's prior."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_refine import lobe_light, synthetic
+
+from relight import level
+from relight.colour import LUMINANCE_WEIGHTS
+from relight.level import LevelPrior
+
+PRIOR = LevelPrior(((0.3, 0.6, -0.4), (0.2, 0.4, 0.2), (0.25, 0.3, 0.0)), pairs=10)
+
+
+def test_metadata_round_trip_and_refusals():
+    assert LevelPrior.from_metadata(PRIOR.to_metadata()) == PRIOR
+    assert LevelPrior.from_metadata(None) is None
+    for bad in ("not json", "{}", '{"rows": [[0, 0, 0]]}', '{"rows": [[0, 0, "x"], [0, 0, 0], [0, 0, 0]]}',
+                '{"rows": [[NaN, 0, 0], [0, 0, 0], [0, 0, 0]]}', '{"rows": 3}'):
+        with pytest.raises(ValueError, match="malformed"):
+            LevelPrior.from_metadata(bad)
+    for rows in (((0, 2.0, 0),) * 3, ((0, 0, -1.5),) * 3, ((9.0, 0, 0),) * 3, ((math.inf, 0, 0),) * 3):
+        with pytest.raises(ValueError, match="slopes|finite"):
+            LevelPrior(rows)
+
+
+def test_features_and_gains_on_a_known_shading():
+    d, _, transport, disk = synthetic(lobe_light([0.3, -1.0, 0.5], [1.0, 0.8, 0.6], 0.4),
+                                      lobe_light([0.3, -1.0, 0.5], [1.0, 0.8, 0.6], 0.4))
+    weight = disk.astype(np.float64)
+    mean = np.einsum("hw,hwc->c", weight, transport.astype(np.float64) @ d.light.astype(np.float64)) / weight.sum()
+    lum = float(mean @ np.asarray(LUMINANCE_WEIGHTS))
+    l, x = level.features(d.transport, d.light, weight)
+    assert l == pytest.approx(math.log2(lum), abs=1e-9)
+    np.testing.assert_allclose(x, np.log2(mean) - math.log2(lum), atol=1e-9)
+    expected = [2.0 ** (a + b * math.log2(lum) + k * xc) for (a, b, k), xc in zip(PRIOR.rows, x)]
+    np.testing.assert_allclose(PRIOR.gains(d.transport, d.light, weight), expected, rtol=1e-9)
+
+
+def test_gains_are_bounded_and_finite_without_light_or_person():
+    d, _, transport, disk = synthetic(lobe_light([0, -1, 0], [1, 1, 1], 0.3), lobe_light([0, -1, 0], [1, 1, 1], 0.3))
+    steep = LevelPrior(((8.0, 1.5, 1.5),) * 3)
+    for light, weight in ((np.zeros_like(d.light), disk), (d.light, np.zeros_like(disk, dtype=float)),
+                          (d.light * 1e30, disk), (np.full_like(d.light, np.nan), disk)):
+        g = steep.gains(transport, light, weight)
+        assert np.all(np.isfinite(g)) and np.all(g <= 2.0 ** level.MAX_STOPS) and np.all(g >= 2.0 ** -level.MAX_STOPS)
+
+
+def test_fit_recovers_the_prior_that_made_the_gains():
+    rng = np.random.default_rng(7)
+    lums = rng.normal(-0.5, 0.6, 200)
+    colours = rng.normal(0.0, 0.2, (200, 3))
+    gains = np.stack([a + b * lums + k * colours[:, c] for c, (a, b, k) in enumerate(PRIOR.rows)], axis=1)
+    fitted = level.fit_prior(lums, colours, gains)
+    np.testing.assert_allclose(fitted.rows, PRIOR.rows, atol=1e-9)
+    assert fitted.pairs == 200
+    # a slope past the bound is clipped and the intercept refitted to the mean
+    clipped = level.fit_prior(lums, colours, np.stack([3.0 * lums] * 3, axis=1))
+    assert all(row[1] == level.MAX_SLOPE for row in clipped.rows)
+    assert clipped.rows[0][0] == pytest.approx(np.mean(3.0 * lums - level.MAX_SLOPE * lums), abs=1e-9)
+    with pytest.raises(ValueError, match="at least 4"):
+        level.fit_prior(lums[:3], colours[:3], gains[:3])
+    with pytest.raises(ValueError, match="finite"):
+        level.fit_prior(np.r_[lums[:9], np.nan], colours[:10], gains[:10])
+
+
+def test_apply_keeps_the_photo_and_scales_the_relit_person():
+    """The light divided by the gains and the albedo re-derived: albedo x (T . L) is the photo
+    where the albedo rule neither clips nor floors, and the relit person is the gains times
+    what it was."""
+    light = lobe_light([0.2, -1.0, 0.4], [1.0, 0.85, 0.7], 0.5)
+    d, _, transport, disk = synthetic(light, light)
+    out, gains = level.apply(d, PRIOR)
+    np.testing.assert_allclose(out.light, d.light / gains[None, :], rtol=1e-6)
+    shading_before, shading_after = transport @ d.light, transport @ out.light
+    free = disk & np.all(d.albedo * gains < 0.999, axis=-1) & np.all(d.albedo > 1e-3, axis=-1)
+    free &= np.all(shading_after > 0.25 * shading_after[disk].mean(), axis=-1)
+    assert free.sum() > 0.5 * disk.sum()
+    np.testing.assert_allclose((out.albedo * shading_after)[free], (d.albedo * shading_before)[free], rtol=1e-4)
+    target = lobe_light([-0.5, -0.6, 0.3], [0.7, 0.8, 1.0], 0.2)
+    np.testing.assert_allclose((out.albedo * (transport @ target))[free],
+                               (d.albedo * gains * (transport @ target))[free], rtol=1e-4)
+    assert level.apply(d, None) == (d, None)
+
+
+def test_the_runtime_and_the_predictor_apply_a_models_prior(tmp_path):
+    """A model whose metadata carries a prior: Relighter.decompose divides its light by the
+    prior's gains (recorded in choices) unless asked not to; model.evaluate's Predictor does
+    the same to the raw outputs; a model without one is untouched."""
+    import onnx
+
+    import torch
+
+    from export.onnx_export import export_onnx, read_metadata, save_atomic, set_metadata
+    from model.geometry import GeometryNet
+    from model.predictor import Predictor
+    from relight.prt import to_network_input
+    from relight.runtime import Relighter
+
+    torch.manual_seed(3)
+    path, _ = export_onnx(GeometryNet(sh_order=4, width=4, depth=2, decoder_width=4).eval(), tmp_path / "tiny.onnx")
+    photo = np.random.default_rng(1).uniform(0.05, 0.6, (48, 40, 3)).astype(np.float32)
+    mask = np.zeros((48, 40), np.float32)
+    mask[6:42, 8:32] = 1.0
+    plain = Relighter(path).decompose(photo, mask=mask, working_size=32)
+    assert plain.choices["level"] == "off (the model has no level prior)"
+
+    model = onnx.load(str(path))
+    set_metadata(model, {**read_metadata(model), level.METADATA_KEY: PRIOR.to_metadata()})
+    save_atomic(model, path)
+    relighter = Relighter(path)
+    assert relighter.level_prior == PRIOR
+    with_prior = relighter.decompose(photo, mask=mask, working_size=32)
+    gains = PRIOR.gains(plain.transport, plain.light, plain.alpha)
+    np.testing.assert_allclose(with_prior.light, plain.light / gains[None, :], rtol=1e-5)
+    np.testing.assert_allclose(with_prior.choices["level"]["gains"], gains, rtol=1e-3)
+    off = relighter.decompose(photo, mask=mask, working_size=32, level=False)
+    np.testing.assert_array_equal(off.light, plain.light)
+    assert off.choices["level"] == "off"
+
+    x = to_network_input(photo[:32, :32], mask[:32, :32]).transpose(2, 0, 1)[None].astype(np.float32)
+    raw = Predictor(path).session.run(x)
+    out = Predictor(path)(x)
+    gains = PRIOR.gains(raw["transport"][0].transpose(1, 2, 0), raw["light"][0], raw["alpha"][0, 0])
+    np.testing.assert_allclose(out["light"][0], raw["light"][0] / gains[None, :], rtol=1e-5)
+    np.testing.assert_array_equal(out["transport"], raw["transport"])
