@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from model import metrics
-from model.pair_metrics import channels_last, metric_weight, shading_np
+from model.pair_metrics import channels_last, metric_weight, render_np, shading_np
 from model.physics import UNOCCLUDED_DC  # T_00 of an unoccluded white Lambertian point
 
 QUOTIENT_FLOOR = 0.25  # model.geometry's `reliable` default
@@ -76,10 +76,24 @@ def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
     return {"normal_mean_deg": float(angle.mean()), "normal_median_deg": float(np.median(angle)),
             "visibility_l1": float(vis.mean()),
             "light_rel_l2": float(np.linalg.norm(light - true) / max(np.linalg.norm(true), 1e-12)),
+            "light_colour_deg": metrics.colour_cast_deg(light[:1], true[:1]),
+            "relit_level_stops": relit_level_stops(pred, sample),
             "light_motion": light_motion(pred["albedo"], pred["transport"], pred.get("residual"), weight, order),
             "light_motion_gt": light_motion(sample["albedo"], sample["transport"], None, weight, order),
             "backlight_ratio": backlight_ratio(pred["albedo"], pred["transport"], pred.get("residual"), weight, order),
             "backlight_ratio_gt": backlight_ratio(sample["albedo"], sample["transport"], None, weight, order)}
+
+
+def relit_level_stops(pred: dict, sample: dict) -> float:
+    """|log2| of the relit person's mean luminance over the target's (metric weight): how far
+    its level is off, whatever its pattern."""
+    from relight.colour import LUMINANCE_WEIGHTS
+
+    w = channels_last(metric_weight(sample))[..., 0].astype(np.float64)
+    relit = render_np(pred, sample["target_light"], False) @ np.asarray(LUMINANCE_WEIGHTS)
+    target = channels_last(sample["target_image"]) @ np.asarray(LUMINANCE_WEIGHTS)
+    ours, truth = float((w * relit).sum()), float((w * target).sum())
+    return abs(float(np.log2(max(ours, 1e-12) / max(truth, 1e-12))))
 
 
 BREAKDOWN_ROWS = (
@@ -151,11 +165,13 @@ def parametric_transport_error(sample: dict, order: int) -> float:
 
 def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
     lines = ["| method | normal mean (deg) | normal median (deg) | visibility L1 | input light rel. L2 | "
+             "input light colour (deg) | relit level (stops) | "
              "light motion 0->180 deg (GT renders) | backlight ratio (GT renders) |",
-             "|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|"]
     for method, m in results.items():
         lines.append(f"| {method} | {m['normal_mean_deg']:.1f} | {m['normal_median_deg']:.1f} | "
                      f"{m['visibility_l1']:.3f} | {m['light_rel_l2']:.3f} | "
+                     f"{m['light_colour_deg']:.1f} | {m['relit_level_stops']:.2f} | "
                      f"{m['light_motion']:.3f} ({m['light_motion_gt']:.3f}) | "
                      f"{m['backlight_ratio']:.3f} ({m['backlight_ratio_gt']:.3f}) |")
     lines += ["", f"Parametric ceiling: the lobe of the true normal and visibility reproduces the baked T "
@@ -164,5 +180,7 @@ def geometry_table(results: dict[str, dict[str, float]], ceiling: float) -> str:
               "(relight.light.directional_light) at 0 and at 180 degrees, after per-channel gains; in brackets "
               "the same for the ground truth, albedo * (T . L) from the farm's buffers. Backlight ratio: "
               "model.metrics.luminance_ratio of the person lit from behind (180 degrees) to lit from the "
-              "camera's side (0 degrees): how much a light from behind darkens the front we see."]
+              "camera's side (0 degrees): how much a light from behind darkens the front we see. Input light "
+              "colour: degrees between the estimated and the true input light's DC colour; relit level: "
+              "|log2| of the relit person's mean luminance over the target's (means over the pairs)."]
     return "\n".join(lines) + "\n"
