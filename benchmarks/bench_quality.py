@@ -6,7 +6,8 @@ a 512 x 512 photo, the Pareto front, and the presets a stated rule picks from it
 
 A candidate is a working size, test-time augmentations (relight.tta: the photo mirrored,
 and at 0.75x / 1.25x the size), refinement iterations (relight.refine) and the person
-segmenter's method (relight.matte: the ensemble, or the selfie model alone). Accuracy:
+segmenter's method (relight.matte: the ensemble, or the selfie model alone), other networks
+averaged in, and whether the model's level prior (relight.level) is applied. Accuracy:
 every held-out pair (scene, light a -> light b) decomposed at that setting with the true
 alpha as mask (so the segmenter does not enter it) and relit to light b, against the
 path-traced image b over the interior pixels: PSNR and scale-invariant PSNR
@@ -58,6 +59,7 @@ class Candidate:
     matte_method: str = "ensemble"
     until_agreed: float | None = None  # relight.tta: stop after the first run when it agrees
     ensemble: tuple = ()  # registry names of other networks averaged in (Relighter.member)
+    level: bool = True    # the model's level prior (relight.level) applied, where it has one
 
     @property
     def label(self) -> str:
@@ -74,6 +76,8 @@ class Candidate:
             parts.append(f"{self.matte_method} matte")
         if self.ensemble:
             parts.append(f"+ {len(self.ensemble)} other network{'s' if len(self.ensemble) > 1 else ''}")
+        if not self.level:
+            parts.append("no level prior")
         return ", ".join(parts)
 
 
@@ -90,7 +94,9 @@ def candidates(ensemble: tuple = ()) -> list[Candidate]:
             Candidate(TRAINED_SIZE, refine=2), Candidate(TRAINED_SIZE, refine=8),
             Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, scales, 8),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8),
-            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED)]
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(TRAINED_SIZE, level=False),
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED, level=False)]
     if ensemble:
         out += [Candidate(TRAINED_SIZE, ensemble=tuple(ensemble)),
                 Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED, ensemble=tuple(ensemble)),
@@ -103,7 +109,7 @@ def decompose(relighter, photo, candidate: Candidate, mask=None):
     return relighter.decompose(photo, mask=mask, working_size=candidate.working_size,
                                matte_method=candidate.matte_method, augment=candidate.augment,
                                refine=candidate.refine, augment_until_agreed=candidate.until_agreed,
-                               ensemble=candidate.ensemble)
+                               ensemble=candidate.ensemble, level=candidate.level)
 
 
 def _hwc(chw) -> np.ndarray:

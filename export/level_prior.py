@@ -1,10 +1,10 @@
-"""python -m export.level_prior MODEL.onnx --data CALIBRATION_DIR [...] [--write] [--check HELD_OUT_DIR]
+"""python -m export.level_prior MODEL.onnx --data CALIBRATION_DIR [...] [--write] [--check HELD_OUT_DIR] [--quality KEY]
 
 Calibrates a relighting model's LevelPrior (relight.level): on farm scenes lit by
 training lights (never the held-out maps: render them with `python -m farm ...
 --light-pool train`), every pair (scene, light a -> light b) is decomposed by the
-runtime as `relight image` would (the true alpha as the mask, Balanced's working size,
-the prior off), and the per-channel gains that would make its relit image match the
+runtime as `relight image` would (the true alpha as the mask, a quality preset's work,
+Balanced by default, the prior off), and the per-channel gains that would make its relit image match the
 path-traced image under b are regressed on the network's fitted shading over the
 person. With --write the prior goes into the ONNX file's metadata (relight.level_prior),
 the file is rewritten atomically and its SHA-256 updated beside it and, where the model
@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 
 CROP = 256          # the pairs' crop size, as benchmarks/bench_quality.py scores them
-WORKING_SIZE = 128  # Balanced's
 
 
 def _pairs(data, count: int | None):
@@ -37,7 +36,16 @@ def _pairs(data, count: int | None):
                "light_b": item["target_light"].numpy().astype(np.float64)}
 
 
-def calibration_rows(relighter, data, count: int | None = None):
+def _options(quality: str) -> dict:
+    """Relighter.decompose's options for a preset, less the segmenter (the pairs carry their mask)."""
+    from relight.quality import preset
+
+    options = preset(quality).decompose_options()
+    options.pop("matte_method")
+    return options
+
+
+def calibration_rows(relighter, data, count: int | None = None, quality: str = "balanced"):
     """(lums, colours, log2 gains [N, 3]) of the pairs in `data` (relight.level.features of
     each decomposition, and the per-channel least-squares gains of its relit image)."""
     from model.metrics import interior_weight
@@ -45,7 +53,7 @@ def calibration_rows(relighter, data, count: int | None = None):
 
     lums, colours, gains = [], [], []
     for pair in _pairs(data, count):
-        d = relighter.decompose(pair["photo"], mask=pair["alpha"], working_size=WORKING_SIZE, level=False)
+        d = relighter.decompose(pair["photo"], mask=pair["alpha"], level=False, **_options(quality))
         relit = d.relight(pair["light_b"]).astype(np.float64)
         w = interior_weight(pair["alpha"])[..., None]
         num = (w * relit * pair["target"]).sum((0, 1))
@@ -59,7 +67,7 @@ def calibration_rows(relighter, data, count: int | None = None):
     return np.array(lums), np.array(colours), np.array(gains)
 
 
-def held_out_psnr(relighter, data, count: int | None = None) -> tuple[float, float, int]:
+def held_out_psnr(relighter, data, count: int | None = None, quality: str = "balanced") -> tuple[float, float, int]:
     """Mean relit PSNR of held-out pairs without and with the model's level prior."""
     from model import metrics
     from model.metrics import interior_weight
@@ -68,7 +76,7 @@ def held_out_psnr(relighter, data, count: int | None = None) -> tuple[float, flo
     for pair in _pairs(data, count):
         w = interior_weight(pair["alpha"])
         for level, out in ((False, without), (True, with_prior)):
-            d = relighter.decompose(pair["photo"], mask=pair["alpha"], working_size=WORKING_SIZE, level=level)
+            d = relighter.decompose(pair["photo"], mask=pair["alpha"], level=level, **_options(quality))
             out.append(metrics.psnr(d.relight(pair["light_b"]), pair["target"], w))
     return float(np.mean(without)), float(np.mean(with_prior)), len(without)
 
@@ -103,6 +111,7 @@ def main(argv=None) -> int:
     p.add_argument("--write", action="store_true", help="store the prior in MODEL's metadata")
     p.add_argument("--check", default=None, metavar="HELD_OUT_DIR",
                    help="relight these held-out pairs with and without the prior")
+    p.add_argument("--quality", default="balanced", help="the quality preset whose work is calibrated")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
     try:
@@ -110,7 +119,7 @@ def main(argv=None) -> int:
         from relight.runtime import Relighter
 
         relighter = Relighter(args.model, threads=args.threads)
-        rows = [calibration_rows(relighter, folder, args.pairs) for folder in args.data]
+        rows = [calibration_rows(relighter, folder, args.pairs, args.quality) for folder in args.data]
         lums, colours, gains = (np.concatenate([r[i] for r in rows]) for i in range(3))
         prior = fit_prior(lums, colours, gains)
         print(f"calibrated on {prior.pairs} pairs: {prior.to_metadata()}")
@@ -120,7 +129,7 @@ def main(argv=None) -> int:
         if args.check:
             relighter = Relighter(args.model, threads=args.threads)
             relighter.level_prior = prior
-            without, with_prior, n = held_out_psnr(relighter, args.check)
+            without, with_prior, n = held_out_psnr(relighter, args.check, quality=args.quality)
             print(f"held-out {args.check}: {n} pairs, relit PSNR {without:.2f} dB without the prior, "
                   f"{with_prior:.2f} with it")
     except (ValueError, OSError) as exc:

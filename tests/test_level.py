@@ -128,3 +128,36 @@ def test_the_runtime_and_the_predictor_apply_a_models_prior(tmp_path):
     gains = PRIOR.gains(raw["transport"][0].transpose(1, 2, 0), raw["light"][0], raw["alpha"][0, 0])
     np.testing.assert_allclose(out["light"][0], raw["light"][0] / gains[None, :], rtol=1e-5)
     np.testing.assert_array_equal(out["transport"], raw["transport"])
+
+
+def test_calibration_command_fits_writes_and_checks(tmp_path, capsys, one_thread):
+    """python -m export.level_prior on analytic scenes: the prior is fitted on every pair, written
+    into the model's metadata with its SHA-256 updated (the runtime opens it, hash-checked, and
+    finds the same prior), and --check prints both PSNRs; a folder without pairs is one error."""
+    import re
+
+    import torch
+
+    from export import level_prior
+    from export.onnx_export import export_onnx
+    from model.geometry import GeometryNet
+    from model.synthetic import write_analytic_dataset
+    from relight.runtime import Relighter
+
+    data = tmp_path / "scenes"
+    write_analytic_dataset(data, n_scenes=3, size=32, order=4, lights=("studio", "city", "venice"))
+    torch.manual_seed(5)
+    path, digest = export_onnx(GeometryNet(sh_order=4, width=4, depth=2, decoder_width=4).eval(), tmp_path / "m.onnx")
+    assert level_prior.main([str(path), "--data", str(data), "--write", "--check", str(data), "--threads", "1"]) == 0
+    out = capsys.readouterr().out
+    fitted = LevelPrior.from_metadata(re.search(r"calibrated on \d+ pairs: (\{.*\})", out).group(1))
+    assert fitted.pairs == 3 * 4  # 3 scenes, 4 ordered pairs each (max_pairs_per_scene) of their 3 lights
+    new_digest = re.search(r"sha256 ([0-9a-f]{64})", out).group(1)
+    assert new_digest != digest and (tmp_path / "m.onnx.sha256").read_text().startswith(new_digest)
+    assert Relighter(path).level_prior == fitted
+    psnrs = re.search(r"relit PSNR ([\d.]+) dB without the prior, ([\d.]+) with it", out)
+    assert psnrs and all(math.isfinite(float(v)) for v in psnrs.groups())
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert level_prior.main([str(path), "--data", str(empty), "--threads", "1"]) == 1
+    assert "export.level_prior: error:" in capsys.readouterr().err
