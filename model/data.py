@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from model.data_augment import MIRROR_X, mirror_signs, random_background, random_light_tint, random_reference_light
+from model.data_augment import (MIRROR_X, mirror_signs, random_background, random_light_tint, random_mixed_light,
+                                random_reference_light)
 from model.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
 from model.data_splits import held_out_light_names, is_held_out
 from model.geometry import BODY_CHANNELS
@@ -77,7 +78,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
-                 body_prior: bool = False):
+                 body_prior: bool = False, light_mix: float = 0.0):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
@@ -93,6 +94,11 @@ class TrainingScenes(torch.utils.data.Dataset):
             raise ValueError(f"exposure_jitter must be finite and >= 0, got {exposure_jitter}")
         # sigma of the input light's log2 scale; 0: none (and no extra random draws)
         self.exposure_jitter = exposure_jitter
+        if not (math.isfinite(light_mix) and 0.0 <= light_mix <= 1.0):
+            raise ValueError(f"light_mix must be a probability in [0, 1], got {light_mix}")
+        # chance that a bank light is two lights mixed and tilted (random_mixed_light); 0: never
+        # (and no extra random draws)
+        self.light_mix = light_mix
         # photo-like capture (model/capture.py); off by default: with the same budget it cost
         # 0.5-0.8 dB on held-out scenes and did not lessen the colour cast on real photos
         # (docs/EVALUATION.md, "Training people like the people in photos")
@@ -117,6 +123,9 @@ class TrainingScenes(torch.utils.data.Dataset):
         if not pool:
             raise ValueError(f"scene {scene.index}: no training light to sample from")
         name, base = pool[rng.integers(len(pool))]
+        if self.light_mix > 0 and rng.uniform() < self.light_mix:
+            other, second = pool[rng.integers(len(pool))]
+            return f"{name}+{other}", random_mixed_light(base.astype(np.float64), second.astype(np.float64), rng)
         return name, random_reference_light(base.astype(np.float64), rng)
 
     def _prt(self, scene: CroppedScene, light: np.ndarray) -> np.ndarray:
@@ -147,8 +156,8 @@ class TrainingScenes(torch.utils.data.Dataset):
         k_a, name_a, light_a, image_a, traced_a = pick(None)
         _, name_b, light_b, image_b, _ = pick(k_a)
         for name in (name_a, name_b):
-            # the split guarantee: held-out maps never reach training
-            assert name not in self.held_out, f"held-out light {name!r} reached a training sample"
+            # the split guarantee: held-out maps never reach training (a mix names both its maps)
+            assert not set(name.split("+")) & self.held_out, f"held-out light {name!r} reached a training sample"
         if self.exposure_jitter > 0:
             # the input light (and so its image) brighter or darker; the albedo target is the same,
             # so the network cannot read the albedo's level off the photo's brightness (exact:

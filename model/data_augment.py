@@ -1,5 +1,6 @@
 """Random draws of the training augmentation (model.data.TrainingScenes): backgrounds,
-extra lights at a reference radiance, light tints, and the signs of a mirrored photo's SH.
+extra lights at a reference radiance, mixed and tilted lights, light tints, and the signs of
+a mirrored photo's SH.
 Every draw comes from the Generator passed in."""
 
 from __future__ import annotations
@@ -59,6 +60,28 @@ def random_reference_light(base: np.ndarray, rng: np.random.Generator) -> np.nda
     target = rng.uniform(*REFERENCE_RADIANCE)
     scaled = SHLight(base, target).at(rotation)  # relight.light's recipe for maps
     return scaled.astype(np.float32)
+
+
+MIX_TILT_DEG = 30.0  # a mixed light is also tilted about a random horizontal axis by up to this
+
+
+def random_mixed_light(first: np.ndarray, second: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A light no map gives: two SH lights [n, 3], each turned about Z at random and brought to
+    the same radiance, mixed with a random weight in [0.2, 0.8], tilted about a random
+    horizontal axis by up to MIX_TILT_DEG and scaled to a reference radiance in [0.7, 0.9].
+    A sum of lights is a light (radiance is linear in it), so the PRT image under it is exact;
+    it widens the few dozen training maps into light fields the network cannot memorise."""
+    from relight.sh_rotation import rotate
+
+    a, b = (SHLight(base, 1.0).at(rng.uniform(0.0, 360.0)) for base in (first, second))
+    w = rng.uniform(0.2, 0.8)
+    axis_angle = rng.uniform(0.0, 2 * math.pi)
+    tilt = math.radians(rng.uniform(-MIX_TILT_DEG, MIX_TILT_DEG))
+    k = np.array([math.cos(axis_angle), math.sin(axis_angle), 0.0])  # a horizontal axis (camera frame: Z up)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    R = np.eye(3) + math.sin(tilt) * K + (1.0 - math.cos(tilt)) * (K @ K)  # Rodrigues
+    mixed = rotate(w * a + (1.0 - w) * b, R)
+    return SHLight(mixed, rng.uniform(*REFERENCE_RADIANCE)).at(0.0).astype(np.float32)
 
 
 def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:

@@ -127,6 +127,9 @@ def parse_args(argv=None):
     p.add_argument("--light-tint", type=float, default=0.0, metavar="SIGMA",
                    help="tint each light and its image by exp(N(0, SIGMA^2)) per channel, luminance kept "
                         "(exact augmentation; 0: off)")
+    p.add_argument("--light-mix", type=float, default=0.0, metavar="P",
+                   help="chance that an extra light is two training lights mixed, turned and tilted "
+                        "(model.data_augment.random_mixed_light; exact for PRT images; 0: off)")
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
                    help="scale the input light and image by 2^N(0, SIGMA^2), albedo target unchanged "
                         "(exposure augmentation, exact; 0: off)")
@@ -189,7 +192,8 @@ def train(args) -> Path:
         val_fraction=args.val_fraction, padding=args.padding, workers=args.workers, cache_scenes=args.cache_scenes,
         pack=args.pack, presets=not args.no_presets,
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
-                     light_tint=args.light_tint, exposure_jitter=args.exposure_jitter, capture=args.capture,
+                     light_tint=args.light_tint, light_mix=args.light_mix, exposure_jitter=args.exposure_jitter,
+                     capture=args.capture,
                      lambertian=args.lambertian, body_prior=args.body_prior))
     # the Trainer's validation settings depend on whether there are validation pairs
     data.prepare_data()

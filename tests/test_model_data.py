@@ -153,6 +153,39 @@ def test_reference_radiance_of_extra_lights():
         np.testing.assert_allclose(np.linalg.norm(light[1:4]), scale * np.linalg.norm(base[1:4]), rtol=1e-5)
 
 
+def test_mixed_lights_are_new_lights_at_the_reference_radiance(scenes):
+    """random_mixed_light: at the reference radiance, a mix of its two lights (a sum of turned
+    and tilted lights keeps the weights' DC), not either alone, seeded; with light_mix=1 the
+    bank lights are mixes named by both maps, and the PRT image under them is exact."""
+    from relight import sh
+    from relight.light import sh_light
+
+    first, second = sh_light("sunset", 4), sh_light("studio", 4)
+    lights = [data_augment.random_mixed_light(first, second, np.random.default_rng(s)) for s in range(6)]
+    for light in lights:
+        assert 0.7 - 1e-5 <= sh.mean_luminance(light) <= 0.9 + 1e-5
+        # a rotation keeps each band's energy; a mix of two different lights has another one
+        for base in (first, second):
+            scale = sh.mean_luminance(light) / sh.mean_luminance(base)
+            assert abs(np.linalg.norm(light[1:4]) / (scale * np.linalg.norm(base[1:4])) - 1) > 1e-3
+    np.testing.assert_array_equal(lights[0], data_augment.random_mixed_light(first, second, np.random.default_rng(0)))
+    assert max(float(np.abs(a - b).max()) for a, b in zip(lights, lights[1:])) > 0.01
+
+    mixing = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT, light_mix=1.0,
+                                 extra_light_prob=1.0)
+    for epoch in range(3):
+        s = mixing.item(0, epoch)
+        assert "+" in s["light_name"] and not set(s["light_name"].split("+")) & HELD_OUT
+        prt = s["albedo"] * torch.einsum("nhw,nc->chw", s["transport"], s["light"])
+        torch.testing.assert_close(s["image"], prt, rtol=1e-5, atol=1e-6)
+    # off by default, and then no extra draws: the samples are those of before
+    plain = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT)
+    off = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=[], held_out=HELD_OUT, light_mix=0.0)
+    assert torch.equal(plain.item(1, 2)["input"], off.item(1, 2)["input"])
+    with pytest.raises(ValueError, match="light_mix"):
+        data.TrainingScenes([Path("x.json")], 32, 4, light_mix=1.5)
+
+
 def test_evaluation_pairs_target_held_out_lights(scenes):
     pairs = data.EvaluationPairs(scenes[:2], 32, 4, padding=2, held_out_only=True, held_out=HELD_OUT)
     assert len(pairs) == 4  # per scene: (studio -> venice), (city -> venice)
