@@ -36,6 +36,32 @@ def _pairs(data, count: int | None):
                "light_b": item["target_light"].numpy().astype(np.float64)}
 
 
+def _mixed_pairs(data, count: int | None, seed: int = 0):
+    """Pairs under lights no map gives, as the photo's light is in a real photo: each scene's
+    first two path-traced pairs re-rendered by PRT (albedo x (T . L)) under two mixes of its own
+    lights and the training presets (model.data_augment.random_mixed_light), seeded per pair."""
+    from model.data_augment import preset_training_lights, random_mixed_light
+    from model.data import EvaluationPairs
+    from model.data_splits import find_scenes, held_out_light_names
+
+    pairs = EvaluationPairs(find_scenes(data), CROP, 4, held_out=held_out_light_names(), max_pairs_per_scene=2)
+    bank = [light for _, light in preset_training_lights(4)]
+    for i in range(len(pairs) if count is None else min(count, len(pairs))):
+        item = pairs[i]
+        rng = np.random.default_rng([seed, i])
+        hwc = {k: np.ascontiguousarray(np.moveaxis(item[k].numpy().astype(np.float64), 0, -1))
+               for k in ("input_linear", "alpha", "albedo", "transport")}
+        own = [item["light"].numpy().astype(np.float64), item["target_light"].numpy().astype(np.float64)]
+        light_a, light_b = (random_mixed_light(own[k], bank[rng.integers(len(bank))], rng).astype(np.float64)
+                            for k in range(2))
+        alpha = hwc["alpha"]
+        photo = hwc["albedo"] * np.maximum(hwc["transport"] @ light_a, 0.0)
+        yield {"photo": (alpha * photo + (1 - alpha) * hwc["input_linear"]).astype(np.float32),
+               "alpha": alpha[..., 0].astype(np.float32),
+               "target": (hwc["albedo"] * np.maximum(hwc["transport"] @ light_b, 0.0)).astype(np.float32),
+               "light_b": light_b}
+
+
 def _options(quality: str) -> dict:
     """Relighter.decompose's options for a preset, less the segmenter (the pairs carry their mask)."""
     from relight.quality import preset
@@ -45,14 +71,15 @@ def _options(quality: str) -> dict:
     return options
 
 
-def calibration_rows(relighter, data, count: int | None = None, quality: str = "balanced"):
+def calibration_rows(relighter, data, count: int | None = None, quality: str = "balanced", mixed: bool = False):
     """(lums, colours, log2 gains [N, 3]) of the pairs in `data` (relight.level.features of
-    each decomposition, and the per-channel least-squares gains of its relit image)."""
+    each decomposition, and the per-channel least-squares gains of its relit image); with
+    `mixed`, of its PRT pairs under mixed lights (`_mixed_pairs`) instead."""
     from model.metrics import interior_weight
     from relight.level import features
 
     lums, colours, gains = [], [], []
-    for pair in _pairs(data, count):
+    for pair in (_mixed_pairs(data, count) if mixed else _pairs(data, count)):
         d = relighter.decompose(pair["photo"], mask=pair["alpha"], level=False, **_options(quality))
         relit = d.relight(pair["light_b"]).astype(np.float64)
         w = interior_weight(pair["alpha"])[..., None]
@@ -112,6 +139,9 @@ def main(argv=None) -> int:
     p.add_argument("--check", default=None, metavar="HELD_OUT_DIR",
                    help="relight these held-out pairs with and without the prior")
     p.add_argument("--quality", default="balanced", help="the quality preset whose work is calibrated")
+    p.add_argument("--mixed-lights", action="store_true",
+                   help="calibrate on PRT pairs under mixed training lights (lights the network never saw "
+                        "whole) instead of the path-traced pairs")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
     try:
@@ -119,7 +149,8 @@ def main(argv=None) -> int:
         from relight.runtime import Relighter
 
         relighter = Relighter(args.model, threads=args.threads)
-        rows = [calibration_rows(relighter, folder, args.pairs, args.quality) for folder in args.data]
+        rows = [calibration_rows(relighter, folder, args.pairs, args.quality, args.mixed_lights)
+                for folder in args.data]
         lums, colours, gains = (np.concatenate([r[i] for r in rows]) for i in range(3))
         prior = fit_prior(lums, colours, gains)
         print(f"calibrated on {prior.pairs} pairs: {prior.to_metadata()}")

@@ -36,6 +36,9 @@ METADATA_KEY = "relight.level_prior"  # the ONNX metadata entry that carries a m
 MAX_STOPS = 2.0        # the largest change of level or colour one photo gets, either way
 MIN_SHADING = 1e-4     # a darker mean shading is "no light": its log is clamped here
 MIN_SLOPE, MAX_SLOPE = -1.0, 1.5  # slopes outside: the correction would exceed the error it corrects
+# ridge on the slopes (stops^2 per unit^2 of feature, per pair): a feature that hardly varies over
+# the calibration pairs (green's colour: sd 0.03) gets no slope from its noise
+SLOPE_RIDGE = 0.002
 MAX_INTERCEPT = 8.0    # stops
 
 
@@ -103,7 +106,8 @@ def features(transport: np.ndarray, light: np.ndarray, weight: np.ndarray) -> tu
 def fit_prior(lums, colours, log_gains) -> LevelPrior:
     """Least-squares LevelPrior from calibration pairs: each pair's features (`features`: l and
     x[3]) and the log2 per-channel gains [3] that make its relit image right. Per channel,
-    y_c ~ a_c + b_c l + k_c x_c; slopes are then clipped to [MIN_SLOPE, MAX_SLOPE] (a positive
+    y_c ~ a_c + b_c l + k_c x_c, ridge SLOPE_RIDGE on the slopes of the centred features;
+    slopes are then clipped to [MIN_SLOPE, MAX_SLOPE] (a positive
     slope shrinks the network's estimate toward the typical one, a negative one expands it:
     the network's answer was too timid) and the intercept refitted."""
     lums = np.asarray(lums, np.float64).reshape(-1)
@@ -114,8 +118,10 @@ def fit_prior(lums, colours, log_gains) -> LevelPrior:
         raise ValueError(f"fit_prior: need at least 4 finite calibration pairs, got {lums.size}")
     rows = []
     for c in range(3):
-        design = np.stack([np.ones_like(lums), lums, colours[:, c]], axis=1)
-        _, b, k = np.linalg.lstsq(design, log_gains[:, c], rcond=None)[0]
+        centred = np.stack([lums - lums.mean(), colours[:, c] - colours[:, c].mean()], axis=1)
+        y = log_gains[:, c] - log_gains[:, c].mean()
+        normal = centred.T @ centred + SLOPE_RIDGE * lums.size * np.eye(2)
+        b, k = np.linalg.solve(normal, centred.T @ y)
         b, k = (float(np.clip(v, MIN_SLOPE, MAX_SLOPE)) for v in (b, k))
         a = float(np.clip(np.mean(log_gains[:, c] - b * lums - k * colours[:, c]), -MAX_INTERCEPT, MAX_INTERCEPT))
         rows.append((a, b, k))

@@ -50,18 +50,35 @@ def test_gains_are_bounded_and_finite_without_light_or_person():
         assert np.all(np.isfinite(g)) and np.all(g <= 2.0 ** level.MAX_STOPS) and np.all(g >= 2.0 ** -level.MAX_STOPS)
 
 
-def test_fit_recovers_the_prior_that_made_the_gains():
+def test_fit_is_the_ridge_regression_and_recovers_the_prior_where_features_vary():
+    """Per channel the slopes solve the ridge least squares of the centred features (an
+    augmented system, solved independently here), the intercept is the mean residual; where a
+    feature varies far more than the ridge (var >> SLOPE_RIDGE) the generating prior comes back
+    to within the ridge's shrink var / (var + ridge); a feature that hardly varies gets almost
+    no slope from noise."""
     rng = np.random.default_rng(7)
-    lums = rng.normal(-0.5, 0.6, 200)
-    colours = rng.normal(0.0, 0.2, (200, 3))
+    lums = rng.normal(-0.5, 0.6, 400)
+    colours = rng.normal(0.0, 0.3, (400, 3))
+    colours[:, 1] *= 0.03  # green's colour hardly varies, as in the calibration data
     gains = np.stack([a + b * lums + k * colours[:, c] for c, (a, b, k) in enumerate(PRIOR.rows)], axis=1)
-    fitted = level.fit_prior(lums, colours, gains)
-    np.testing.assert_allclose(fitted.rows, PRIOR.rows, atol=1e-9)
-    assert fitted.pairs == 200
+    noisy = gains + rng.normal(0.0, 0.05, gains.shape)
+    fitted = level.fit_prior(lums, colours, noisy)
+    assert fitted.pairs == 400
+    for c, (a, b, k) in enumerate(fitted.rows):
+        centred = np.stack([lums - lums.mean(), colours[:, c] - colours[:, c].mean()], axis=1)
+        augmented = np.vstack([centred, np.sqrt(level.SLOPE_RIDGE * 400) * np.eye(2)])
+        target = np.r_[noisy[:, c] - noisy[:, c].mean(), 0.0, 0.0]
+        np.testing.assert_allclose((b, k), np.linalg.lstsq(augmented, target, rcond=None)[0], atol=1e-9)
+        assert a == pytest.approx(np.mean(noisy[:, c] - b * lums - k * colours[:, c]), abs=1e-9)
+    # red and blue: var 0.36 and 0.09 against a ridge of 0.002: within 3% (+ the noise's 0.01)
+    for c in (0, 2):
+        np.testing.assert_allclose(fitted.rows[c][1:], PRIOR.rows[c][1:], atol=0.03 * 0.6 + 0.01)
+    assert abs(fitted.rows[1][2]) < 0.5 * abs(PRIOR.rows[1][2])  # green: var 8e-5, shrunk
     # a slope past the bound is clipped and the intercept refitted to the mean
     clipped = level.fit_prior(lums, colours, np.stack([3.0 * lums] * 3, axis=1))
     assert all(row[1] == level.MAX_SLOPE for row in clipped.rows)
-    assert clipped.rows[0][0] == pytest.approx(np.mean(3.0 * lums - level.MAX_SLOPE * lums), abs=1e-9)
+    a, b, k = clipped.rows[0]
+    assert a == pytest.approx(np.mean(3.0 * lums - level.MAX_SLOPE * lums - k * colours[:, 0]), abs=1e-9)
     with pytest.raises(ValueError, match="at least 4"):
         level.fit_prior(lums[:3], colours[:3], gains[:3])
     with pytest.raises(ValueError, match="finite"):
@@ -157,6 +174,10 @@ def test_calibration_command_fits_writes_and_checks(tmp_path, capsys, one_thread
     assert Relighter(path).level_prior == fitted
     psnrs = re.search(r"relit PSNR ([\d.]+) dB without the prior, ([\d.]+) with it", out)
     assert psnrs and all(math.isfinite(float(v)) for v in psnrs.groups())
+    # under mixed training lights (PRT pairs): two per scene, a prior of their own
+    assert level_prior.main([str(path), "--data", str(data), "--mixed-lights", "--threads", "1"]) == 0
+    mixed = re.search(r"calibrated on (\d+) pairs: (\{.*\})", capsys.readouterr().out)
+    assert int(mixed.group(1)) == 3 * 2 and LevelPrior.from_metadata(mixed.group(2)) != fitted
     empty = tmp_path / "empty"
     empty.mkdir()
     assert level_prior.main([str(path), "--data", str(empty), "--threads", "1"]) == 1
