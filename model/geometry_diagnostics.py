@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from model import metrics
-from model.pair_metrics import channels_last, metric_weight, render_np, shading_np
+from model.pair_metrics import channels_last, metric_weight, shading_np
 from model.physics import UNOCCLUDED_DC  # T_00 of an unoccluded white Lambertian point
 
 QUOTIENT_FLOOR = 0.25  # model.geometry's `reliable` default
@@ -90,7 +90,11 @@ def relit_level_stops(pred: dict, sample: dict) -> float:
     from relight.colour import LUMINANCE_WEIGHTS
 
     w = channels_last(metric_weight(sample))[..., 0].astype(np.float64)
-    relit = render_np(pred, sample["target_light"], False) @ np.asarray(LUMINANCE_WEIGHTS)
+    light = sample["target_light"]
+    relit = channels_last(pred["albedo"]) * shading_np(pred["transport"], light, False)
+    if pred.get("residual") is not None:
+        relit = relit + shading_np(pred["residual"], light, False)
+    relit = relit @ np.asarray(LUMINANCE_WEIGHTS)
     target = channels_last(sample["target_image"]) @ np.asarray(LUMINANCE_WEIGHTS)
     ours, truth = float((w * relit).sum()), float((w * target).sum())
     return abs(float(np.log2(max(ours, 1e-12) / max(truth, 1e-12))))

@@ -260,12 +260,16 @@ def test_an_ensemble_averages_the_other_networks_answers_on_the_same_crop(tmp_pa
     mask[10:90, 20:76] = 1.0
     main_net = Relighter(registry / "geometry.onnx", threads=1, registry_path=registry / "models.json")
     other = Relighter(registry / "other.onnx", threads=1, registry_path=registry / "models.json")
-    alone = main_net.decompose(photo, mask=mask, working_size=64)
-    theirs = other.decompose(photo, mask=mask, working_size=64)
-    both = main_net.decompose(photo, mask=mask, working_size=64, ensemble=("other",))
+    alone = main_net.decompose(photo, mask=mask, working_size=64, level=False)
+    theirs = other.decompose(photo, mask=mask, working_size=64, level=False)
+    both = main_net.decompose(photo, mask=mask, working_size=64, ensemble=("other",), level=False)
     assert both.choices["ensemble"] == ["other"]
     np.testing.assert_allclose(both.light, (alone.light + theirs.light) / 2, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(both.transport, (alone.transport + theirs.transport) / 2, rtol=1e-5, atol=1e-6)
+    # the shipped network's level prior corrects the average, once (relight.level)
+    levelled = main_net.decompose(photo, mask=mask, working_size=64, ensemble=("other",))
+    gains = main_net.level_prior.gains(both.transport, both.light, both.alpha)
+    np.testing.assert_allclose(levelled.light, both.light / gains[None, :], rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="SH order 2"):
         main_net.decompose(photo, mask=mask, working_size=64, ensemble=("order2",))
     with pytest.raises(ValueError, match="not in"):
