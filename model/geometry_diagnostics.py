@@ -49,14 +49,16 @@ def turned_light_images(albedo, transport, residual, order: int) -> list[np.ndar
     """albedo * (T . L) + E . L (>= 0, channels last) under the directional light at each of MOTION_AZIMUTHS."""
     from relight.light import directional_light
 
-    imgs = []
-    for az in MOTION_AZIMUTHS:
-        L = directional_light(az, order)
-        img = channels_last(albedo) * shading_np(transport, L, False)
-        if residual is not None:
-            img = img + shading_np(residual, L, False)
-        imgs.append(np.maximum(img, 0.0))
-    return imgs
+    return [np.maximum(relit_np(albedo, transport, residual, directional_light(az, order)), 0.0)
+            for az in MOTION_AZIMUTHS]
+
+
+def relit_np(albedo, transport, residual, light) -> np.ndarray:
+    """albedo * (T . L) + E . L, channels last, from channels-first maps (residual: None for none)."""
+    img = channels_last(albedo) * shading_np(transport, light, False)
+    if residual is not None:
+        img = img + shading_np(residual, light, False)
+    return img
 
 
 def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
@@ -90,10 +92,7 @@ def relit_level_stops(pred: dict, sample: dict) -> float:
     from relight.colour import LUMINANCE_WEIGHTS
 
     w = channels_last(metric_weight(sample))[..., 0].astype(np.float64)
-    light = sample["target_light"]
-    relit = channels_last(pred["albedo"]) * shading_np(pred["transport"], light, False)
-    if pred.get("residual") is not None:
-        relit = relit + shading_np(pred["residual"], light, False)
+    relit = relit_np(pred["albedo"], pred["transport"], pred.get("residual"), sample["target_light"])
     relit = relit @ np.asarray(LUMINANCE_WEIGHTS)
     target = channels_last(sample["target_image"]) @ np.asarray(LUMINANCE_WEIGHTS)
     ours, truth = float((w * relit).sum()), float((w * target).sum())
