@@ -49,7 +49,6 @@ TRAINED_SIZE = 128     # the shipped network's training crops: the baseline ("ne
 DRAFT_DB = 0.5         # Draft: at most this much below the baseline (paired mean PSNR)
 BEST_SECONDS = 3.0
 BEST_TIE_DB = 0.05     # Best: the fastest front point within this of the most accurate (a tie)
-SAMPLE_KEYS = ("input_linear", "alpha", "target_light", "target_image", "light", "albedo")
 
 
 @dataclass(frozen=True)
@@ -113,24 +112,10 @@ def decompose(relighter, photo, candidate: Candidate, mask=None):
                                ensemble=candidate.ensemble, level=candidate.level)
 
 
-def _hwc(chw) -> np.ndarray:
-    return np.ascontiguousarray(np.moveaxis(np.asarray(chw, dtype=np.float32), 0, -1))
-
-
 def load_pairs(data, count: int, per_scene: int = 4) -> list[dict]:
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
+    from model.data import photo_pairs
 
-    pairs = EvaluationPairs(find_scenes(data), 256, 4, held_out=held_out_light_names(),
-                            max_pairs_per_scene=per_scene)
-    out = []
-    for i in range(min(count, len(pairs))):
-        item = pairs[i]
-        s = {k: (item[k].numpy() if hasattr(item[k], "numpy") else np.asarray(item[k])) for k in SAMPLE_KEYS}
-        out.append({"photo": _hwc(s["input_linear"]), "alpha": _hwc(s["alpha"])[..., 0],
-                    "target": _hwc(s["target_image"]), "light_b": s["target_light"].astype(np.float64),
-                    "light_a": s["light"].astype(np.float64), "albedo": _hwc(s["albedo"])})
-    return out
+    return list(photo_pairs(data, 256, count, per_scene))
 
 
 def score(pred, pair) -> tuple[float, float]:

@@ -24,42 +24,28 @@ CROP = 256          # the pairs' crop size, as benchmarks/bench_quality.py score
 
 
 def _pairs(data, count: int | None):
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
+    from model.data import photo_pairs
 
-    pairs = EvaluationPairs(find_scenes(data), CROP, 4, held_out=held_out_light_names())
-    for i in range(len(pairs) if count is None else min(count, len(pairs))):
-        item = pairs[i]
-        hwc = {k: np.ascontiguousarray(np.moveaxis(item[k].numpy().astype(np.float32), 0, -1))
-               for k in ("input_linear", "alpha", "target_image")}
-        yield {"photo": hwc["input_linear"], "alpha": hwc["alpha"][..., 0], "target": hwc["target_image"],
-               "light_b": item["target_light"].numpy().astype(np.float64)}
+    return photo_pairs(data, CROP, count)
 
 
 def _mixed_pairs(data, count: int | None, seed: int = 0):
     """Pairs under lights no map gives, as the photo's light is in a real photo: each scene's
     first two path-traced pairs re-rendered by PRT (albedo x (T . L)) under two mixes of its own
     lights and the training presets (model.data_augment.random_mixed_light), seeded per pair."""
+    from model.data import photo_pairs
     from model.data_augment import preset_training_lights, random_mixed_light
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
 
-    pairs = EvaluationPairs(find_scenes(data), CROP, 4, held_out=held_out_light_names(), max_pairs_per_scene=2)
     bank = [light for _, light in preset_training_lights(4)]
-    for i in range(len(pairs) if count is None else min(count, len(pairs))):
-        item = pairs[i]
+    for i, pair in enumerate(photo_pairs(data, CROP, count, per_scene=2, transport=True)):
         rng = np.random.default_rng([seed, i])
-        hwc = {k: np.ascontiguousarray(np.moveaxis(item[k].numpy().astype(np.float64), 0, -1))
-               for k in ("input_linear", "alpha", "albedo", "transport")}
-        own = [item["light"].numpy().astype(np.float64), item["target_light"].numpy().astype(np.float64)]
-        light_a, light_b = (random_mixed_light(own[k], bank[rng.integers(len(bank))], rng).astype(np.float64)
-                            for k in range(2))
-        alpha = hwc["alpha"]
-        photo = hwc["albedo"] * np.maximum(hwc["transport"] @ light_a, 0.0)
-        yield {"photo": (alpha * photo + (1 - alpha) * hwc["input_linear"]).astype(np.float32),
-               "alpha": alpha[..., 0].astype(np.float32),
-               "target": (hwc["albedo"] * np.maximum(hwc["transport"] @ light_b, 0.0)).astype(np.float32),
-               "light_b": light_b}
+        light_a, light_b = (random_mixed_light(own, bank[rng.integers(len(bank))], rng).astype(np.float64)
+                            for own in (pair["light_a"], pair["light_b"]))
+        albedo, transport = pair["albedo"].astype(np.float64), pair["transport"].astype(np.float64)
+        alpha = pair["alpha"][..., None].astype(np.float64)
+        photo = albedo * np.maximum(transport @ light_a, 0.0)
+        yield {"photo": (alpha * photo + (1 - alpha) * pair["photo"]).astype(np.float32), "alpha": pair["alpha"],
+               "target": (albedo * np.maximum(transport @ light_b, 0.0)).astype(np.float32), "light_b": light_b}
 
 
 def _options(quality: str) -> dict:

@@ -253,3 +253,23 @@ class EvaluationPairs(torch.utils.data.Dataset):
         out = _to_tensors(sample)
         out.update(scene_index=scene.index, light_a=scene.light_names[a], light_b=scene.light_names[b])
         return out
+
+
+def photo_pairs(data, size: int, count: int | None = None, per_scene: int = 4, transport: bool = False):
+    """EvaluationPairs of the scenes in `data` (crops of `size` px) as the runtime takes a photo,
+    channels last: "photo" (the image under light a, its background kept), "alpha" [H, W],
+    "target" (the path-traced image under b), "albedo", float64 "light_a" / "light_b", and with
+    `transport` the baked T [H, W, n] (large: only when asked). A generator of at most `count`."""
+    from model.data_splits import find_scenes
+
+    pairs = EvaluationPairs(find_scenes(data), size, 4, held_out=held_out_light_names(), max_pairs_per_scene=per_scene)
+    keys = ("input_linear", "alpha", "target_image", "albedo") + (("transport",) if transport else ())
+    for i in range(len(pairs) if count is None else min(count, len(pairs))):
+        item = pairs[i]
+        hwc = {k: np.ascontiguousarray(np.moveaxis(item[k].numpy().astype(np.float32), 0, -1)) for k in keys}
+        out = {"photo": hwc["input_linear"], "alpha": hwc["alpha"][..., 0], "target": hwc["target_image"],
+               "albedo": hwc["albedo"], "light_a": item["light"].numpy().astype(np.float64),
+               "light_b": item["target_light"].numpy().astype(np.float64)}
+        if transport:
+            out["transport"] = hwc["transport"]
+        yield out
