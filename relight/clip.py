@@ -271,7 +271,7 @@ class ClipRelighter:
         transport = smooth["transport"]
         alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
         if self.reliable is not None:
-            x = to_network_input(d.photo_working, d.alpha if d.mask is not None else None)
+            x = to_network_input(d.photo_working)  # unmasked, as relight.refine.consistent_albedo
             shading = np.einsum("hwn,nc->hwc", transport, shot_light.astype(np.float32))
             albedo = consistent_albedo(x, shading, d.network_alpha, self.reliable)
         else:

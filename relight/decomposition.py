@@ -256,7 +256,10 @@ class Decomposition:
         outside the matte) and alpha [H, W]; L' is the SH light `coeffs`, or the
         photo's own light when None. albedo * shading + residual is the relit
         person before the clamp at 0 (the layers keep their sign: linear, for
-        compositing)."""
+        compositing). Where the crop was resized for the network, the albedo carries the
+        photo's full-resolution texture by the same detail transfer as relight() (the
+        shading and residual are smooth: upsampled), so the product is relight()'s person
+        up to the order of upsampling."""
         L = self.fit_light(self.light if coeffs is None else coeffs, exposure_ev)
         return {name: self._layer(name, L) for name in LAYER_NAMES}
 
@@ -276,6 +279,8 @@ class Decomposition:
         if name == "alpha":
             return self.full_alpha(out)
         if name == "albedo":
+            if not self._up.identity:  # the photo's own detail, as relight() gives the relit person
+                return self._albedo_detailed(out)
             values = self._albedo_m
         elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
             if out is None:
@@ -298,7 +303,20 @@ class Decomposition:
         model has none): its layer is black under every light."""
         return self._has_residual
 
-    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def _albedo_detailed(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The albedo layer at full resolution with the photo's fine texture: the full-resolution
+        photo times the upsampled quotient albedo / photo of working resolution (the detail
+        transfer of relight(), so albedo x shading is the relit person as relight() gives it, up to
+        the order of upsampling), capped like it and kept in [0, 1]."""
+        h, w = self.working_size
+        small = np.zeros((h * w, 3), np.float32)
+        photo_m = self.photo_working.reshape(-1, 3)[self._matte]
+        small[self._matte] = np.clip((self._albedo_m + DETAIL_EPS) / (photo_m + DETAIL_EPS), 0.0, DETAIL_MAX)
+        return self._to_full(small.reshape(h, w, 3), out, times_photo=True)
+
+    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None, times_photo: bool = False) -> np.ndarray:
+        """`small` [h, w, C] upsampled into the crop of a full-size array (zero outside it); with
+        `times_photo`, multiplied by the photo + DETAIL_EPS there and kept in [0, 1] (an albedo)."""
         channels = small.shape[2]
         out = self._full_out(out, (channels,))
         packed = out.flags.c_contiguous
@@ -307,6 +325,9 @@ class Decomposition:
         for r0 in range(0, y1 - y0, STRIP_ROWS):
             r1 = min(r0 + STRIP_ROWS, y1 - y0)
             strip, target = self._up.strip(prepared, r0, r1), out[y0 + r0:y0 + r1, x0:x1]
+            if times_photo:
+                strip *= self.photo[y0 + r0:y0 + r1, x0:x1] + np.float32(DETAIL_EPS)
+                np.clip(strip, 0.0, 1.0, out=strip)
             for c in [slice(None)] if packed else range(channels):
                 target[..., c] = strip[..., c]
         return out

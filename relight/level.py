@@ -96,8 +96,9 @@ def features(transport: np.ndarray, light: np.ndarray, weight: np.ndarray) -> tu
     if not total > 0:
         mean = np.full(3, MIN_SHADING)
     else:
-        shading = np.asarray(transport, np.float64) @ np.asarray(light, np.float64)  # [h, w, 3]
-        mean = np.einsum("hw,hwc->c", w, shading) / total
+        # the mean of T . L is (the mean of T) . L: one weighted sum of T, not the shading image
+        t = np.asarray(transport)
+        mean = (w.reshape(-1) @ t.reshape(-1, t.shape[-1]).astype(np.float64)) @ np.asarray(light, np.float64) / total
     mean = np.maximum(np.nan_to_num(mean, nan=MIN_SHADING), MIN_SHADING)
     lum = max(float(mean @ np.asarray(LUMINANCE_WEIGHTS, np.float64)), MIN_SHADING)
     return math.log2(lum), np.log2(mean) - math.log2(lum)

@@ -17,6 +17,7 @@ explains the choices. Nothing here imports torch or bpy.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -32,6 +33,7 @@ from relight.level import apply as apply_level
 from relight.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path
 from relight.prt import to_network_input
+from relight.refine import consistent_albedo
 from relight.resample import resize_linear
 from relight.session import ModelSession
 
@@ -241,6 +243,8 @@ class Relighter(ModelSession):
                 {"gains": [round(float(g), 4) for g in gains]}
         else:
             choices["level"] = "off" if self.level_prior is not None else "off (the model has no level prior)"
+            if not d.has_residual:  # the graph's albedo saw the masked input: re-derived from the crop
+                d = dataclasses.replace(d, albedo=consistent_albedo(d, d.transport, d.light))
         if refine:
             from relight.refine import refine as refine_light
 

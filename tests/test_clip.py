@@ -61,13 +61,13 @@ def test_stability_zero_is_relight_image_on_every_frame(relighter, clip12):
         np.testing.assert_array_equal(got.light, d.light)
 
 
-def test_the_albedo_twin_gives_the_graphs_albedo_under_its_own_light(relighter, clip12):
+def test_the_albedo_twin_gives_the_runtimes_albedo_under_its_own_light(relighter, clip12):
     d = relighter.decompose(clip12[3])
     config = json.loads(relighter.metadata["relight.network_config"])
-    x = to_network_input(d.photo_working, d.alpha)
+    x = to_network_input(d.photo_working)  # the crop unmasked, as relight.refine.consistent_albedo takes it
     shading = np.einsum("hwn,nc->hwc", d.transport, d.light)
     albedo = consistent_albedo(x, shading, d.network_alpha, config["reliable"])
-    # the graph divides the same float32 values; its shading sums 25 float32 products in another
+    # both divide the same float32 values; the shading sums 25 float32 products, possibly in another
     # order (relative rounding ~25 x 2^-24 = 1.5e-6 of the largest term, which can be ~10x the sum)
     np.testing.assert_allclose(albedo, d.albedo, rtol=2e-4, atol=2e-5)
 

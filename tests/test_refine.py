@@ -216,3 +216,31 @@ def test_augmentation_stops_after_the_first_run_only_when_it_agrees():
     np.testing.assert_allclose(out.light, d.light * (1 + 5 * 1.5) / 6, rtol=1e-5, atol=1e-7)
     _, runs = tta.augment(_Answers(d, d.light), d, tta.AUGMENTATIONS)  # no early stop asked
     assert runs == len(tta.AUGMENTATIONS)
+
+
+def test_consistent_albedo_along_the_soft_matte_edge_is_the_photo_over_its_shading():
+    """A dark person on a background of the same colour, its matte fading over 16 columns: the
+    albedo along the edge is photo / shading like inside (the crop is taken unmasked), not
+    the masked network input's fade toward sRGB 0.5 grey that drew a pale ring (issue 26)."""
+    from types import SimpleNamespace
+
+    h, w = 8, 32
+    colour = np.array([0.05, 0.04, 0.03], np.float32)
+    photo = np.broadcast_to(colour, (h, w, 3)).copy()
+    alpha = np.broadcast_to(np.clip(np.arange(w, dtype=np.float32) / 16.0, 0.0, 1.0), (h, w)).copy()
+    transport = np.zeros((h, w, sh.num_coeffs(ORDER)), np.float32)
+    transport[..., 0] = 1.0
+    light = np.zeros((sh.num_coeffs(ORDER), 3), np.float32)
+    light[0] = 0.5  # shading 0.5 everywhere: above the floor (0.25 x its mean)
+    d = SimpleNamespace(photo_working=photo, alpha=alpha, network_alpha=alpha)
+    albedo = rf.consistent_albedo(d, transport, light)
+    edge = (alpha > 0) & (alpha < 1)
+    # float32 sRGB encode and decode: a few ulps of the value
+    np.testing.assert_allclose(albedo[edge], np.broadcast_to(colour / 0.5, albedo[edge].shape), rtol=1e-5)
+    # the masked input's rule is far off there: at alpha 0.5 it sees about (0.5 sRGB of the
+    # colour + 0.25) decoded, 0.07 against 0.05 in linear red
+    from relight.prt import to_network_input
+
+    masked = rf.albedo_from_input(to_network_input(photo, alpha), alpha, transport, light)
+    half = alpha == 0.5
+    assert np.all(masked[half] > 1.3 * albedo[half])

@@ -421,3 +421,33 @@ def test_the_light_is_fitted_once_per_light_and_exposure(relighter):
         np.testing.assert_array_equal(layers[name], d.layer(name, light, 1.0))
     with pytest.raises(ValueError, match=r"exposure must be a finite number of EV within \+-64"):
         d.fit_light(light, 64.5)
+
+
+def test_albedo_layer_carries_the_photos_full_resolution_texture():
+    """Resampled crop: the albedo layer is the full-resolution photo times the upsampled
+    quotient albedo / photo of working resolution, so under a smooth shading S it is the
+    textured photo / S, which plain upsampling of the working albedo would blur away."""
+    from relight.decomposition import Decomposition
+    from relight.resample import resize_linear
+
+    H, W, h, w = 64, 96, 16, 24
+    rng = np.random.default_rng(3)
+    photo = rng.uniform(0.2, 0.4, (H, W, 3)).astype(np.float32)  # per-pixel texture
+    photo_w = resize_linear(photo, h, w)
+    shading = np.float32(0.8)
+    transport = np.zeros((h, w, N), np.float32)
+    transport[..., 0] = 1.0
+    light = np.zeros((N, 3), np.float32)
+    light[0] = shading
+    alpha = np.ones((h, w), np.float32)
+    d = Decomposition(albedo=photo_w / shading, transport=transport, residual=np.zeros_like(transport),
+                      light=light, alpha=alpha, box=(0, H, 0, W), working_size=(h, w), photo=photo,
+                      photo_working=photo_w, sh_order=ORDER)
+    albedo = d.layer("albedo")
+    # quotient (p_w / S + eps) / (p_w + eps) = 1/S (1 + eps (S - 1) / (p_w + eps)): relative error
+    # below DETAIL_EPS / 0.2 per pixel, plus float32 rounding of the product
+    np.testing.assert_allclose(albedo, photo / shading, rtol=DETAIL_EPS / 0.2 + 1e-5)
+    np.testing.assert_array_equal(d.layers()["albedo"], albedo)  # layers() gives the same layer
+    # the texture is there: far from what plain upsampling of the working albedo gives
+    plain = d._to_full(photo_w / shading)
+    assert np.abs(albedo - plain).mean() > 0.02
