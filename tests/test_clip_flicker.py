@@ -40,7 +40,7 @@ def test_flicker_and_jitter_measure_change_relative_to_the_clip():
 def test_the_stabilised_clip_flickers_a_third_as_much_at_the_same_accuracy(clip):
     # 96 px, where this clip's per-frame decompositions flicker (the stabiliser's job): measured with
     # the level prior, per-frame +18.4% of the image and 21.82 dB, stabilised +4.5% and 22.30 dB. At
-    # 112 px (Draft since 2026-11-26) the frames hardly flicker (+2.1%, 26.63 dB) and stabilising
+    # 112 px (Draft's size for a day) the frames hardly flicker (+2.1%, 26.63 dB) and stabilising
     # costs 0.32 dB (0.35 without the prior): docs/video.md
     relighter = Relighter(quality.model_path("draft"), threads=1, working_size=96)
     per_frame = evaluate_clip(clip, relight_clip(clip, relighter, 0.0, "ema", "person")[0])
