@@ -28,16 +28,32 @@ def dilate(inside: np.ndarray, radius: int) -> np.ndarray:
 def label(inside: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """8-connected parts of a bool [h, w] map: (labels [h, w] int32, 0 = none; areas, by label - 1).
 
-    Runs of each row are joined to the overlapping (or diagonally touching)
-    runs of the row above with a union-find; numpy finds the runs.
+    numpy finds the runs of each row and which runs of the row above each one overlaps or
+    touches diagonally (two searches over the runs in row-major order); a union-find joins
+    those pairs (a few per run, in Python: the pixels never are), and the labels are painted
+    back by a running sum along the rows. Labels are numbered in row-major order of each
+    part's first pixel.
     """
     h, w = inside.shape
     padded = np.zeros((h, w + 2), np.int8)
     padded[:, 1:-1] = inside
-    edges = np.diff(padded, axis=1)
-    runs = []                            # (row, start, end) per run
-    row_runs: list[list[int]] = []
-    parent: list[int] = []
+    edges = np.diff(padded, axis=1)                      # [h, w + 1]: +1 where a run starts, -1 past its end
+    row, start = np.nonzero(edges == 1)
+    _, end = np.nonzero(edges == -1)                     # the same runs, same order (row-major)
+    n = row.size
+    labels = np.zeros((h, w), np.int32)
+    if n == 0:
+        return labels, []
+    stride = w + 2
+    key_start, key_end = row * stride + start, row * stride + end
+    # runs of the row above that touch run i (8-connected): start <= end_i and end >= start_i
+    lo = np.searchsorted(key_end, (row - 1) * stride + start, side="left")
+    hi = np.searchsorted(key_start, (row - 1) * stride + end, side="right")
+    hi = np.maximum(hi, lo)
+    count = hi - lo
+    child = np.repeat(np.arange(n), count)
+    above = np.repeat(lo - np.cumsum(count) + count, count) + np.arange(child.size)
+    parent = list(range(n))
 
     def find(i: int) -> int:
         while parent[i] != i:
@@ -45,39 +61,21 @@ def label(inside: np.ndarray) -> tuple[np.ndarray, list[int]]:
             i = parent[i]
         return i
 
-    for r in range(h):
-        starts = np.flatnonzero(edges[r] == 1)
-        ends = np.flatnonzero(edges[r] == -1)
-        here = []
-        prev = row_runs[-1] if row_runs else []
-        j = 0
-        for s, e in zip(starts.tolist(), ends.tolist()):
-            idx = len(runs)
-            runs.append((r, s, e))
-            parent.append(idx)
-            here.append(idx)
-            while j < len(prev) and runs[prev[j]][2] < s:  # ends before s - 1: cannot touch this or later runs
-                j += 1
-            k = j
-            while k < len(prev) and runs[prev[k]][1] <= e:  # starts by e: touches (8-connected)
-                a, b = find(idx), find(prev[k])
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
-                k += 1
-        row_runs.append(here)
-    labels = np.zeros((h, w), np.int32)
-    roots: dict[int, int] = {}
-    areas: list[int] = []
-    for i, (r, s, e) in enumerate(runs):
-        root = find(i)
-        if root not in roots:
-            roots[root] = len(roots) + 1
-            areas.append(0)
-        lab = roots[root]
-        labels[r, s:e] = lab
-        areas[lab - 1] += e - s
+    for a, b in zip(child.tolist(), above.tolist()):
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = np.array([find(i) for i in range(n)])
+    # a part's root is its first run (row-major): number the roots in that order
+    is_root = roots == np.arange(n)
+    number = np.cumsum(is_root).astype(np.int32)         # 1-based part number at each root
+    run_label = number[roots]
+    areas = np.bincount(run_label - 1, weights=end - start, minlength=int(number[-1])).astype(int).tolist()
+    paint = np.zeros((h, w + 1), np.int32)
+    np.add.at(paint, (row, start), run_label)
+    np.add.at(paint, (row, end), -run_label)
+    labels[:] = np.cumsum(paint, axis=1)[:, :w]
     return labels, areas
-
 
 def window_sum(x: np.ndarray, r: int, axis: int) -> np.ndarray:
     """Sums over windows of 2r+1 along `axis`, clipped at the borders (running sums in float64:
