@@ -18,7 +18,10 @@ from pathlib import Path
 
 from relight.tta import AGREED, AUGMENTATIONS
 
-__all__ = ["DEFAULT", "PRESETS", "QualityPreset", "model_name", "model_path", "preset"]
+__all__ = ["DEFAULT", "MATTE_COST_RANK", "PRESETS", "QualityPreset", "model_name", "model_path", "preset"]
+
+
+MATTE_COST_RANK = {"selfie": 0, "pose": 1, "ensemble": 2}  # relight.matte's methods, cheapest first
 
 
 @dataclass(frozen=True)
@@ -33,6 +36,11 @@ class QualityPreset:
     matte_method: str = "ensemble"  # relight.matte's person segmenter ("selfie": faster)
     augment_until_agreed: float | None = None  # stop the augmentations when the first agrees (relight.tta.AGREED)
     ensemble: tuple = ()  # registry names of other networks whose answers join the average
+
+    def work(self) -> tuple:
+        """What the preset does, each part ordered by its cost: (working size, extra network runs,
+        refinement iterations, the person segmenter's cost rank: selfie < pose < ensemble)."""
+        return (self.working_size, len(self.augment), self.refine, MATTE_COST_RANK[self.matte_method])
 
     def decompose_options(self) -> dict:
         """Relighter.decompose's keyword arguments for this preset."""

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from relight import models, quality
+from relight import matte, models, quality
 
 
 def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
@@ -16,9 +16,10 @@ def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
     from relight.runtime import DEFAULT_WORKING_SIZE
 
     keys = [p.key for p in quality.PRESETS]
-    # fastest first: each preset does strictly more work (working size, then network runs)
-    work = [(p.working_size, len(p.augment), p.refine) for p in quality.PRESETS]
-    assert keys == ["draft", "balanced", "best"] and work == sorted(work) and len(set(work)) == 3
+    # fastest first: each preset does at least the work of the one before in every part, and more in one
+    work = [p.work() for p in quality.PRESETS]
+    assert keys == ["draft", "balanced", "best"] and len(set(work)) == 3
+    assert all(all(x <= y for x, y in zip(a, b)) for a, b in zip(work, work[1:]))
     assert DEFAULT_WORKING_SIZE == quality.preset(quality.DEFAULT).working_size
     assert [key for key, _, _ in addon_quality.enum_items()] == [p.key.upper() for p in quality.PRESETS]
     assert all(addon_quality.preset(p.key.upper()) is p for p in quality.PRESETS)  # one table
@@ -27,6 +28,10 @@ def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
     assert quality.preset("BEST") is quality.preset("best")
     with pytest.raises(ValueError, match="unknown quality preset 'ultra'; expected one of draft, balanced, best"):
         quality.preset("ultra")
+
+
+def test_every_segmenter_method_has_a_cost_rank():
+    assert set(quality.MATTE_COST_RANK) == set(matte.METHODS)
 
 
 def _registry(tmp_path, default, names):
