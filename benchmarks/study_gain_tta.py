@@ -73,15 +73,20 @@ def main(argv=None) -> int:
         for name, (gains, mirrored) in SETS.items():
             d, _ = apply_level(tta.average(base, gain_runs(relighter, base, gains, mirrored)), relighter.level_prior)
             scores[name].append(metrics.psnr(d.relight(pair["light_b"]), pair["target"], weight))
-    once = np.array(scores["network once"])
-    print(f"{len(once)} held-out pairs of {args.data}, level prior on\n")
-    print("| runs averaged | relit PSNR | vs the network once (paired mean +- SE) | worst pair |")
-    print("|---|---|---|---|")
+    print(paired_table(scores, "network once", args.data))
+    return 0
+
+
+def paired_table(scores: dict, baseline: str, data) -> str:
+    """Markdown table of each set's mean relit PSNR and its paired difference to `baseline`'s."""
+    once = np.array(scores[baseline])
+    lines = [f"{len(once)} held-out pairs of {data}, level prior on\n",
+             "| runs averaged | relit PSNR | vs the network once (paired mean +- SE) | worst pair |", "|---|---|---|---|"]
     for name, values in scores.items():
         diff = np.array(values) - once
-        print(f"| {name} | {np.mean(values):.2f} | {diff.mean():+.2f} +- {diff.std() / np.sqrt(len(diff)):.2f} | "
-              f"{diff.min():+.2f} |")
-    return 0
+        lines.append(f"| {name} | {np.mean(values):.2f} | {diff.mean():+.2f} +- "
+                     f"{diff.std() / np.sqrt(len(diff)):.2f} | {diff.min():+.2f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from study_gain_tta import paired_table  # noqa: E402
 
 
 def about_view_axis(degrees: float) -> np.ndarray:
@@ -79,14 +82,7 @@ def main(argv=None) -> int:
         for name, runs in zip(names, sets):
             d, _ = apply_level(tta.average(base, runs), r.level_prior)
             scores[name].append(metrics.psnr(d.relight(pair["light_b"]), pair["target"], weight))
-    once = np.array(scores["network once"])
-    print(f"{len(once)} held-out pairs of {args.data}, level prior on\n")
-    print("| runs averaged | relit PSNR | vs the network once (paired mean +- SE) | worst pair |")
-    print("|---|---|---|---|")
-    for name, values in scores.items():
-        diff = np.array(values) - once
-        print(f"| {name} | {np.mean(values):.2f} | {diff.mean():+.2f} +- {diff.std() / np.sqrt(len(diff)):.2f} | "
-              f"{diff.min():+.2f} |")
+    print(paired_table(scores, "network once", args.data))
     return 0
 
 
