@@ -99,9 +99,8 @@ def evaluate_photo(relighter: Relighter, path: Path, options: dict | None = None
         recon = metrics.all_metrics(rerendered, dec.photo_working, dec.alpha)
     except ValueError:  # empty matte: the network found no person
         recon = None
-    layers = dec.layers()
     # as it composites over black: the layer runs past the matte (its grown ring) for the alpha to cut
-    albedo = layers["albedo"] * layers["alpha"][..., None]
+    albedo = dec.layer("albedo") * dec.layer("alpha")[..., None]
     tiles = [image, albedo]
     working = {}
     for azimuth in SHEET_DIRECTIONS:
