@@ -58,7 +58,7 @@ class QualityPreset:
 # (relight.tta.AGREED) (+0.55 +- 0.11 dB, SI +0.91); light refinement, a second network, runs at
 # other exposures or turned in the image plane do not pay; Draft = the fastest front point that
 # keeps >= 90% of Balanced's gain over identity (issue 26): the network at 128 px as Balanced,
-# with the selfie segmenter alone (141 against 200 ms; its matte is less exact: mean IoU 0.944
+# with the selfie segmenter alone (72 against 117 ms; its matte is less exact: mean IoU 0.944
 # against 0.97, docs/MATTE.md). 112 px was Draft before: 106 ms, but -0.28 +- 0.16 dB (80% of
 # the gain).
 PRESETS: tuple[QualityPreset, ...] = (

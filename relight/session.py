@@ -29,6 +29,9 @@ def cores_available() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+SPINNING_KEY = "session.intra_op.allow_spinning"  # onnxruntime's session option
+
+
 def open_session(path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
                  registry_path: str | os.PathLike = REGISTRY_PATH):
     """(onnxruntime session, SHA-256) of a model file whose hash matches its record."""
@@ -51,6 +54,10 @@ def open_session(path: str | os.PathLike, threads: int | None = None, providers:
     opts.intra_op_num_threads = threads or 0
     opts.inter_op_num_threads = 1
     opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    # no busy-waiting between runs: a run is followed by numpy work (and other sessions: the
+    # segmenters'), which the spinning pool threads would take cores from. Measured on 2 cores
+    # (docs/TRADEOFFS.md): a 512 px photo's Balanced 145 -> 93 ms; back-to-back runs alike.
+    opts.add_session_config_entry(SPINNING_KEY, "0")
     try:
         session = ort.InferenceSession(data, opts, providers=providers or ["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own exception types

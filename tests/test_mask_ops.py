@@ -51,10 +51,10 @@ def test_dilate_is_scipys_square_dilation():
         assert np.array_equal(dilate(inside, radius), ref)
 
 
-def test_box_mean_is_the_mean_over_the_window_inside_the_image():
+@pytest.mark.parametrize("r", [1, 3, 25])  # 25: wider than the image
+def test_box_mean_is_the_mean_over_the_window_inside_the_image(r):
     rng = np.random.default_rng(10)
     x = rng.random((20, 27)).astype(np.float32)
-    r = 3
     ones = np.ones_like(x)
     kernel = np.ones((2 * r + 1,) * 2, np.float32)
     ref = ndimage.convolve(x, kernel, mode="constant") / ndimage.convolve(ones, kernel, mode="constant")

@@ -326,6 +326,19 @@ def test_bad_session_options(model_path):
         Relighter(model_path, working_size=8)
 
 
+def test_sessions_do_not_spin_between_runs(model_path):
+    """Every session the runtime opens (the network's and the segmenters') has onnxruntime's
+    busy-waiting off: its pool threads would otherwise take the cores from the numpy work
+    between runs (docs/TRADEOFFS.md measures what it cost)."""
+    from relight import matte
+    from relight.session import SPINNING_KEY
+
+    sessions = [Relighter(model_path, threads=1).session] + \
+        [matte._session(kind) for kind in ("selfie", "detector", "pose")]
+    for s in sessions:
+        assert s.get_session_options().get_session_config_entry(SPINNING_KEY) == "0"
+
+
 def test_runtime_modules_import_neither_torch_nor_bpy_nor_onnx():
     import subprocess
     import sys
