@@ -13,7 +13,7 @@ not change within a shot is held or smoothed over its frames:
 * **light**: the photo's light, which the geometry-first model fits per frame, is
   the mean of the per-frame estimates over the shot's last 1 + (LIGHT_WINDOW - 1) x
   stability frames, and the albedo is re-derived from the frame under that light
-  (the model's own formula, relight.clip_maps.consistent_albedo), so a noisy fit no
+  (the model's own formula, relight.refine.consistent_albedo), so a noisy fit no
   longer flickers the brightness;
 * **maps**: the transport (and residual; and the albedo of models that are not
   photo-consistent) and the person matte are smoothed over frames where the photo
@@ -35,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.box import Box
-from relight.clip_maps import FILTER_MODES, MapSmoother, MatteSmoother, consistent_albedo, grid_grey, history_weight
+from relight.clip_maps import FILTER_MODES, MapSmoother, MatteSmoother, grid_grey, history_weight
 from relight.decomposition import Decomposition
+from relight.refine import consistent_albedo
 
 __all__ = ["ClipRelighter", "FrameResult", "CutDetector", "ShotLight", "DEFAULT_STABILITY",
            "FILTER_MODES"]
@@ -258,8 +259,6 @@ class ClipRelighter:
 
     def _stabilised(self, d: Decomposition, shot_light: np.ndarray) -> Decomposition:
         """The frame's decomposition with smoothed maps, under the shot's light."""
-        from relight.prt import to_network_input
-
         maps = {"transport": d.transport}
         if self.reliable is None:  # the geometry-first model's E is 0 (docs/model.md): nothing to smooth
             maps["residual"] = d.residual
@@ -271,9 +270,7 @@ class ClipRelighter:
         transport = smooth["transport"]
         alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
         if self.reliable is not None:
-            x = to_network_input(d.photo_working)  # unmasked, as relight.refine.consistent_albedo
-            shading = np.einsum("hwn,nc->hwc", transport, shot_light.astype(np.float32))
-            albedo = consistent_albedo(x, shading, d.network_alpha, self.reliable)
+            albedo = consistent_albedo(d, transport, shot_light.astype(np.float32), self.reliable)
         else:
             albedo = smooth["albedo"]
         return Decomposition(

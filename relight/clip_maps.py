@@ -22,14 +22,12 @@ import numpy as np
 
 from relight.box import Box
 
-__all__ = ["MapSmoother", "MatteSmoother", "consistent_albedo", "grid_grey", "FILTER_MODES",
+__all__ = ["MapSmoother", "MatteSmoother", "grid_grey", "FILTER_MODES",
            "AGREE_SCALE", "MATTE_AGREE_SCALE"]
 
 FILTER_MODES = ("ema", "flow")
 AGREE_SCALE = 0.08        # sRGB grey difference at which the history's weight falls to 1/e
 MATTE_AGREE_SCALE = 0.25  # alpha difference at which the matte's history weight falls to 1/e
-MIN_MEAN_SHADING = 0.08   # model/physics.py photo_consistent_albedo: floor of the mean shading
-CLIPPED = 0.99            # model/geometry.py: an encoded input above this in any channel is saturated
 
 
 def grid_grey(photo_working: np.ndarray) -> np.ndarray:
@@ -195,22 +193,6 @@ class MatteSmoother:
                 out[r0:r1, c0:c1][where] = av + k * (pv - av)
         self.previous, self.box = out, box
         return out
-
-
-def consistent_albedo(x: np.ndarray, shading: np.ndarray, network_alpha: np.ndarray, reliable: float) -> np.ndarray:
-    """model/physics.py photo_consistent_albedo in numpy: photo / max(shading, reliable *
-    mean shading), in [0, 1], the photo being what the network input `x` ([h, w, 3] in
-    [-1, 1], relight.prt.to_network_input) encodes and the mean weighted by the network's
-    alpha where no channel is clipped (model/geometry.py)."""
-    from relight.colour import srgb_decode
-
-    photo = srgb_decode((x + np.float32(1.0)) * np.float32(0.5)).astype(np.float32)
-    unclipped = np.clip((2.0 * CLIPPED - 1.0 - x.max(axis=2)) * 1e6, 0.0, 1.0)
-    w = (network_alpha * unclipped).astype(np.float64)
-    lum = shading.mean(axis=2, dtype=np.float64)
-    mean = max(float((lum * w).sum() / (w.sum() + 1e-4)), MIN_MEAN_SHADING)
-    floor = np.float32(reliable * mean)
-    return np.clip(photo / np.maximum(shading, floor), 0.0, 1.0).astype(np.float32)
 
 
 def history_weight(window: float) -> float:

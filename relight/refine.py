@@ -178,9 +178,10 @@ def photo_consistent_albedo(photo: np.ndarray, shading: np.ndarray, weight: np.n
     return np.clip(photo / np.maximum(shading, reliable * mean), 0.0, 1.0).astype(np.float32)
 
 
-def consistent_albedo(d, transport: np.ndarray, light: np.ndarray) -> np.ndarray:
+def consistent_albedo(d, transport: np.ndarray, light: np.ndarray, reliable: float = RELIABLE) -> np.ndarray:
     """The albedo [h, w, 3] the geometry-first network would derive for decomposition `d`
-    with this transport [h, w, n] and light [n, 3]: its photo-consistent rule (model.geometry)
+    with this transport [h, w, n] and light [n, 3] (`reliable`: the model's shading floor, a
+    fraction of the mean; relight.clip passes the model's own): its photo-consistent rule (model.geometry)
     on the working crop as the network input encodes it, weighted by the alpha head where that
     input is not saturated. The crop is taken unmasked: along the matte's soft edge the masked
     input fades toward the encoding's zero (sRGB 0.5 grey), which divided by the shading drew a
@@ -191,7 +192,7 @@ def consistent_albedo(d, transport: np.ndarray, light: np.ndarray) -> np.ndarray
     photo = np.clip(d.photo_working, 0.0, 1.0)
     alpha = d.network_alpha if d.network_alpha is not None else d.alpha
     weight = alpha * (photo.max(axis=-1) < SATURATED)
-    return photo_consistent_albedo(photo, transport @ light, weight)
+    return photo_consistent_albedo(photo, transport @ light, weight, reliable)
 
 
 def albedo_from_input(encoded: np.ndarray, alpha: np.ndarray, transport: np.ndarray,
