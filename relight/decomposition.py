@@ -18,6 +18,7 @@ import numpy as np
 from relight import sh
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR, DETAIL_EPS, composite
+from relight.foreground import foreground, smooth_colours
 from relight.light import fit_order
 from relight.mask_ops import dilate
 from relight.resample import Bilinear
@@ -113,6 +114,7 @@ class Decomposition:
         y0, y1, x0, x1 = self.box
         self._up = Bilinear(y1 - y0, x1 - x0, h, w)
         self._alpha_prepared = None
+        self._smooth_prepared = None  # relight.foreground's smooth colours, prepared on demand
         self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
 
     @property
@@ -237,6 +239,22 @@ class Decomposition:
             out[y0 + r0:y0 + r1, x0:x1] = self._alpha_strip(r0, r1)[..., 0]
         return out
 
+    def _edge_colour(self, r0: int, r1: int):
+        """Where the matte is soft in the crop's rows r0:r1: (soft [r1 - r0, w] bool, the photo
+        there [k, 3], the person's own colour there [k, 3]); None where it is nowhere soft. An
+        edge pixel of the photo mixes the person with the background, which the albedo layer
+        would otherwise carry into a composite over another background (relight.foreground)."""
+        a = self._alpha_strip(r0, r1)[..., 0]
+        soft = (a > 0.0) & (a < 1.0)
+        if not soft.any():
+            return None
+        if self._smooth_prepared is None:
+            self._smooth_prepared = self._up.prepare(smooth_colours(self.photo_working, self.alpha))
+        ys, xs = np.nonzero(soft)
+        y0, _, x0, _ = self.box
+        photo = self.photo[y0 + r0 + ys, x0 + xs]
+        return soft, photo, foreground(photo, a[soft][:, None], self._up.at(self._smooth_prepared, ys + r0, xs))
+
     def _full_out(self, out: np.ndarray | None, channels: tuple) -> np.ndarray:
         """A full-size float32 array [H, W, *channels], zero outside the crop (the crop is written
         next): `out` when given (checked), else a new one."""
@@ -259,7 +277,9 @@ class Decomposition:
         compositing). Where the crop was resized for the network, the albedo carries the
         photo's full-resolution texture by the same detail transfer as relight() (the
         shading and residual are smooth: upsampled), so the product is relight()'s person
-        up to the order of upsampling."""
+        up to the order of upsampling, except where the matte is soft: there the albedo is
+        the person's own colour (relight.foreground), without the background the photo's edge
+        pixels mix in, so the layers composite over another background without its fringe."""
         L = self.fit_light(self.light if coeffs is None else coeffs, exposure_ev)
         return {name: self._layer(name, L) for name in LAYER_NAMES}
 
@@ -281,7 +301,10 @@ class Decomposition:
         if name == "albedo":
             if not self._up.identity:  # the photo's own detail, as relight() gives the relit person
                 return self._albedo_detailed(out)
-            values = self._albedo_m
+            h, w = self.working_size
+            small = np.zeros((h * w, 3), np.float32)
+            small[self._matte] = self._albedo_m
+            return self._to_full(small.reshape(h, w, 3), out, edge_colour=True)
         elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
             if out is None:
                 return np.zeros((*self.size, 3), np.float32)
@@ -314,19 +337,28 @@ class Decomposition:
         small[self._matte] = np.clip((self._albedo_m + DETAIL_EPS) / (photo_m + DETAIL_EPS), 0.0, DETAIL_MAX)
         return self._to_full(small.reshape(h, w, 3), out, times_photo=True)
 
-    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None, times_photo: bool = False) -> np.ndarray:
+    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None, times_photo: bool = False,
+                 edge_colour: bool = False) -> np.ndarray:
         """`small` [h, w, C] upsampled into the crop of a full-size array (zero outside it); with
-        `times_photo`, multiplied by the photo + DETAIL_EPS there and kept in [0, 1] (an albedo)."""
+        `times_photo`, multiplied by the photo + DETAIL_EPS there, the person's own colour
+        (_edge_colour) standing in for the photo's where the matte is soft, and kept in [0, 1]
+        (an albedo); with `edge_colour` (an albedo at the photo's own size), only the latter."""
         channels = small.shape[2]
         out = self._full_out(out, (channels,))
         packed = out.flags.c_contiguous
         prepared = self._up.prepare(small)
         y0, y1, x0, x1 = self.box
+        eps = np.float32(DETAIL_EPS)
         for r0 in range(0, y1 - y0, STRIP_ROWS):
             r1 = min(r0 + STRIP_ROWS, y1 - y0)
             strip, target = self._up.strip(prepared, r0, r1), out[y0 + r0:y0 + r1, x0:x1]
-            if times_photo:
-                strip *= self.photo[y0 + r0:y0 + r1, x0:x1] + np.float32(DETAIL_EPS)
+            if times_photo or edge_colour:  # (at the photo's own size the strip is a view of
+                if times_photo:              # `small`, this call's own array: changed in place)
+                    strip *= self.photo[y0 + r0:y0 + r1, x0:x1] + eps
+                edge = self._edge_colour(r0, r1)
+                if edge is not None:  # the photo's colour there exchanged for the person's
+                    soft, photo, person = edge
+                    strip[soft] *= (person + eps) / (photo + eps)
                 np.clip(strip, 0.0, 1.0, out=strip)
             for c in [slice(None)] if packed else range(channels):
                 target[..., c] = strip[..., c]

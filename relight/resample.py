@@ -88,6 +88,17 @@ class Bilinear:
         out = np.take(diff, i0, axis=0)
         return self.between(np.take(cols, i0, axis=0), out, r0, r1, out)
 
+    def at(self, prepared, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Output pixels (rows[k], cols[k]) from prepare()'s result, [n, C]: the values strip()
+        gives there, computed for those pixels only."""
+        src, diff = prepared
+        if diff is None:
+            return src[rows, cols]
+        i0 = self.rows[0][rows]
+        out = diff[i0, cols] * self.rows[2][rows].reshape((-1,) + (1,) * (diff.ndim - 2))
+        out += src[i0, cols]
+        return out
+
 
 class SourceRows:
     """Source rows of a small [h, w, C] map interpolated to the output width, with the
