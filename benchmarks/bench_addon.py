@@ -123,9 +123,11 @@ def modal_operator(bpy, bl_ops, image_name: str):
     op = types.SimpleNamespace(image_name=image_name, synchronous=False, _job=None, _timer=None, _plan=None,
                                _pending=None, _result=None, _started=0.0, _dial_values=cls._dial_values,
                                report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
-    for name in ("_make_plan", "_start", "_install", "_write_next", "_done", "_error", "_cleanup",
-                 "_show_progress", "modal"):
-        setattr(op, name, getattr(cls, name).__get__(op))
+    # every method of the operator's own classes (not bpy's Operator), bound to the stand-in
+    for klass in reversed([k for k in cls.__mro__ if k.__module__.startswith("blender_addon")]):
+        for name, value in vars(klass).items():
+            if isinstance(value, types.FunctionType) and not name.startswith("__"):
+                setattr(op, name, value.__get__(op))
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_WindowManager(bpy),
                                     workspace=_Workspace(), space_data=None, window=None)
     return op, context
