@@ -97,6 +97,9 @@ def candidates(ensemble: tuple = ()) -> list[Candidate]:
             Candidate(TRAINED_SIZE, mirror, 8), Candidate(TRAINED_SIZE, scales, 8),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8), Candidate(160, tta.AUGMENTATIONS, 8),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8, until_agreed=tta.AGREED),
+            Candidate(160, tta.AUGMENTATIONS), Candidate(160, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 16),
             Candidate(TRAINED_SIZE, level=False),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED, level=False)]
     if ensemble:
