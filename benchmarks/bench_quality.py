@@ -99,6 +99,9 @@ def candidates(ensemble: tuple = ()) -> list[Candidate]:
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 8, until_agreed=tta.AGREED),
             Candidate(160, tta.AUGMENTATIONS), Candidate(160, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(144, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(176, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
+            Candidate(192, tta.AUGMENTATIONS, until_agreed=tta.AGREED),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, 16),
             Candidate(TRAINED_SIZE, level=False),
             Candidate(TRAINED_SIZE, tta.AUGMENTATIONS, until_agreed=tta.AGREED, level=False)]

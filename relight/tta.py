@@ -30,8 +30,8 @@ AUGMENTATIONS = ((1.0, True), (1.25, False), (1.25, True), (0.75, False), (0.75,
 # Only what the photo needs: when the first augmented run (the mirror) changes the shading
 # over the person by at most this (relative RMS, `disagreement`), the rest are not run. On
 # the 96 held-out pairs this stops after the mirror on 26% of them at 128 px (19% and 33% of
-# either half) for 0.005 dB against all six runs; at Best's 160 px on 1 of them (a mirrored run
-# there differs more: 0.2 would stop 24% at -0.045 dB; docs/TRADEOFFS.md).
+# either half) for 0.005 dB against all six runs; at Best's 144 px on none of them (a mirrored
+# run there differs more; at 160 px 0.2 would stop 24% at -0.045 dB; docs/TRADEOFFS.md).
 AGREED = 0.10
 
 
