@@ -301,10 +301,7 @@ class Decomposition:
         if name == "albedo":
             if not self._up.identity:  # the photo's own detail, as relight() gives the relit person
                 return self._albedo_detailed(out)
-            h, w = self.working_size
-            small = np.zeros((h * w, 3), np.float32)
-            small[self._matte] = self._albedo_m
-            return self._to_full(small.reshape(h, w, 3), out, edge_colour=True)
+            values = self._albedo_m
         elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
             if out is None:
                 return np.zeros((*self.size, 3), np.float32)
@@ -318,7 +315,7 @@ class Decomposition:
         h, w = self.working_size
         small = np.zeros((h * w, 3), np.float32)
         small[self._matte] = values
-        return self._to_full(small.reshape(h, w, 3), out)
+        return self._to_full(small.reshape(h, w, 3), out, edge_colour=name == "albedo")
 
     @property
     def has_residual(self) -> bool:
