@@ -40,7 +40,7 @@ import torch
 from model.data_augment import (MIRROR_X, mirror_signs, random_background, random_light_tint, random_mixed_light,
                                 random_reference_light)
 from model.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
-from model.data_splits import held_out_light_names, is_held_out
+from model.data_splits import held_out_light_names, is_held_out, light_name
 from model.geometry import BODY_CHANNELS
 from relight import sh as sh_np
 from relight.dataset import read_sidecar, traced_lights
@@ -78,12 +78,30 @@ class TrainingScenes(torch.utils.data.Dataset):
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
-                 body_prior: bool = False, light_mix: float = 0.0):
+                 body_prior: bool = False, light_mix: float = 0.0, light_maps: frozenset[str] | None = None):
         if not json_paths:
             raise ValueError("no training scenes")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
         self.held_out = held_out_light_names() if held_out is None else held_out
-        self.extra_lights = [(name, l[: self.n]) for name, l in (extra_lights or [])]
+        # the maps that may light a sample (None: every training map); a study of how the light
+        # estimate grows with the number of maps (model.train --light-maps)
+        self.light_maps = None if light_maps is None else frozenset(str(m).lower() for m in light_maps)
+        if self.light_maps is not None and not self.light_maps:
+            raise ValueError("light_maps must name at least one map")
+        self.extra_lights = [(name, l[: self.n]) for name, l in (extra_lights or []) if self._allowed(name)]
+        # with light_maps, every scene draws from all instances of the allowed maps (the bank's and
+        # every training scene's), a map first, uniformly, so that K maps weigh alike
+        self.map_bank: dict[str, list[np.ndarray]] = {}
+        if self.light_maps is not None:
+            for name, light in self.extra_lights:
+                self.map_bank.setdefault(name, []).append(light)
+            for path in json_paths:
+                for light in read_sidecar(path).get("lights", []):
+                    name = light_name(light)
+                    if self._allowed(name) and not is_held_out(light, self.held_out):
+                        self.map_bank.setdefault(name, []).append(np.asarray(light["sh"][: self.n], np.float32))
+            if not self.map_bank:
+                raise ValueError(f"none of the maps {sorted(self.light_maps)} lights a training scene")
         for name, _ in self.extra_lights:
             assert name.lower() not in self.held_out, f"held-out light {name} in the training light bank"
         self.extra_light_prob, self.mask_prob, self.flip_prob = extra_light_prob, mask_prob, flip_prob
@@ -117,14 +135,27 @@ class TrainingScenes(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.cache.paths)
 
+    def _allowed(self, name: str) -> bool:
+        return self.light_maps is None or name.lower() in self.light_maps
+
     def _bank_light(self, scene: CroppedScene, rng) -> tuple[str, np.ndarray]:
-        pool = list(self.extra_lights) + [(name, l) for name, l, h in
-                                          zip(scene.light_names, scene.lights, scene.held_out) if not h]
-        if not pool:
-            raise ValueError(f"scene {scene.index}: no training light to sample from")
-        name, base = pool[rng.integers(len(pool))]
+        if self.map_bank:
+            names = sorted(self.map_bank)
+
+            def draw():
+                name = names[rng.integers(len(names))]
+                return name, self.map_bank[name][rng.integers(len(self.map_bank[name]))]
+        else:
+            pool = list(self.extra_lights) + [(name, l) for name, l, h in
+                                              zip(scene.light_names, scene.lights, scene.held_out) if not h]
+            if not pool:
+                raise ValueError(f"scene {scene.index}: no training light to sample from")
+
+            def draw():
+                return pool[rng.integers(len(pool))]
+        name, base = draw()
         if self.light_mix > 0 and rng.uniform() < self.light_mix:
-            other, second = pool[rng.integers(len(pool))]
+            other, second = draw()
             return f"{name}+{other}", random_mixed_light(base.astype(np.float64), second.astype(np.float64), rng)
         return name, random_reference_light(base.astype(np.float64), rng)
 
@@ -141,7 +172,8 @@ class TrainingScenes(torch.utils.data.Dataset):
         """Sample i with the augmentation of `epoch` (deterministic in seed, epoch, i)."""
         rng = np.random.default_rng([self.seed, epoch, i])
         scene = self.cache(i)
-        traced = [k for k, (img, h) in enumerate(zip(scene.images, scene.held_out)) if img is not None and not h]
+        traced = [k for k, (img, h, name) in enumerate(zip(scene.images, scene.held_out, scene.light_names))
+                  if img is not None and not h and self._allowed(name)]
         if self.lambertian:
             traced = []
 

@@ -136,7 +136,7 @@ class SceneCache:
         return scene
 
 
-PACK_FORMAT = "relight-pack/1"
+PACK_FORMAT = "relight-pack/2"  # 2: light names are the maps' (relight.dataset.light_map_name)
 
 
 def _pack_key(json_paths: list[Path], size: int, order: int, padding: int) -> dict:

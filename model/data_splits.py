@@ -63,3 +63,25 @@ def find_scenes(folder) -> list[Path]:
     if not paths:
         raise ValueError(f"no finished scenes (scene_NNNNNN.json + .exr) in {folder}")
     return paths
+
+
+def training_map_names(json_paths, extra_names=(), held_out: frozenset[str] | None = None) -> list[str]:
+    """Every HDR map (relight.dataset.light_map_name) that lights a training scene of
+    `json_paths`, with `extra_names` (the preset bank's), less the held-out maps; sorted."""
+    held_out = held_out_light_names() if held_out is None else held_out
+    names = {str(n).lower() for n in extra_names}
+    for path in json_paths:
+        names |= {light_name(light) for light in read_sidecar(path).get("lights", [])
+                  if not is_held_out(light, held_out)}
+    return sorted(names - held_out)
+
+
+def first_maps(names, count: int, seed: int = 0) -> frozenset[str]:
+    """`count` of `names` in a fixed order (SHA-256 of seed and name), so that a smaller set
+    is always inside a larger one: a curve over the number of training maps adds maps, it
+    never swaps them."""
+    names = sorted({str(n).lower() for n in names})
+    if not 1 <= count <= len(names):
+        raise ValueError(f"{count} maps asked for; the training data has {len(names)}")
+    rank = lambda n: hashlib.sha256(f"{seed}:{n}".encode()).digest()  # noqa: E731
+    return frozenset(sorted(names, key=rank)[:count])

@@ -33,7 +33,8 @@ from relight.fileio import atomic_write_text
 
 from model.data import EvaluationPairs
 from model.data_splits import find_scenes, held_out_light_names
-from model.geometry_diagnostics import error_breakdown, geometry_metrics, geometry_table, parametric_transport_error
+from model.geometry_diagnostics import (TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table,
+                                        parametric_transport_error)
 from model.pair_metrics import (MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction,
                                 gain_fitted, oracle_prt, render_np, shading_np, with_metric_weight)
 from model.predictor import Predictor
@@ -126,6 +127,18 @@ def numpy_sample(item: dict) -> dict:
     return {k: (v.numpy() if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 
 
+def pair_record(sample: dict, ours: dict, breakdown: dict | None, geometry: dict | None) -> dict:
+    """One pair's maps and our relit scores (plain, SI; with the true input light and the light's
+    colour error where the geometry is known): the means of evaluation.json, split any way a study
+    needs (for example by whether the pair's input map was trained on)."""
+    record = {"scene": int(sample["scene_index"]), "light_a": sample["light_a"], "light_b": sample["light_b"],
+              "relit_psnr": ours["relighting/image"]["psnr"], "relit_si_psnr": ours["relighting/image"]["si_psnr"]}
+    if breakdown and geometry:
+        record["true_light_psnr"] = breakdown[TRUE_LIGHT_ROW]["relighting/image"]["psnr"]
+        record["light_colour_deg"] = geometry.get("light_colour_deg")
+    return record
+
+
 def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_only: bool = False,
              sheet_rows: int = 4, max_pairs_per_scene: int = 4, order: int | None = None,
              mask: str = "interior") -> dict:
@@ -159,7 +172,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     pairs = pairs_by_order[order]
     rows = defaultdict(list)
     geometry, breakdown, transport_err = defaultdict(list), defaultdict(list), []
-    sheet = []
+    sheet, per_pair = [], []
     for i in range(len(pairs)):
         sample = with_metric_weight(numpy_sample(pairs[i]), mask)
         pred = {k: v[0] for k, v in ours(sample["input"][None]).items()}
@@ -168,11 +181,14 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         rows["identity, exposure-matched"].append(baseline_identity(sample, exposure_matched=True))
         rows[ORACLE_ROW].append(oracle_prt(sample))
         rows[GAIN_ROW].append(gain_fitted(pred, sample, ours.tstar))
+        pair_geometry, pair_breakdown = None, None
         if "normal" in sample and not ours.tstar:
-            geometry["ours"].append(geometry_metrics(pred, sample))
-            for name, value in error_breakdown(pred, sample, order).items():
+            pair_geometry, pair_breakdown = geometry_metrics(pred, sample), error_breakdown(pred, sample, order)
+            geometry["ours"].append(pair_geometry)
+            for name, value in pair_breakdown.items():
                 breakdown[name].append(value)
             transport_err.append(parametric_transport_error(sample, order))
+        per_pair.append(pair_record(sample, rows["ours"][-1], pair_breakdown, pair_geometry))
         for name, _, b in bases:
             b_order = b.order if b.order is not None else order
             bs = sample if b_order == order else with_metric_weight(
@@ -212,7 +228,8 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     atomic_write_text(out / "evaluation.json", json.dumps(
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
          "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
-         "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs]}, indent=1) + "\n")
+         "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs],
+         "per_pair": per_pair}, indent=1) + "\n")
     write_sheet(out / "contact_sheet.png", contact_sheet(sheet))
     return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
             "parametric_transport_rel_l2": ceiling}

@@ -99,10 +99,11 @@ def relit_level_stops(pred: dict, sample: dict) -> float:
     return abs(float(np.log2(max(ours, 1e-12) / max(truth, 1e-12))))
 
 
+TRUE_LIGHT_ROW = "ours with the true input light (quotient)"
 BREAKDOWN_ROWS = (
     "true albedo x our shading",
     "our albedo x true shading",
-    "ours with the true input light (quotient)",
+    TRUE_LIGHT_ROW,
     "physics: quotient, true normals, true input light",
     "physics: true albedo x Lambert of true normals",
     "physics: true albedo x lobe of true normal and visibility",

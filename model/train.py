@@ -24,7 +24,9 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
 from model.checkpoint import load_model, save_model
+from model.data_augment import preset_training_lights
 from model.data_crops import DEFAULT_PADDING
+from model.data_splits import first_maps, training_map_names
 from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS
 from model.losses import LossWeights
 from model.network import PRESETS
@@ -130,6 +132,9 @@ def parse_args(argv=None):
     p.add_argument("--light-mix", type=float, default=0.0, metavar="P",
                    help="chance that an extra light is two training lights mixed, turned and tilted "
                         "(model.data_augment.random_mixed_light; exact for PRT images; 0: off)")
+    p.add_argument("--light-maps", type=int, default=None, metavar="K",
+                   help="study: only K of the training HDR maps light the samples (a fixed, nested choice: "
+                        "model.data_splits.first_maps); default: all")
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
                    help="scale the input light and image by 2^N(0, SIGMA^2), albedo target unchanged "
                         "(exposure augmentation, exact; 0: off)")
@@ -195,6 +200,11 @@ def train(args) -> Path:
                      light_tint=args.light_tint, light_mix=args.light_mix, exposure_jitter=args.exposure_jitter,
                      capture=args.capture,
                      lambertian=args.lambertian, body_prior=args.body_prior))
+    if args.light_maps is not None:
+        bank = [name for name, _ in preset_training_lights(args.order)] if not args.no_presets else []
+        maps = first_maps(training_map_names(data.train_paths, bank), args.light_maps)
+        data.augment["light_maps"] = maps
+        print(f"model.train: {len(maps)} training maps: {', '.join(sorted(maps))}", file=sys.stderr)
     # the Trainer's validation settings depend on whether there are validation pairs
     data.prepare_data()
     data.setup("fit")
@@ -238,6 +248,8 @@ def train(args) -> Path:
               "data": [str(d) for d in args.data], "train_scenes": len(data.train_paths),
               "val_scenes": len(data.val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
+    if data.augment.get("light_maps") is not None:
+        record["light_maps"] = sorted(data.augment["light_maps"])
     return save_model(module.model.cpu().eval(), out / "model.safetensors", extra={"training": record})
 
 

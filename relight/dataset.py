@@ -272,11 +272,14 @@ def has_transport(meta: dict) -> bool:
 
 
 def light_map_name(light: dict) -> str:
-    """The HDR map a sidecar light came from, lower case: its `source` file stem, else its `name`."""
+    """The HDR map a sidecar light came from, lower case: its `name` (the farm's names tell
+    maps apart, e.g. "forest" and "blender:forest"; its `source` is only the kind, "blender",
+    "bundled" or "sky"), else its `source` file's stem."""
+    name = light.get("name")
+    if isinstance(name, str) and name:
+        return name.lower()
     source = light.get("source")
-    if isinstance(source, str) and source:
-        return Path(source).stem.split(".")[0].lower()
-    return str(light.get("name", "")).lower()
+    return Path(source).stem.split(".")[0].lower() if isinstance(source, str) else ""
 
 
 def read_scene(path, *, verify_hash: bool = True) -> Scene:

@@ -72,6 +72,42 @@ def test_training_samples_never_use_held_out_lights(scenes):
         data.TrainingScenes(scenes, 32, 4, extra_lights=[("venice", bank[0][1])], held_out=HELD_OUT)
 
 
+def test_light_map_names_tell_the_farms_maps_apart():
+    # the farm records the map in `name` and only its kind in `source` ("blender", "bundled",
+    # "sky"): Blender's forest and the bundled forest are different maps
+    farm = [{"name": "blender:forest", "source": "blender"}, {"name": "forest", "source": "bundled"},
+            {"name": "procedural:sky", "source": "sky"}]
+    assert [data_splits.light_name(light) for light in farm] == ["blender:forest", "forest", "procedural:sky"]
+    assert data_splits.light_name({"source": "maps/Venice.exr"}) == "venice"  # no name: the file's stem
+    assert data_splits.is_held_out({"name": "venice", "source": "bundled"}, HELD_OUT)
+
+
+def test_light_maps_limit_the_training_samples_to_those_maps(scenes):
+    bank = [("park", np.eye(25, 3, dtype=np.float32) + 1.0), ("lab", np.eye(25, 3, dtype=np.float32) + 2.0)]
+    names = data_splits.training_map_names(scenes, [n for n, _ in bank], held_out=HELD_OUT)
+    assert names == ["city", "lab", "park", "studio"]  # venice is held out
+    for count in range(1, len(names) + 1):
+        maps = data_splits.first_maps(names, count)
+        assert len(maps) == count and maps <= data_splits.first_maps(names, min(count + 1, len(names)))
+        ds = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=bank, extra_light_prob=0.5,
+                                 held_out=HELD_OUT, light_maps=maps)
+        seen = set()
+        for epoch in range(4):
+            for i in range(len(ds)):
+                s = ds.item(i, epoch)
+                seen |= {s["light_name"], s["target_light_name"]}
+        assert seen == maps  # only those maps, and (over 32 samples) every one of them
+    with pytest.raises(ValueError, match="maps asked for"):
+        data_splits.first_maps(names, len(names) + 1)
+    with pytest.raises(ValueError, match="at least one map"):
+        data.TrainingScenes(scenes, 32, 4, extra_lights=bank, held_out=HELD_OUT, light_maps=frozenset())
+    # without it, nothing changes: the same samples as before
+    plain = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=bank, held_out=HELD_OUT)
+    every = data.TrainingScenes(scenes, 32, 4, padding=2, extra_lights=bank, held_out=HELD_OUT,
+                                light_maps=frozenset(names))
+    assert torch.equal(plain.item(2, 1)["input"], every.item(2, 1)["input"])
+
+
 def test_preset_light_bank_excludes_held_out_maps():
     names = [name for name, _ in data_augment.preset_training_lights(2)]
     assert names and not set(names) & HELD_OUT

@@ -125,6 +125,16 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
                     "small", ke_name, *geometry_diagnostics.BREAKDOWN_ROWS}
     record = json.loads((tmp_path / "all" / "evaluation.json").read_text())
     assert record["baselines"] == {"small": str(small), ke_name: str(ke)}
+    # the per-pair records name their maps and average to the table's means
+    per_pair = record["per_pair"]
+    assert len(per_pair) == record["pairs"]
+    assert {p["light_a"] for p in per_pair} | {p["light_b"] for p in per_pair} == {"studio", "city", "venice"}
+    assert all(p["light_a"] != p["light_b"] for p in per_pair)
+    ours_relit = record["methods"]["ours"]["relighting/image"]
+    assert np.mean([p["relit_psnr"] for p in per_pair]) == pytest.approx(ours_relit["psnr"], rel=1e-12)
+    assert np.mean([p["relit_si_psnr"] for p in per_pair]) == pytest.approx(ours_relit["si_psnr"], rel=1e-12)
+    quotient = record["breakdown"][geometry_diagnostics.TRUE_LIGHT_ROW]["relighting/image"]["psnr"]
+    assert np.mean([p["true_light_psnr"] for p in per_pair]) == pytest.approx(quotient, rel=1e-12)
     together = record["methods"]
     for name, path in (("small", small), (ke_name, ke)):
         alone = evaluate.evaluate(path, data, tmp_path / name.split()[0], size=32, sheet_rows=1)

@@ -144,6 +144,17 @@ def test_max_scenes_takes_the_first_scenes_in_folder_then_index_order(dataset, t
         assert len(err) == 1 and f"has {len(every)} finished scenes" in err[0]
 
 
+def test_light_maps_study_flag_records_its_maps_and_refuses_too_many(dataset, tmp_path, capsys):
+    # the analytic scenes are lit by studio and city (venice is held out); no preset bank here
+    assert _run_train(dataset, tmp_path / "one", 1, "--light-maps", "1") == 0
+    record = json.loads((tmp_path / "one" / "model.json").read_text())["training"]
+    assert len(record["light_maps"]) == 1 and set(record["light_maps"]) <= {"studio", "city"}
+    assert "1 training maps" in capsys.readouterr().err
+    assert _run_train(dataset, tmp_path / "three", 1, "--light-maps", "3") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "3 maps asked for; the training data has 2" in err[0]
+
+
 def test_sampler_reshuffles_per_epoch_and_encodes_the_epoch():
     sampler = train_data.EpochShuffleSampler(5, seed=1)
     first = list(sampler)
