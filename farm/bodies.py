@@ -2,12 +2,15 @@
 
 The first `anny.Anny()` on a machine builds a large cache (about 40 s to
 minutes, 790 MB) in $ANNY_CACHE_DIR, which defaults here to
-~/.cache/relight/anny; later processes load the compact model in well under
-a second. One model is kept per process.
+~/.cache/relight/anny; later processes load it in about a second. One model
+is kept per process, posed on one torch thread with anny's original phenotype
+blendshapes, so that a seed gives the same vertex bytes whatever the worker
+count or the cache build (docs/farm.md, "Determinism").
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,15 +35,28 @@ def body_model():
         import anny.paths
 
         anny.paths.set_anny_cache_path(cache)
-        import torch
-
-        # The cores this process may use (a farm worker is pinned to its share):
-        # idle OpenMP threads on other cores spin and steal them from the other workers.
-        from relight.session import cores_available
-
-        torch.set_num_threads(min(2, cores_available()))
-        _MODEL = anny.Anny()
+        # "original" blendshapes, not anny's default "compact" basis: the compact basis comes from
+        # a factorisation whose result depends on the threads that built the cache, so two
+        # machines (or two cache builds) posed the same seed into different vertex bytes
+        with one_torch_thread():
+            _MODEL = anny.Anny(phenotype_blendshapes="original")
     return _MODEL
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """torch on one thread inside, the caller's count restored after: anny's posing sums in
+    another order on more threads, so `--workers 1` and `--workers 2` (one core each) gave the
+    same seed different vertex bytes. One thread also keeps a pinned worker off its
+    neighbours' cores. Posing costs about 0.02 s either way."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -102,7 +118,7 @@ def build_body(params: BodyParams, pose_deltas: np.ndarray | None) -> Body:
     pose = None
     if pose_deltas is not None:
         pose = torch.as_tensor(np.asarray(pose_deltas)[None], dtype=model.dtype)
-    with torch.no_grad():
+    with torch.no_grad(), one_torch_thread():
         out = model(pose_parameters=pose, phenotype_kwargs=kwargs)
     verts = out["vertices"][0].double().cpu().numpy()
     rest = out["rest_vertices"][0].double().cpu().numpy()
