@@ -1,7 +1,7 @@
 """How the photo's light estimate grows with the number of HDR maps it was trained on.
 
     PYTHONPATH=. .venv/bin/python benchmarks/study_light_maps.py --runs runs/maps --counts 2 4 8 16 23 \
-        --heldout data/heldout256 --seen data/calib128 [--train --jobs 2]
+        --heldout data/heldout256 --seen data/trainmaps256 [--train --jobs 2]
 
 Each run is the release's recipe at the comparison budget (model.train: geo-default, 800 steps of
 batch 8 at 128 px, fit stride 2, front-facing, light tint 0.15, seed 1, one thread), with every
@@ -11,7 +11,8 @@ inside the next). The same scenes, steps and seed for every K: only the number o
 
 Printed per K: on the held-out maps (`--heldout`), relit PSNR, SI PSNR, relit PSNR given the true
 input light, the light gap between the two, and the input light's colour error; on scenes under
-training maps (`--seen`, optional), the light gap on the pairs whose input map was one of the K
+training maps (`--seen`, optional; best the held-out scenes themselves, rendered with the same
+seed and `--light-pool train`), the light gap on the pairs whose input map was one of the K
 against the pairs whose map was not. Then the held-out gap fitted against log2 K: what the next
 doubling of maps would buy, and the K at which the gap would reach the issue's 2 dB if the line
 held (an extrapolation, said as one).

@@ -40,7 +40,7 @@ import torch
 from model.data_augment import (MIRROR_X, mirror_signs, random_background, random_light_tint, random_mixed_light,
                                 random_reference_light)
 from model.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
-from model.data_splits import held_out_light_names, is_held_out, light_name
+from model.data_splits import held_out_light_names, is_held_out, scene_map_lights
 from model.geometry import BODY_CHANNELS
 from relight import sh as sh_np
 from relight.dataset import read_sidecar, traced_lights
@@ -95,13 +95,12 @@ class TrainingScenes(torch.utils.data.Dataset):
         if self.light_maps is not None:
             for name, light in self.extra_lights:
                 self.map_bank.setdefault(name, []).append(light)
-            for path in json_paths:
-                for light in read_sidecar(path).get("lights", []):
-                    name = light_name(light)
-                    if self._allowed(name) and not is_held_out(light, self.held_out):
-                        self.map_bank.setdefault(name, []).append(np.asarray(light["sh"][: self.n], np.float32))
+            for name, lights in scene_map_lights(json_paths, self.held_out).items():
+                if self._allowed(name):
+                    self.map_bank.setdefault(name, []).extend(np.asarray(sh[: self.n], np.float32) for sh in lights)
             if not self.map_bank:
                 raise ValueError(f"none of the maps {sorted(self.light_maps)} lights a training scene")
+        self.map_names = sorted(self.map_bank)
         for name, _ in self.extra_lights:
             assert name.lower() not in self.held_out, f"held-out light {name} in the training light bank"
         self.extra_light_prob, self.mask_prob, self.flip_prob = extra_light_prob, mask_prob, flip_prob
@@ -140,10 +139,8 @@ class TrainingScenes(torch.utils.data.Dataset):
 
     def _bank_light(self, scene: CroppedScene, rng) -> tuple[str, np.ndarray]:
         if self.map_bank:
-            names = sorted(self.map_bank)
-
             def draw():
-                name = names[rng.integers(len(names))]
+                name = self.map_names[rng.integers(len(self.map_names))]
                 return name, self.map_bank[name][rng.integers(len(self.map_bank[name]))]
         else:
             pool = list(self.extra_lights) + [(name, l) for name, l, h in

@@ -65,14 +65,23 @@ def find_scenes(folder) -> list[Path]:
     return paths
 
 
-def training_map_names(json_paths, extra_names=(), held_out: frozenset[str] | None = None) -> list[str]:
-    """Every HDR map (relight.dataset.light_map_name) that lights a training scene of
-    `json_paths`, with `extra_names` (the preset bank's), less the held-out maps; sorted."""
+def scene_map_lights(json_paths, held_out: frozenset[str] | None = None) -> dict[str, list[list]]:
+    """{HDR map name (relight.dataset.light_map_name): the SH of each of its lights} over the
+    sidecars of `json_paths`, held-out maps left out."""
     held_out = held_out_light_names() if held_out is None else held_out
-    names = {str(n).lower() for n in extra_names}
+    out: dict[str, list[list]] = {}
     for path in json_paths:
-        names |= {light_name(light) for light in read_sidecar(path).get("lights", [])
-                  if not is_held_out(light, held_out)}
+        for light in read_sidecar(path).get("lights", []):
+            if not is_held_out(light, held_out):
+                out.setdefault(light_name(light), []).append(light["sh"])
+    return out
+
+
+def training_map_names(json_paths, extra_names=(), held_out: frozenset[str] | None = None) -> list[str]:
+    """Every HDR map that lights a training scene of `json_paths` (scene_map_lights), with
+    `extra_names` (the preset bank's), less the held-out maps; sorted."""
+    held_out = held_out_light_names() if held_out is None else held_out
+    names = {str(n).lower() for n in extra_names} | set(scene_map_lights(json_paths, held_out))
     return sorted(names - held_out)
 
 
