@@ -15,7 +15,8 @@ training maps (`--seen`, optional; best the held-out scenes themselves, rendered
 seed and `--light-pool train`), the light gap on the pairs whose input map was one of the K
 against the pairs whose map was not. Then the held-out gap fitted against log2 K: what the next
 doubling of maps would buy, and the K at which the gap would reach the issue's 2 dB if the line
-held (an extrapolation, said as one).
+held (an extrapolation, said as one). Last, per K and data set, the light's colour error regressed
+on the true light's own colour: a slope near 1 says the estimate is grey.
 """
 
 from __future__ import annotations
@@ -84,6 +85,25 @@ def rows(args) -> list[dict]:
     return out
 
 
+def colour_against_own_colour(evaluation: Path, data) -> tuple[float, float, float, float]:
+    """(slope, intercept, correlation, the lights' mean own colour) of the pairs' light colour error (degrees) on the true input
+    light's own colour (its DC colour's angle from grey, model.metrics.colour_cast_deg): slope 1
+    and intercept 0 is a light read as grey whatever its colour."""
+    from model.data_splits import find_scenes
+    from model.metrics import colour_cast_deg
+    from relight.dataset import light_map_name, read_sidecar
+
+    lights = {}
+    for path in find_scenes(data):
+        meta = read_sidecar(path)
+        lights.update({(meta["index"], light_map_name(light)): light["sh"][0] for light in meta["lights"]})
+    pairs = json.loads(Path(evaluation).read_text())["per_pair"]
+    own = np.array([colour_cast_deg(lights[(p["scene"], p["light_a"])], (1.0, 1.0, 1.0)) for p in pairs])
+    error = np.array([p["light_colour_deg"] for p in pairs])
+    slope, intercept = np.polyfit(own, error, 1)
+    return float(slope), float(intercept), float(np.corrcoef(own, error)[0, 1]), float(own.mean())
+
+
 def fmt_gap(value: tuple[float, int]) -> str:
     g, n = value
     return "-" if n == 0 else f"{g:.2f} ({n})"
@@ -127,6 +147,14 @@ def main(argv=None) -> int:
         with ThreadPoolExecutor(args.jobs) as pool:
             list(pool.map(lambda k: train_and_evaluate(k, args), args.counts))
     print(report(rows(args)))
+    print()
+    for k in args.counts:
+        for name, data in (("held-out maps", args.heldout), ("training maps", args.seen)):
+            evaluation = Path(args.runs) / f"{'eval' if data == args.heldout else 'seen'}_k{k}" / "evaluation.json"
+            if data and evaluation.is_file():
+                slope, intercept, r, mean = colour_against_own_colour(evaluation, data)
+                print(f"K = {k}, {name}: light colour error = {slope:.2f} x the light's own colour "
+                      f"{intercept:+.1f} degrees (correlation {r:.2f}; the lights' own colour {mean:.1f} on average)")
     return 0
 
 

@@ -55,3 +55,25 @@ def test_seen_scenes_split_by_whether_the_input_map_was_trained_on(tmp_path):
     row = study.rows(args)[0]
     assert row["seen_in"] == (pytest.approx(1.0), 1) and row["seen_out"] == (pytest.approx(4.5), 2)
     assert "| 1.00 (1) | 4.50 (2) |" in study.report([row, dict(row, k=2)])
+
+
+def test_colour_error_regressed_on_the_lights_own_colour_reads_a_grey_estimate_as_slope_one(tmp_path):
+    from model.metrics import colour_cast_deg
+    from model.synthetic import write_analytic_dataset
+    from relight.dataset import light_map_name, read_sidecar
+
+    data = tmp_path / "data"
+    write_analytic_dataset(data, n_scenes=3, size=16, order=2, lights=("studio", "sunset", "venice"))
+    pairs, own = [], []
+    for path in sorted(data.glob("scene_*.json")):
+        meta = read_sidecar(path)
+        for light in meta["lights"]:
+            angle = colour_cast_deg(light["sh"][0], (1.0, 1.0, 1.0))
+            own.append(angle)
+            # a grey estimate's colour error is the light's own colour, plus a constant 2 degrees here
+            pairs.append({"scene": meta["index"], "light_a": light_map_name(light), "light_colour_deg": angle + 2.0})
+    assert np.ptp(own) > 1.0  # the lights differ in colour, so the line is determined
+    (tmp_path / "eval.json").write_text(json.dumps({"per_pair": pairs}))
+    slope, intercept, r, mean = study.colour_against_own_colour(tmp_path / "eval.json", data)
+    assert slope == pytest.approx(1.0, abs=1e-9) and intercept == pytest.approx(2.0, abs=1e-8)
+    assert r == pytest.approx(1.0, abs=1e-12) and mean == pytest.approx(np.mean(own), rel=1e-12)
