@@ -12,8 +12,9 @@ import bpy
 
 from . import bl_images, engine, jobs, state, work
 from .bl_dials import show_in_editors
-from .bl_session import POLL_SECONDS, release_job, set_status, write_output
-
+from .bl_light import current_dials
+from .bl_session import (POLL_SECONDS, addon_settings, current_session, release_job, set_status,
+                         updates_immediately, write_output)
 
 
 def _queue() -> list:
@@ -95,3 +96,31 @@ def poll_layers():
             return POLL_SECONDS
     _start_next()
     return POLL_SECONDS if "layers" in state.RUNNING else None
+
+
+@bpy.app.handlers.persistent
+def on_undo_redo(*_args) -> None:
+    """Undo and redo bring back the settings, not the outputs' pixels: Blender keeps no image
+    buffers in its undo steps (an output it reads back comes back black, the others keep what
+    they showed last). Every output of the photo the panel drives is made again from its
+    decomposition under the settings the step brought back, as a dial change would."""
+    context = bpy.context
+    session = current_session(context)
+    if session is None or (session.provisional and not session.photo_missing):
+        return  # nothing relit, or a reopened file's photo still being read: the restore writes them
+    session.dial_generation += 1  # a full-size relight of the dials before the step is dropped
+    try:
+        dials = current_dials(context, session)
+    except ValueError as exc:
+        set_status(context, str(exc), is_error=True)
+        return
+    settings = addon_settings(context)
+    if settings.quality != session.quality:
+        set_status(context, f"The layers are those of the last Relight ({session.quality.title()} quality): "
+                            f"press Relight to run the network at {settings.quality.title()}.")
+    if session.photo_missing or updates_immediately():  # (a missing photo's layers are screen-sized)
+        cancel_layers(session.photo_id)
+        for layer in work.layer_names(session, with_relit=True):
+            write_output(session, layer, work.layer_buffer(session, layer, dials), work.layer_size(session, layer))
+    else:
+        start_layers(session, dials, with_relit=True)  # on a worker, one image per timer call

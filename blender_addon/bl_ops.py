@@ -12,7 +12,7 @@ import time
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_dials, bl_images, bl_saved, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
+from . import bl_dials, bl_images, bl_layers, bl_saved, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
 from .bl_dials import compute_relit, schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
@@ -308,7 +308,9 @@ CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)
 
 _HANDLERS = ((bpy.app.handlers.depsgraph_update_post, bl_dials.on_depsgraph_update),
              (bpy.app.handlers.load_post, bl_saved.on_load),
-             (bpy.app.handlers.save_post, bl_saved.on_save_post))
+             (bpy.app.handlers.save_post, bl_saved.on_save_post),
+             (bpy.app.handlers.undo_post, bl_layers.on_undo_redo),
+             (bpy.app.handlers.redo_post, bl_layers.on_undo_redo))
 _TIMERS = (bl_dials.deferred_refresh, bl_dials.full_when_resting, bl_dials.poll_full_size,
            bl_saved.poll_restore, bl_saved.poll_saves, poll_layers)
 
