@@ -156,28 +156,30 @@ class SHLight:
         return self.turned(rotation_deg, cache)[0]
 
     @classmethod
-    def resolve(cls, source, order: int, *, normalize: bool = True, target: float = REFERENCE_LUMINANCE,
+    def resolve(cls, source, order: int, *, normalize: bool | None = None, target: float = REFERENCE_LUMINANCE,
                 cache: LightCache | None = None) -> "SHLight":
         """Any light source (see the module docstring) as an SHLight of SH order `order`.
 
         A map (path, preset name, equirect pixels [H, W, 3|4] or EnvMap) is loaded
         and projected here, once, and scaled to `target` at `at` unless
-        normalize=False (a black map fails here); SH coefficients [m, 3], an SHLight
-        and a Decomposition's estimated light are cut or zero-padded to the order
-        and used as they are.
+        normalize=False (a black map fails here). SH coefficients [m, 3], an SHLight
+        and a Decomposition's estimated light are light already: cut or zero-padded
+        to the order and used as they are (an SHLight keeps its own target), unless
+        normalize=True asks for them to be scaled to `target` too (a black light
+        fails here): an explicit request is never dropped.
         """
         from relight.envmap import EnvMap
 
         n = sh.num_coeffs(order)
-        goal = float(target) if normalize else None
+        goal = float(target) if normalize is not False else None
         if isinstance(source, SHLight):
-            return cls(fit_order(source.base, n), source.target)
+            return cls._light(fit_order(source.base, n), normalize, goal, source.target)
         if isinstance(source, (str, os.PathLike)):
             path = map_file(source)
             base = _cached(cache, ("map", _file_key(path), order),
                            lambda: sh_projection.project_equirect(_pixels(path), order))
         elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
-            return cls(fit_order(source.light, n))
+            return cls._light(fit_order(source.light, n), normalize, goal)
         elif isinstance(source, EnvMap):
             base = sh_projection.project_equirect(source.pixels, order)
         else:
@@ -186,18 +188,30 @@ class SHLight:
                 raise ValueError(f"light must be an HDR path, preset name, equirect pixels, SH array [n, 3] or "
                                  f"Decomposition, got {type(source).__name__}")
             if arr.ndim != 3:  # SH coefficients
-                return cls(fit_order(arr.astype(np.float64), n))
+                return cls._light(fit_order(arr.astype(np.float64), n), normalize, goal)
             base = sh_projection.project_equirect(_pixels(arr), order)
         if goal is not None:
             sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
         return cls(base, goal)
 
+    @classmethod
+    def _light(cls, coeffs: np.ndarray, normalize: bool | None, goal: float | None,
+               own: float | None = None) -> "SHLight":
+        """A light given as SH: as it is (its `own` target), or scaled to `goal` when
+        normalize=True was asked for (checked now: a black light cannot be)."""
+        if normalize is None:
+            return cls(coeffs, own)
+        if normalize:
+            sh.normalize_reference(coeffs, goal)
+        return cls(coeffs, goal)
 
-def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool = True,
+
+def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool | None = None,
              target: float = REFERENCE_LUMINANCE, cache: LightCache | None = None) -> np.ndarray:
     """SH light [(order+1)^2, 3], float64, of any light source turned by `rotation_deg`
     about world Z: SHLight.resolve(source, ...).at(rotation_deg). Maps follow the map
-    recipe (project, rotate, scale to `target` unless normalize=False)."""
+    recipe (project, rotate, scale to `target` unless normalize=False); a light given as
+    SH is scaled only when normalize=True is asked for (see SHLight.resolve)."""
     rotation_deg = _check_rotation(rotation_deg)
     return SHLight.resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)
 

@@ -228,4 +228,8 @@ def normalize_reference(coeffs, target: float = 0.8):
     if not current > 0:
         raise ValueError(f"light has mean luminance {current:g} <= 0; cannot normalize it")
     scale = target / current
-    return c * scale, scale
+    scaled = c * scale
+    if not (math.isfinite(scale) and np.all(np.isfinite(scaled))):
+        raise ValueError(f"light has mean luminance {current:g}, too dim beside its other coefficients to be "
+                         f"scaled to {target:g} in float64")
+    return scaled, scale

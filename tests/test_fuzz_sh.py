@@ -76,6 +76,8 @@ def test_fuzz_map_light():
 @given(maps(), st.integers(0, 6), st.floats(-1e6, 1e6), st.booleans(),
        st.floats(1e-6, 1e6))
 @example(np.linspace(0.1, 2.0, 4 * 8 * 3).reshape(4, 8, 3), 2, 30.0, True, 0.8)  # an ordinary map: accepted
+@example(np.zeros((1, 3), np.float16), 0, 0.0, True, 0.8)  # issue 40: a black SH light "normalized" to black
+@example(np.array([[0.3, 0.2, 0.1], [0.0, 1e30, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]), 1, 0.0, True, 1e6)
 @fuzz_settings()
 def map_light_case(img, order, rotation, normalize, target):
     new_case("test_fuzz_map_light")
@@ -87,8 +89,30 @@ def map_light_case(img, order, rotation, normalize, target):
     if normalize:  # scaled to the target mean luminance, whatever the map's level
         np.testing.assert_allclose(sh.mean_luminance(coeffs), target, rtol=1e-9)
     else:  # a rotation about Z keeps each band's energy
-        base = sh_projection.project_equirect(envmap.validate_equirect(img).pixels, order)
+        if np.ndim(img) == 2:  # [m, 3]: SH coefficients, light already: fitted to the order, not projected
+            base = light.fit_order(img, (order + 1) ** 2)
+        else:
+            base = sh_projection.project_equirect(envmap.validate_equirect(img).pixels, order)
         for l in range(order + 1):
             band = slice(l * l, (l + 1) * (l + 1))
             np.testing.assert_allclose(np.linalg.norm(coeffs[band], axis=0), np.linalg.norm(base[band], axis=0),
                                        rtol=1e-9, atol=1e-12 * np.abs(base).max())
+
+
+def test_sh_light_scales_sh_coefficients_only_when_asked_and_refuses_a_black_light():
+    """Issue 40: normalize=True on a light given as SH was dropped without a word (a one-row
+    black array came back black). Asked for, it is done or refused; not asked, SH is as it is."""
+    L = np.random.default_rng(5).normal(0, 0.3, (9, 3))
+    L[0] = [1.0, 0.9, 0.8]
+    np.testing.assert_array_equal(light.sh_light(L, 2), L)  # default: light already, as it is
+    np.testing.assert_array_equal(light.sh_light(L, 2, normalize=False), L)
+    scaled = light.sh_light(L, 2, normalize=True, target=0.5)
+    np.testing.assert_allclose(sh.mean_luminance(scaled), 0.5, rtol=1e-9)
+    np.testing.assert_allclose(scaled / L, np.full_like(L, scaled[0, 0] / L[0, 0]), rtol=1e-9)
+    for black in (np.zeros((1, 3), np.float16), np.zeros((4, 3))):
+        try:
+            light.sh_light(black, 0, normalize=True)
+        except ValueError as exc:
+            assert "cannot normalize" in str(exc)
+        else:
+            raise AssertionError("a black SH light was 'normalized' without an error")
