@@ -170,7 +170,8 @@ def _wants_alpha(image) -> bool:
     return image.channels == 4 and image.alpha_mode != "NONE"
 
 
-def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None):
+def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None,
+                 max_megapixels: int = photo_checks.DEFAULT_MEGAPIXELS):
     """A function for the worker thread returning photo_pixels.PhotoPixels of `image`.
 
     An unmodified 8-bit sRGB file on disk is decoded from the file by the
@@ -178,25 +179,31 @@ def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None):
     painted, float, other colour spaces) is copied out of Blender here, in one
     foreach_get, and converted by the worker. `reuse`: the photo as its last
     Relight decoded it, shared instead of decoded again when the pixels are the same.
+    `max_megapixels`: the largest photo decoded (the panel's Max Photo Size); a larger one is
+    refused from its file's header, before Blender or the worker decodes it.
     """
     name = image.name
     if not image.has_data:
+        file = _file_on_disk(image)
+        if file is not None:
+            photo_checks.check_photo_file(file, name, max_megapixels)
         # not loaded yet (a reopened file): an 8-bit file is decoded by the worker
         # alone; Blender would decode it here, on the main thread, to tell its size
         path = _plain_file(image, loaded=False)
         if path is not None:
             with_alpha = image.alpha_mode != "NONE"
-            return lambda: photo_pixels.read_8bit_file(path, None, with_alpha, name, reuse)
+            return lambda: photo_pixels.read_8bit_file(path, None, with_alpha, name, reuse, max_megapixels)
     if not has_pixels(image):
         raise ValueError(no_pixels_reason(image))
     width, height = image.size
     photo_checks.check_photo_size(width, height)
+    photo_checks.check_photo_pixels(width, height, name, max_megapixels)
     path = _plain_file(image)
     if path is not None:
         with_alpha = has_alpha(image)
 
         def read_file():
-            return photo_pixels.read_8bit_file(path, (height, width), with_alpha, name, reuse)
+            return photo_pixels.read_8bit_file(path, (height, width), with_alpha, name, reuse, max_megapixels)
         return read_file
     with_alpha = _wants_alpha(image)
     channels = image.channels
@@ -213,6 +220,14 @@ def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None):
 def has_alpha(image) -> bool:
     # depth: bits per pixel; 32/64/128 are RGBA at 8/16/32 bits per channel
     return image.alpha_mode != "NONE" and image.depth in (16, 32, 64, 128)
+
+
+def _file_on_disk(image) -> str | None:
+    """The file behind an image Blender reads from disk, when it is there; else None."""
+    if image.source != "FILE" or image.packed_file is not None:
+        return None
+    path = bpy.path.abspath(image.filepath, library=image.library)
+    return path if os.path.isfile(path) else None
 
 
 def _plain_file(image, loaded: bool = True) -> str | None:

@@ -63,7 +63,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         if previous is not None and previous.provisional:  # a reopened file's preview: not the full photo
             previous = None
         reuse = None if previous is None else photo_pixels.PhotoPixels(previous.photo, None, previous.digest)
-        read_photo = bl_images.photo_reader(image, reuse)  # checks the photo has pixels and a usable size
+        # checks the photo has pixels and a usable size (from its file's header when Blender has not read it)
+        read_photo = bl_images.photo_reader(image, reuse, settings.max_megapixels)
         mask = mask_inputs(settings, image)
         model_path = str(quality.model_path_for(settings.quality, bpy.path.abspath(settings.model_path)))
         order = engine.known_sh_order(model_path)
@@ -79,7 +80,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
                 raise ValueError("Choose the photo to take the light from.")
             light_cached = state.LIGHT_SOURCES.get(light_key)
             if light_cached is None:
-                light_reader = bl_images.photo_reader(settings.light_image)
+                light_reader = bl_images.photo_reader(settings.light_image, max_megapixels=settings.max_megapixels)
         elif settings.light_kind in ("PRESET", "HDR"):
             # a name or a path: checked (and projected) by the worker, before the network runs
             light = ("PRESET", settings.preset) if settings.light_kind == "PRESET" else \

@@ -32,6 +32,8 @@ def photo_and_session(context, image_name: str = ""):
     session = state.SESSIONS.get(bl_images.photo_id(photo))
     if session is None:
         raise ValueError(f"Relight '{photo.name}' first: its light is estimated when it is relit.")
+    if session.photo_missing:  # reopened without its photo, or with another one: waiting will not help
+        raise ValueError(f"{session.photo_missing} To use its light, {session.advice}")
     if session.provisional:
         raise ValueError(f"'{photo.name}' is still being read after opening the file: try again in a moment.")
     now = bl_images.photo_stamp(photo)

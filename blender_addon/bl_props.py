@@ -4,7 +4,7 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import bl_dials, light_sources, quality
+from . import bl_dials, light_sources, photo_checks, quality
 
 _preset_items_cache: list = []  # bpy needs the enum items kept alive by Python
 
@@ -74,6 +74,14 @@ class RelightPhotoSettings(bpy.types.PropertyGroup):
     quality: EnumProperty(name="Quality", items=quality.enum_items(), default=quality.DEFAULT_QUALITY)
     model_path: StringProperty(name="Model", subtype="FILE_PATH",
                                description="Custom ONNX model; empty uses the quality preset's shipped model")
+    max_megapixels: IntProperty(
+        name="Max Photo Size", default=photo_checks.DEFAULT_MEGAPIXELS, min=1,
+        max=photo_checks.MOST_MEGAPIXELS,
+        description="The largest photo Relight reads, in megapixels; a larger one is refused before it is "
+                    "decoded (about 0.16 GB of memory per megapixel)")
+    overwrite_frames: BoolProperty(
+        name="Overwrite Frames",
+        description="Relight Sequence may replace the frames an earlier run left in its output folder")
     last_photo_id: StringProperty(name="Last Photo", description="Id of the photo the dials currently relight")
 
 

@@ -92,7 +92,7 @@ def _restore_plan(context, image, path: str) -> dict:
     reader = None
     if not missing:
         try:
-            reader = bl_images.photo_reader(image)
+            reader = bl_images.photo_reader(image, max_megapixels=addon_settings(context).max_megapixels)
         except ValueError as exc:
             missing = str(exc)
     inputs = mask_choice.saved_mask_inputs(meta["mask_key"])

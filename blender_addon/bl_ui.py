@@ -55,6 +55,7 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
         box = layout.box()
         box.prop(settings, "quality")
         box.prop(settings, "model_path")
+        box.prop(settings, "max_megapixels")
 
         row = layout.row(align=True)
         row.scale_y = 1.4
@@ -64,6 +65,7 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
             row = layout.row()
             row.enabled = not status.running
             row.operator("relight_photo.relight_sequence", icon="RENDER_ANIMATION")
+            row.prop(settings, "overwrite_frames", text="Overwrite")
         row = layout.row()
         row.enabled = settings.last_photo_id in state.SESSIONS
         row.operator("relight_photo.save_layers", icon="FILE_IMAGE")

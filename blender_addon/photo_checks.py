@@ -1,10 +1,16 @@
-"""Is there a person to relight? A photo too small, black, blown out or one flat colour is
-refused, in the artist's words, before the network runs. Plain Python."""
+"""Is there a person to relight? A photo too small, too large, black, blown out or one flat
+colour is refused, in the artist's words, before the network runs (a size before anything
+decodes the pixels). Plain Python."""
 
 from __future__ import annotations
 
+import math
+import os
+import re
+
 import numpy as np
 
+from relight import image_limits
 from relight.colour import LUMINANCE_WEIGHTS
 
 MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
@@ -19,6 +25,72 @@ def check_photo_size(width: int, height: int) -> None:
     if min(width, height) < MIN_PHOTO_SIDE:
         raise ValueError(f"The photo is only {width} x {height} pixels, too small to show a person: "
                          f"use a photo at least {MIN_PHOTO_SIDE} pixels on each side.")
+
+
+DEFAULT_MEGAPIXELS = image_limits.DEFAULT_MAX_PIXELS // 1_000_000  # the panel's Max Photo Size
+MOST_MEGAPIXELS = image_limits.MAX_PIXELS // 1_000_000
+GB_PER_MEGAPIXEL = 0.16  # measured: Relight + Save Layers of a 24 MP photo peak near 3.9 GB (docs/benchmarks/addon.md)
+
+
+def check_photo_pixels(width: int, height: int, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS,
+                       file_bytes: int | None = None, fmt: str | None = None) -> None:
+    """ValueError in the artist's words when a photo of this size (as its header declares it)
+    must not be decoded: the core's limits (relight.image_limits), with what allows it.
+    `max_megapixels` is the panel's Max Photo Size; set above its default it also lets a header
+    that claims more pixels than its file can hold (as `--max-pixels` does for `relight image`)."""
+    pixels = width * height
+    mp = pixels / 1e6
+    said = f"'{name}' is {width} x {height} pixels ({mp:.3g} MP)"
+    if width > image_limits.MAX_SIDE or height > image_limits.MAX_SIDE or pixels > image_limits.MAX_PIXELS:
+        raise _too_large(said)
+    if pixels > max_megapixels * 1_000_000:
+        need = math.ceil(mp)
+        raise ValueError(f"{said}, over Max Photo Size ({max_megapixels} MP): to relight it, raise Max Photo "
+                         f"Size in the panel to {need} MP (it will need about {need * GB_PER_MEGAPIXEL:.0f} GB "
+                         "of memory), or scale the photo down.")
+    explicit = max_megapixels > DEFAULT_MEGAPIXELS
+    if not explicit and file_bytes is not None and pixels > image_limits.PLAUSIBLE_FROM:
+        per_byte = image_limits.MAX_PIXELS_PER_BYTE.get(fmt or "", image_limits.MAX_PIXELS_PER_BYTE_OTHER)
+        if pixels > file_bytes * per_byte:
+            raise ValueError(f"'{name}' claims {width} x {height} pixels ({mp:.3g} MP) in a file of "
+                             f"{file_bytes:,} bytes, more than such a file can hold: it is damaged or forged. "
+                             f"Open another photo (or, if it is whole, set Max Photo Size above "
+                             f"{DEFAULT_MEGAPIXELS} MP to decode it anyway).")
+    free = image_limits.memory_available()
+    need = pixels * image_limits.BYTES_PER_PIXEL
+    if free is not None and need > free:
+        raise ValueError(f"{said} needs about {need / 2**30:.1f} GB of memory to read, and only "
+                         f"{free / 2**30:.1f} GB is free: close other programs or scale the photo down.")
+
+
+def _too_large(said: str) -> ValueError:
+    return ValueError(f"{said}: too large to relight (at most {MOST_MEGAPIXELS} MP and "
+                      f"{image_limits.MAX_SIDE:,} pixels a side). Scale it down in an image editor and open "
+                      "the smaller copy.")
+
+
+def check_photo_file(path: str, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS) -> None:
+    """check_photo_pixels on the size a photo file's header declares, before anything decodes
+    it (Blender would decode a forged 20000 x 20000 JPEG into 1.6 GB, Pillow refuses it with an
+    error of its own). A file Pillow cannot read is left to the decoder's own message."""
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: weighed here instead
+            with Image.open(path) as im:
+                (width, height), fmt = im.size, im.format
+    except Image.DecompressionBombError as exc:  # over twice Pillow's own limit, so over ours too
+        said = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow names the pixel count, not the sides
+        pixels = int(said.group(1)) if said else 2 * Image.MAX_IMAGE_PIXELS
+        raise _too_large(f"'{name}' is {'' if said else 'over '}{pixels / 1e6:.3g} MP") from None
+    except Exception as exc:  # not an image Pillow knows (or unreadable): the decoder will say
+        if isinstance(exc, MemoryError):
+            raise
+        return
+    check_photo_pixels(width, height, name, max_megapixels, os.path.getsize(path), fmt)
 
 
 def check_photo_content(photo: np.ndarray) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,16 +50,21 @@ _ALPHA_MODES = {"LA", "PA", "RGBA"}
 
 
 def read_8bit_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, name: str,
-                   reuse: PhotoPixels | None = None) -> PhotoPixels:
+                   reuse: PhotoPixels | None = None, max_megapixels: int | None = None) -> PhotoPixels:
     """Decode an 8-bit sRGB photo file (worker thread).
 
     `shape` is (H, W) as Blender loaded it, or None when Blender has not
     loaded the image (then the file's own mode says whether it is 8-bit and
-    has alpha). `reuse`: the photo as decoded before, shared when its pixels are the same."""
+    has alpha). `reuse`: the photo as decoded before, shared when its pixels are the same.
+    `max_megapixels`: the panel's Max Photo Size, weighed against the file's header first."""
     from PIL import Image, UnidentifiedImageError
 
+    from .photo_checks import DEFAULT_MEGAPIXELS, check_photo_file
+
+    check_photo_file(path, name, DEFAULT_MEGAPIXELS if max_megapixels is None else max_megapixels)
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings(), Image.open(path) as im:
+            warnings.simplefilter("ignore")  # Pillow's bomb warning: the size was weighed just above
             if shape is None:
                 if im.mode not in _8BIT_MODES:
                     raise ValueError(f"'{name}' has more than 8 bits per channel: show it in the Image Editor, "

@@ -1,0 +1,141 @@
+"""Relight Photo add-on: what the artist is told is what happened, and what to do (issue 40).
+
+- A photo whose header claims 20000 x 20000 pixels was decoded by Pillow on the worker and
+  reported as "The network failed (DecompressionBombError: ...)": the network never ran. It is
+  refused from its header, before Blender or the worker decodes it, saying it is too large and
+  what allows it (the panel's Max Photo Size, within relight.image_limits).
+- Reopened after the photo was moved, deleted or replaced, Photo Light -> World said the photo
+  was "still being read after opening the file: try again in a moment": nothing was being read.
+Pressed as a click does (the operators, the panel's settings), the message asserted whole.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import bpy
+
+import blender_addon
+from blender_addon import bl_images, state
+from fuzz_support import jpeg_bytes
+from test_addon_blender import make_tiny_model, write_person_png
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return make_tiny_model(tmp_path_factory)
+
+
+@pytest.fixture
+def addon(model, tmp_path):
+    write_person_png(tmp_path / "person.png")
+    blender_addon.register()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    s = bpy.context.scene.relight_photo
+    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
+    s.light_kind, s.preset = "PRESET", "studio"
+    yield tmp_path
+    bpy.ops.wm.read_homefile()
+    blender_addon.unregister()
+
+
+def _relight(name):
+    return bpy.ops.relight_photo.relight(image_name=name, synchronous=True)
+
+
+def _status():
+    return bpy.context.window_manager.relight_photo_status
+
+
+# ------------------------------------------------------------------ too large
+
+def test_a_photo_claiming_20000_squared_is_refused_as_too_large_before_anything_decodes_it(addon):
+    forged = addon / "huge.jpg"
+    forged.write_bytes(jpeg_bytes(declared=(20000, 20000)))
+    photo = bpy.data.images.load(str(forged))
+    with pytest.raises(RuntimeError) as refused:
+        _relight(photo.name)
+    said = _status().message
+    assert said == ("'huge.jpg' is 400 MP: too large to relight (at most 150 MP and "
+                    "40,000 pixels a side). Scale it down in an image editor and open the smaller copy.")
+    assert said in str(refused.value) and "network" not in said.lower() and _status().is_error
+    assert not bpy.data.images["huge.jpg"].has_data  # Blender was not made to decode 1.6 GB either
+    assert not any(i.name.startswith("huge.jpg.") for i in bpy.data.images)  # no outputs
+
+
+def test_a_photo_over_max_photo_size_says_how_to_allow_it(addon):
+    from PIL import Image
+
+    import numpy as np
+
+    # a real (whole) 3000 x 2000 PNG: 6 MP, over a Max Photo Size of 5 MP
+    rng = np.random.default_rng(1)
+    Image.fromarray(rng.integers(0, 256, (2000, 3000, 3), dtype=np.uint8)).save(addon / "big.png",
+                                                                                 compress_level=1)
+    photo = bpy.data.images.load(str(addon / "big.png"))
+    bpy.context.scene.relight_photo.max_megapixels = 5
+    with pytest.raises(RuntimeError):
+        _relight(photo.name)
+    assert _status().message == ("'big.png' is 3000 x 2000 pixels (6 MP), over Max Photo Size (5 MP): to relight "
+                                 "it, raise Max Photo Size in the panel to 6 MP (it will need about 1 GB of "
+                                 "memory), or scale the photo down.")
+    assert not bpy.data.images["big.png"].has_data
+
+
+def test_a_header_claiming_more_pixels_than_its_file_can_hold_is_named_damaged_or_forged(addon):
+    forged = addon / "forged.jpg"
+    forged.write_bytes(jpeg_bytes(declared=(4000, 3000)))  # 12 MP in a few hundred bytes
+    size = forged.stat().st_size
+    photo = bpy.data.images.load(str(forged))
+    with pytest.raises(RuntimeError):
+        _relight(photo.name)
+    assert _status().message == (
+        f"'forged.jpg' claims 3000 x 4000 pixels (12 MP) in a file of {size:,} bytes, more than such a file can "
+        "hold: it is damaged or forged. Open another photo (or, if it is whole, set Max Photo Size above 50 MP "
+        "to decode it anyway).")
+
+
+# ------------------------------------------------------------------ reopened without the photo
+
+def _relit_saved_and_reopened(model, folder, what: str) -> tuple[str, str]:
+    photo = bpy.data.images.load(str(folder / "person.png"))
+    name = photo.name
+    assert _relight(name) == {"FINISHED"}
+    pid = photo[bl_images.PHOTO_ID]
+    blend = folder / "shot.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    path = folder / "person.png"
+    if what == "deleted":
+        path.unlink()
+    elif what == "moved":
+        (folder / "elsewhere").mkdir()
+        path.rename(folder / "elsewhere" / "person.png")
+    else:  # replaced by another photo under the same name
+        from PIL import Image
+
+        import numpy as np
+
+        other = np.asarray(Image.open(path)).copy()
+        other[:20] = 255
+        Image.fromarray(other).save(path)
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    assert state.SESSIONS[pid].photo_missing  # the saved result is shown; the photo is not the one relit
+    return name, str(path)
+
+
+@pytest.mark.parametrize("what", ["deleted", "moved", "replaced"])
+@pytest.mark.parametrize("button", ["light_to_world", "compositing_setup"])
+def test_photo_light_to_world_after_reopening_without_the_photo_says_what_happened(addon, model, what, button):
+    name, path = _relit_saved_and_reopened(model, addon, what)
+    worlds_before = len(bpy.data.worlds)
+    with pytest.raises(RuntimeError):
+        getattr(bpy.ops.relight_photo, button)(image_name=name)
+    said = _status().message
+    assert "still being read" not in said and "try again" not in said
+    if what == "replaced":
+        assert said == (f"The photo '{name}' changed since it was relit. To use its light, press Relight to "
+                        "relight the photo as it is now.")
+    else:
+        assert said == (f"The photo file of '{name}' is missing ({path}): it was moved or deleted. To use its "
+                        "light, point the image at the photo again (Image > Replace) and press Relight.")
+    assert len(bpy.data.worlds) == worlds_before  # nothing made
