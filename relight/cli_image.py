@@ -65,7 +65,8 @@ def add_light_options(p) -> None:
     from relight.decomposition import EXPOSURE_LIMIT
 
     source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--light", help="equirect HDR map (.exr/.hdr) or preset name (see `relight presets`)")
+    source.add_argument("--light", help="equirect HDR map (.exr/.hdr), preset name (see `relight presets`) or "
+                        "sun:AZIMUTH,ELEVATION[,ANGLE] (degrees; relight.lamps)")
     source.add_argument("--light-from", metavar="PHOTO",
                         help="light transfer: use the light the network estimates in another photo")
     p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"), default=0.0,

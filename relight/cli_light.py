@@ -1,15 +1,19 @@
 """`relight light`: the light the network estimates in a photo, as a Blender World map.
 
-    relight light PHOTO --out LIGHT.exr [--width 512] [--json]
+    relight light PHOTO --out LIGHT.exr [--width 512] [--json] [--lamp-free]
                   [--mask MASK | --matte person|network] [--person N] [--model PATH]
                   [--quality draft|balanced|best] [--threads N] [--max-pixels N]
 
-Writes the photo's estimated SH light as a linear equirectangular EXR in
-Blender's World mapping (Environment Texture, default mapping; strength 1),
->= 0 everywhere (relight.light_map), and with --json prints the SH
-coefficients, the map's own coefficients and its irradiance error. Bad input:
-one line on stderr, exit 2, nothing written (the EXR is written atomically,
-after everything else succeeded).
+Splits the photo's estimated SH light into a key light (a Blender Sun: direction,
+colour, strength, angle; relight.key_light) and a smooth World for the rest, written
+as a linear equirectangular EXR in Blender's World mapping (Environment Texture,
+default mapping; strength 1), >= 0 everywhere. With --json it prints the key light
+("direction": unit vector toward the light in Blender's world axes, azimuth and
+elevation, colour, strength in Blender's Sun units, angle), the SH coefficients
+and the irradiance error of key + World. --lamp-free writes today's single map
+instead (relight.light_map: the whole light, no lamp). Bad input: one line on
+stderr, exit 2, nothing written (the EXR is written atomically, after everything
+else succeeded).
 """
 
 from __future__ import annotations
@@ -34,8 +38,10 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help=f"map width in texels, even, {light_map.MIN_WIDTH}..{light_map.MAX_WIDTH} "
                         f"(height = width / 2; default {light_map.DEFAULT_WIDTH})")
     p.add_argument("--json", action="store_true",
-                   help="print the SH coefficients (the photo's light and the map's) and the map's irradiance "
-                        "error as JSON")
+                   help="print the key light, the SH coefficients and the irradiance error of what was written "
+                        "as JSON")
+    p.add_argument("--lamp-free", action="store_true",
+                   help="no key light: the whole light as one map (relight.light_map), as before")
     add_photo_options(p)
     p.set_defaults(func=run_light)
     return p
@@ -78,19 +84,39 @@ def run_light(args) -> int:
     relighter = open_relighter(args)
     image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
     decomposition = relighter.decompose(image, mask, **decompose_options(args))
-    result = light_map(decomposition.light, args.width)
-    error = irradiance_error(result.coeffs, result.pixels)
-    write_exr(out, {c: result.pixels[..., i] for i, c in enumerate("RGB")})
+    if args.lamp_free:
+        result = light_map(decomposition.light, args.width)
+        pixels, key = result.pixels, None
+        error = irradiance_error(result.coeffs, result.pixels)
+        world = {"fitted": result.fitted, "coeffs": np.round(result.map_coeffs, 9).tolist()}
+    else:
+        from relight.key_light import chroma_spread, split_irradiance_error, split_light
+
+        split = split_light(decomposition.light, args.width)
+        pixels, key = split.pixels, split.key
+        error = split_irradiance_error(split, sh_order(decomposition.light))
+        world = {"chroma_spread": round(chroma_spread(pixels), 6)}
+    write_exr(out, {c: pixels[..., i] for i, c in enumerate("RGB")})
     if args.json:
-        height, width = result.pixels.shape[:2]
+        height, width = pixels.shape[:2]
         print(json.dumps({
-            "photo": str(photo), "out": str(out), "order": result.order,
-            "coeffs": np.round(result.coeffs, 9).tolist(),
-            "map": {"width": width, "height": height, "fitted": result.fitted,
-                    "coeffs": np.round(result.map_coeffs, 9).tolist(),
-                    "irradiance_error": round(error, 6)},
+            "photo": str(photo), "out": str(out), "order": sh_order(decomposition.light),
+            "coeffs": np.round(decomposition.light, 9).tolist(),
+            "key": None if key is None else key.as_json(),
+            "map": {"width": width, "height": height, "irradiance_error": round(error, 6), **world},
             "decomposition": decomposition.choices,
         }))
     else:
-        print(f"wrote {out} (its irradiance is within {100 * error:.1f}% RMS of the photo's SH light)")
+        lamp = "" if key is None else (f"; key light from azimuth {key.as_json()['azimuth_deg']:.0f}, elevation "
+                                       f"{key.as_json()['elevation_deg']:.0f} degrees, strength "
+                                       f"{key.blender_strength:.3g}, angle {key.angle_deg:.0f} degrees")
+        print(f"wrote {out} (with the key light its irradiance is within {100 * error:.1f}% RMS of the photo's "
+              f"SH light{lamp})" if key is not None else
+              f"wrote {out} (its irradiance is within {100 * error:.1f}% RMS of the photo's SH light)")
     return 0
+
+
+def sh_order(coeffs) -> int:
+    from relight.sh import order_from_num_coeffs
+
+    return order_from_num_coeffs(np.asarray(coeffs).shape[0])

@@ -5,6 +5,7 @@
     L = sh_light(world_pixels, 4)                # equirect pixels [H, 2H, 3] (the add-on's World bake)
     L = sh_light(coeffs, 4, rotation_deg=30)     # SH coefficients [m, 3]: cut or zero-padded to order 4
     L = sh_light(decomposition, 4)               # light transfer: another photo's estimated light
+    L = sh_light("sun:30,45,5", 4)               # a sun at azimuth 30, elevation 45, 5 degrees wide, plus ambient
 
 One way to get a light: `SHLight.resolve(source, order)` loads and projects a source
 once into an SHLight value (the runtime's light: SH coefficients and the mean luminance
@@ -80,7 +81,8 @@ def map_file(source) -> Path:
         return path
     if isinstance(source, str) and presets.is_preset_name(source):
         return presets.preset_path(source)
-    raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`)")
+    raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`) nor a sun "
+                     "(sun:AZIMUTH,ELEVATION[,ANGLE])")
 
 
 def _check_rotation(rotation_deg) -> float:
@@ -161,7 +163,8 @@ class SHLight:
         """Any light source (see the module docstring) as an SHLight of SH order `order`.
 
         A map (path, preset name, equirect pixels [H, W, 3|4] or EnvMap) is loaded
-        and projected here, once, and scaled to `target` at `at` unless
+        and projected here, once (a "sun:AZIMUTH,ELEVATION[,ANGLE]" is relight.lamps.sun_light),
+        and scaled to `target` at `at` unless
         normalize=False (a black map fails here). SH coefficients [m, 3], an SHLight
         and a Decomposition's estimated light are light already: cut or zero-padded
         to the order and used as they are (an SHLight keeps its own target), unless
@@ -174,7 +177,11 @@ class SHLight:
         goal = float(target) if normalize is not False else None
         if isinstance(source, SHLight):
             return cls._light(fit_order(source.base, n), normalize, goal, source.target)
-        if isinstance(source, (str, os.PathLike)):
+        if isinstance(source, str) and source.startswith("sun:"):  # a directional light (relight.lamps)
+            from relight.lamps import parse_sun, sun_light
+
+            base = sun_light(*parse_sun(source), order)
+        elif isinstance(source, (str, os.PathLike)):
             path = map_file(source)
             base = _cached(cache, ("map", _file_key(path), order),
                            lambda: sh_projection.project_equirect(_pixels(path), order))

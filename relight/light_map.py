@@ -88,13 +88,13 @@ def _grid(height: int, order: int):
 
 
 def _evaluate(coeffs: np.ndarray, height: int):
-    """sum_k coeffs[k] Y_k at the texel centres of a 2H x H map, [H, 2H, 3] float64, in row strips."""
+    """sum_k coeffs[k] Y_k at the texel centres of a 2H x H map, [H, 2H, C] float64, in row strips."""
     width = 2 * height
     order = sh.order_from_num_coeffs(coeffs.shape[0])
     if height <= TABLE_HEIGHT:
-        return (_grid(height, order)[0] @ coeffs).reshape(height, width, 3)
+        return (_grid(height, order)[0] @ coeffs).reshape(height, width, coeffs.shape[1])
     dirs, _ = sh_projection.equirect_directions(height, width)
-    out = np.empty((height, width, 3))
+    out = np.empty((height, width, coeffs.shape[1]))
     for r0 in range(0, height, STRIP_ROWS):
         out[r0:r0 + STRIP_ROWS] = sh.sh_basis(dirs[r0:r0 + STRIP_ROWS], order) @ coeffs
     return out
@@ -143,15 +143,16 @@ def _newton(basis, omega, target, reg, c, steps: int) -> np.ndarray:
 
 
 def _fit(coeffs: np.ndarray, height: int) -> np.ndarray:
-    """The coefficients c of the module docstring, per channel, [n, 3] (0 on the bands not fitted),
-    solved on a grid of min(height, FIT_HEIGHT) rows."""
+    """The coefficients c of the module docstring, per channel, [n, C] (0 on the bands not fitted),
+    solved on a grid of min(height, FIT_HEIGHT) rows (any number of channels C: relight.key_light
+    fits a luminance alone)."""
     order = sh.order_from_num_coeffs(coeffs.shape[0])
     keep, inverse_a2 = _fitted_bands(order)
     reg = REGULARISATION * inverse_a2
     basis, omega = _grid(min(height, FIT_HEIGHT), order)
     basis = basis[:, keep]
     out = np.zeros_like(coeffs)
-    for channel in range(3):
+    for channel in range(coeffs.shape[1]):
         target = coeffs[keep, channel]
         if np.any(target):  # a black channel stays black
             out[keep, channel] = _newton(basis, omega, target, reg, target.copy(), MAX_STEPS)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from relight import sh, sh_projection
-from relight.light import directional_light
+from relight.light import directional_light, sh_light
 from relight.exr import read_exr
 from relight.light_map import (FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error,
                                light_map)
@@ -177,9 +177,10 @@ def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, ca
     photo = _photo(tmp_path / "p.png")
     out = tmp_path / "light.exr"
     code, stdout, err = _run(capsys, photo, "--out", out, "--width", 64, "--json", "--model", model,
-                             "--quality", "draft", "--matte", "network", "--threads", 1)
+                             "--quality", "draft", "--matte", "network", "--threads", 1, "--lamp-free")
     assert code == 0, err
     data = json.loads(stdout)
+    assert data["key"] is None
     image, _ = read_photo(photo)
     d = Relighter(model, working_size=DRAFT_SIZE).decompose(image, matte="network")
     np.testing.assert_allclose(data["coeffs"], d.light, atol=5e-9)  # printed with 9 decimals
@@ -193,8 +194,62 @@ def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, ca
     assert math.isclose(data["map"]["irradiance_error"], irradiance_error(d.light, pixels), abs_tol=1e-6)
 
     code, stdout, _ = _run(capsys, photo, "--out", out, "--width", 64, "--model", model, "--quality", "draft",
-                           "--matte", "network")
+                           "--matte", "network", "--lamp-free")
     assert code == 0 and stdout.startswith(f"wrote {out} (its irradiance is within ")
+
+
+def test_relight_light_prints_the_key_light_and_writes_the_smooth_world(model, tmp_path, capsys):
+    from relight.key_light import split_irradiance_error, split_light
+    from relight.photo import read_photo
+    from relight.runtime import Relighter
+
+    photo = _photo(tmp_path / "p.png")
+    out = tmp_path / "light.exr"
+    code, stdout, err = _run(capsys, photo, "--out", out, "--width", 64, "--json", "--model", model,
+                             "--quality", "draft", "--matte", "network", "--threads", 1)
+    assert code == 0, err
+    data = json.loads(stdout)
+    image, _ = read_photo(photo)
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(image, matte="network")
+    split = split_light(d.light, 64)
+    planes = read_exr(out)
+    np.testing.assert_array_equal(np.stack([planes[c] for c in "RGB"], axis=-1), split.pixels)
+    key = data["key"]
+    assert set(key) >= {"direction", "azimuth_deg", "elevation_deg", "colour", "strength", "angle_deg", "lamp"}
+    np.testing.assert_allclose(key["direction"], split.key.direction, atol=1e-6)
+    assert abs(np.linalg.norm(key["direction"]) - 1.0) < 1e-5
+    np.testing.assert_allclose(key["colour"], split.key.colour, atol=1e-6)
+    assert max(key["colour"]) == pytest.approx(1.0, abs=1e-6) or split.key.strength == 0.0
+    assert key["strength"] == pytest.approx(split.key.blender_strength, abs=1e-6)
+    assert key["angle_deg"] == pytest.approx(split.key.angle_deg, abs=1e-3)
+    assert data["map"]["irradiance_error"] == pytest.approx(split_irradiance_error(split, ORDER), abs=1e-6)
+    code, stdout, _ = _run(capsys, photo, "--out", out, "--width", 64, "--model", model, "--quality", "draft",
+                           "--matte", "network")
+    assert code == 0 and "key light from azimuth" in stdout
+
+
+def test_relight_image_takes_a_sun(model, tmp_path, capsys):
+    from relight.cli import main
+    from relight.photo import read_photo
+    from relight.runtime import Relighter
+
+    photo = _photo(tmp_path / "p.png")
+    out = tmp_path / "relit.exr"
+    code = main(["image", str(photo), "--light", "sun:30,45,10", "--out", str(out), "--model", model,
+                 "--quality", "draft", "--matte", "network", "--threads", "1"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    image, _ = read_photo(photo)
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(image, matte="network")
+    relit = d.relight(sh_light("sun:30,45,10", d.sh_order))
+    got = np.stack([read_exr(out)[c] for c in "RGB"], axis=-1)
+    np.testing.assert_allclose(got, relit, atol=1e-5, rtol=1e-4)
+    for bad in ("sun:30", "sun:30,100", "sun:a,b"):
+        code = main(["image", str(photo), "--light", bad, "--out", str(tmp_path / "x.png"), "--model", model,
+                     "--matte", "network"])
+        _, err = capsys.readouterr()
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "sun:AZIMUTH,ELEVATION" in err, err
+        assert not (tmp_path / "x.png").exists()
 
 
 @pytest.mark.parametrize("argv, match", [
