@@ -18,6 +18,7 @@ exit status is 1 if any failed.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -199,17 +200,23 @@ NEGATIVE_WARN_FRACTION = 0.01
 def _light(source, args, relighter) -> np.ndarray:
     """The light of every photo, as SH coefficients of the model's order: resolved once,
     before any photo is read (a bad map fails first)."""
-    from relight.decomposition import exposure_scale
+    from relight.decomposition import EXPOSURE_LIMIT, exposure_scale
     from relight.light import sh_light
 
     scale = exposure_scale(args.exposure)  # refused here, before any photo is read
-    L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=args.normalize)
+    # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is)
+    L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=None if args.normalize else False)
     if not np.all(np.isfinite(L)):
         raise ValueError("the light gives non-finite SH coefficients")
-    peak = float(np.abs(L).max(initial=0.0)) * scale
+    level = float(np.abs(L).max(initial=0.0))
+    peak = level * scale
     if peak > LIGHT_LIMIT:
+        most = math.floor(math.log2(LIGHT_LIMIT / level) * 10) / 10  # the highest exposure that fits
+        fix = f"give --exposure {most:g} or lower" if most >= -EXPOSURE_LIMIT else "use a dimmer light"
+        if not args.normalize:
+            fix = f"drop --no-normalize (the map's own radiance is that bright) or {fix}"
         raise ValueError(f"the light is too bright to relight in float32 (SH coefficients up to {peak:.3g} after "
-                         f"exposure, limit {LIGHT_LIMIT:g}): drop --no-normalize or lower --exposure")
+                         f"exposure {args.exposure:g} EV, limit {LIGHT_LIMIT:g}): {fix}")
     return L
 
 
@@ -228,6 +235,9 @@ def target_light(args, relighter) -> np.ndarray:
 
 def run_image(args) -> int:
     """Entry point of `relight image` (argparse namespace from register())."""
+    from relight.cli_output import check_folder_name, check_not_an_input, claim_output, light_inputs
+    from relight.fileio import same_file
+
     source = Path(args.photo)
     if not source.exists():
         raise ValueError(f"{source}: no such file or folder")
@@ -237,43 +247,51 @@ def run_image(args) -> int:
             raise ValueError("--mask applies to one photo; in folder mode give each photo an alpha channel")
         if args.out is None:
             raise ValueError("folder mode needs --out OUTPUT_FOLDER")
-        out_dir = Path(args.out)
-        if out_dir.exists() and not out_dir.is_dir():
-            raise ValueError(f"--out {out_dir} exists and is not a folder")
-        if out_dir.resolve() == source.resolve():
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {out} exists and is not a folder")
+        if out.exists() and same_file(out, source):
             raise ValueError("--out must differ from the input folder")
+        check_folder_name(out, "in folder mode, a folder of .png or .exr")
+        if not out.parent.is_dir():
+            raise ValueError(f"output folder does not exist: {out.parent}")
     else:
-        out_path = _output_for(source, args.out, args.layers)
-    relighter = open_relighter(args)
-    light = target_light(args, relighter)
-    if not folder:
-        written = _process(relighter, source, out_path, args, args.mask, light)
-        print(f"wrote {written}")
-        return 0
-    return _run_folder(relighter, source, out_dir, args, light)
+        out = _output_for(source, args.out, args.layers)
+    check_not_an_input(out, {"photo": source, **light_inputs(args)})
+    with claim_output(out, "relight image"):
+        relighter = open_relighter(args)
+        light = target_light(args, relighter)
+        if not folder:
+            written = _process(relighter, source, out, args, args.mask, light)
+            print(f"wrote {written}")
+            return 0
+        return _run_folder(relighter, source, out, args, light)
 
 
 def _run_folder(relighter, source: Path, out_dir: Path, args, light) -> int:
-    from tqdm import tqdm
-
+    from relight.cli_output import Progress
     from relight.photo import PHOTO_SUFFIXES
 
     photos = sorted(p for p in source.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
     if not photos:
         raise ValueError(f"{source}: no photos ({', '.join(PHOTO_SUFFIXES)}) in the folder")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(exist_ok=True)
     suffix = ".exr" if args.layers else ".png"
     stems = [p.stem for p in photos]
     # a.jpg and a.png both present: keep the extension in the output names
     names = {p: (p.stem if stems.count(p.stem) == 1 else p.name.replace(".", "_")) + suffix for p in photos}
     failures: list[tuple[Path, str]] = []
-    bar = tqdm(photos, desc="relight", unit="photo", file=sys.stderr, disable=None)
-    for photo in bar:
-        try:
-            _process(relighter, photo, out_dir / names[photo], args, None, light)
-        except (ValueError, OSError, MemoryError) as exc:
-            failures.append((photo, str(exc) or "out of memory"))
-            bar.write(f"relight image: failed: {photo.name}: {exc}", file=sys.stderr)
+    bar = Progress(len(photos), command="relight image", unit="photo")
+    try:
+        for photo in photos:
+            try:
+                _process(relighter, photo, out_dir / names[photo], args, None, light)
+            except (ValueError, OSError, MemoryError) as exc:
+                failures.append((photo, str(exc) or "out of memory"))
+                bar.write(f"relight image: failed: {photo.name}: {exc}")
+            bar.update(1)
+    finally:
+        bar.close()
     done = len(photos) - len(failures)
     print(f"relit {done} of {len(photos)} photos into {out_dir}")
     if failures:

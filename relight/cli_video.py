@@ -85,10 +85,15 @@ def _fps(text: str) -> Fraction:
 
 def _plan(args, info):
     """(kind "video" | "frames", output path, frames folder or None, frame format)."""
+    from relight.cli_output import check_folder_name, check_not_an_input, light_inputs
+    from relight.fileio import same_file
     from relight.video_out import OUTPUT_VIDEO_SUFFIXES
 
     out = Path(args.out)
     source = Path(args.input)
+    if source.is_dir() and out.exists() and same_file(out, source):
+        raise ValueError("--out must differ from the input folder")
+    check_not_an_input(out, {"input": source, **light_inputs(args)})
     if out.suffix.lower() in OUTPUT_VIDEO_SUFFIXES:
         if args.layers or args.format is not None:
             raise ValueError("--layers and --format apply to a folder of frames, not to a video output")
@@ -101,8 +106,7 @@ def _plan(args, info):
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder (a video output ends in "
                          f"{', '.join(OUTPUT_VIDEO_SUFFIXES)})")
-    if source.is_dir() and out.resolve() == source.resolve():
-        raise ValueError("--out must differ from the input folder")
+    check_folder_name(out, f"videos {' '.join(OUTPUT_VIDEO_SUFFIXES)}, or a folder of PNG or EXR frames")
     if not out.parent.is_dir():
         raise ValueError(f"output folder does not exist: {out.parent}")
     fmt = args.format or ("exr" if args.layers or (info.kind == "frames" and _exr_frames(source)) else "png")
@@ -138,9 +142,11 @@ class _Frames:
         self.folder = folder
         self.writer = FrameFolderWriter(folder, fmt, names, video_codes=video)
         self.fingerprint = fingerprint
+        self.created = not folder.exists()
         folder.mkdir(parents=True, exist_ok=True)
         self.done = self.writer.written()
         job = folder / JOB_FILE
+        self.had_job = job.is_file()
         if self.done and not resume:
             raise ValueError(f"{folder} already holds {len(self.done)} frames of this clip: --resume continues "
                              "that job, or choose another output")
@@ -168,6 +174,20 @@ class _Frames:
 
         with atomic_path(self.folder / STATE_FILE, ".npz") as tmp:
             np.savez_compressed(tmp, next_frame=np.int64(next_frame), **state)
+
+    def discard_if_empty(self) -> None:
+        """The job failed before any frame was written: remove what it made (its settings, the
+        folder if it made it), so a refused input leaves nothing."""
+        if self.writer.written():
+            return
+        if not self.had_job:
+            (self.folder / JOB_FILE).unlink(missing_ok=True)
+            (self.folder / STATE_FILE).unlink(missing_ok=True)
+        if self.created:
+            try:
+                self.folder.rmdir()
+            except OSError:
+                pass  # something else is in it now: not ours to remove
 
     def finish(self, frames: int) -> None:
         """The job is complete: its settings stay (a later --resume finds nothing to do), the state goes."""
@@ -197,12 +217,8 @@ def _on_sigterm(handler):
 
 def run_video(args) -> int:
     """Entry point of `relight video` (argparse namespace from register())."""
-    from relight import quality
-    from relight.cli_image import open_relighter, target_light
-    from relight.clip import ClipRelighter
-    from relight.session import cores_available
-    from relight.video_io import frame_spans, open_clip
-    from relight.video_out import VideoWriter
+    from relight.cli_output import claim_output
+    from relight.video_io import open_clip
 
     if args.mask is not None:
         raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
@@ -213,6 +229,19 @@ def run_video(args) -> int:
     clip = open_clip(args.input, args.fps, args.max_pixels)
     info = clip.info
     kind, out, folder, fmt = _plan(args, info)
+    with claim_output(out, "relight video", folders=[folder] if folder is not None else []):
+        return _run(args, clip, info, kind, out, folder, fmt)
+
+
+def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) -> int:
+    """run_video once it holds the output's lock."""
+    from relight import quality
+    from relight.cli_image import open_relighter, target_light
+    from relight.clip import ClipRelighter
+    from relight.session import cores_available
+    from relight.video_io import frame_spans
+    from relight.video_out import VideoWriter
+
     # frames are analysed `workers` at once, each network on one thread: on few cores this beats
     # onnxruntime's intra-op threads on these small inputs (docs/BENCHMARKS.md)
     workers = args.threads or cores_available()
@@ -260,13 +289,17 @@ def run_video(args) -> int:
         if video is not None:
             video.abort()
         full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
-        kept = "; the frames written are whole: free space and rerun with --resume" if folder is not None else ""
+        todo = "free space" if full else "make the output writable"
+        kept = f"; the frames written are whole: {todo} and rerun with --resume" if folder is not None else \
+            f"; no video written: {todo} and rerun"
         print(f"relight video: error: {'output disk full' if full else 'cannot write'} ({exc}){kept}",
               file=sys.stderr)
         return EXIT_FAILED
-    except BaseException:
+    except BaseException as exc:
         if video is not None:
             video.abort()
+        if frames is not None and isinstance(exc, (ValueError, MemoryError)):
+            frames.discard_if_empty()  # refused input: leave nothing
         raise
     finally:
         _on_sigterm(previous)
@@ -287,13 +320,11 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
-    from tqdm import tqdm
-
-    from relight.video_io import frame_spans
+    from relight.cli_output import Progress
+    from relight.video_io import frame_spans, prefetch
 
     start = frames.start if frames is not None else 0
-    bar = tqdm(total=info.frames, initial=start, desc="relight", unit="frame", file=sys.stderr, disable=None,
-               dynamic_ncols=True)
+    bar = Progress(info.frames, command="relight video", unit="frame", initial=start)
     nobody, clamped, count, written, last = [], 0.0, 0, 0, start - 1
     committed = None  # (next frame, the filter state once every frame before it is written)
 
@@ -304,7 +335,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         result = runner.finish(analysis, layers=args.layers and not skip)
         if not result.person:
             nobody.append(index)
-            bar.set_postfix(no_person=len(nobody), refresh=False)
+            bar.set_postfix(no_person=len(nobody))
         clamped = max(clamped, result.clamped)
         if frames is not None:
             if not skip:
@@ -325,7 +356,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="relight-analyse")
     pending: deque = deque()
     try:
-        for frame in _prefetch(clip.frames(start)):
+        for frame in prefetch(clip.frames(start)):
             pending.append((frame, pool.submit(runner.analyse, frame.image, frame.alpha)))
             if len(pending) > workers:
                 frame, future = pending.popleft()
@@ -350,45 +381,6 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
             raise ValueError(f"{args.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
                              f"ended after {last + 1} frames)")
     return count, written, nobody, clamped
-
-
-def _prefetch(frames, depth: int = 2):
-    """The frames of an iterator, decoded one or two ahead on a thread (decoding overlaps relighting)."""
-    import queue
-    import threading
-
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    end = object()
-
-    def produce():
-        try:
-            for item in frames:
-                while not stop.is_set():
-                    try:
-                        q.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            q.put(end)
-        except BaseException as exc:  # handed to the consumer, raised there
-            q.put(exc)
-
-    thread = threading.Thread(target=produce, daemon=True, name="relight-decode")
-    thread.start()
-    try:
-        while True:
-            item = q.get()
-            if item is end:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        thread.join(timeout=5)
 
 
 def _encode_folder(frames, info, out: Path) -> None:

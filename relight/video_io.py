@@ -27,7 +27,8 @@ import numpy as np
 
 
 __all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
-           "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container"]
+           "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container",
+           "prefetch"]
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi")
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".webp", ".bmp")
@@ -136,11 +137,15 @@ class FrameFolder:
         return cls(files[0].parent if files else Path("."), fps, max_pixels, files)
 
     def _sizes(self) -> tuple[int, int]:
-        """The size every frame declares, read from headers only; ValueError at the first that differs."""
+        """The size every frame declares, read from headers only; ValueError at the first that differs
+        and when the first is larger than a photo may be (relight.image_limits)."""
+        from relight.image_limits import check_declared_size
+
         first = None
         for p in self.files:
             size = _declared_size(p)
             if first is None:
+                check_declared_size(*size, p, max_pixels=self.max_pixels)
                 first = (p, size)
             elif size != first[1]:
                 raise ValueError(f"{p}: frame is {size[0]}x{size[1]}, but {first[0].name} is "
@@ -168,13 +173,27 @@ def _declared_size(path: Path) -> tuple[int, int]:
         from relight.exr import exr_size
 
         return tuple(exr_size(path))
+    import warnings
+
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
-            size = im.size
-            orientation = im.getexif().get(0x0112, 1)  # EXIF rotations that swap the sides
-            return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
+        with warnings.catch_warnings():
+            # Pillow's DecompressionBombWarning (and EXIF complaints): the size is weighed by our
+            # own check (FrameFolder, relight.image_limits), which says what to do
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                size = im.size
+                try:  # a PNG's EXIF may follow its pixels: a truncated file fails when the frame is read
+                    orientation = im.getexif().get(0x0112, 1)  # EXIF rotations that swap the sides
+                except Exception:  # noqa: BLE001 - Pillow's many types; the size alone is weighed
+                    orientation = 1
+                return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
+    except Image.DecompressionBombError:  # over twice Pillow's limit: above MAX_PIXELS too
+        from relight.image_limits import MAX_PIXELS
+
+        raise ValueError(f"{path}: image is too large (over {2 * Image.MAX_IMAGE_PIXELS:,} pixels; at most "
+                         f"{MAX_PIXELS:,} can be relit): scale the frames down") from None
     except Exception as exc:  # Pillow's many exception types: one ValueError naming the file
         if isinstance(exc, MemoryError):
             raise
@@ -289,3 +308,42 @@ def open_clip(path, fps: Fraction | None = None, max_pixels: int | None = None):
     if fps is not None:
         raise ValueError("--fps applies to a folder of frames; a video file keeps its own frame rate")
     return clip
+
+
+def prefetch(frames, depth: int = 2):
+    """The frames of an iterator, decoded one or two ahead on a thread (decoding overlaps relighting)."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def produce():
+        try:
+            for item in frames:
+                while not stop.is_set():
+                    try:
+                        q.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(end)
+        except BaseException as exc:  # handed to the consumer, raised there
+            q.put(exc)
+
+    thread = threading.Thread(target=produce, daemon=True, name="relight-decode")
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5)

@@ -6,7 +6,7 @@
 
 Output video (.mp4 .mov .m4v .mkv .webm) is H.264 (VP9 for .webm), 4:2:0 when
 width and height are even, else 4:4:4 so the size is kept; the frame rate and
-colour tags of the clip are kept and the source's audio is copied (re-encoded
+colour tags of the clip are kept (only those it has: output_colour) and the source's audio is copied (re-encoded
 when the container cannot hold its codec). Frames are encoded to 8-bit sRGB by
 encode_srgb8; where a frame is its decoded input, its input codes are kept
 (frame_codes).
@@ -24,7 +24,7 @@ import numpy as np
 from relight.fileio import temp_path_beside
 from relight.video_io import ClipInfo, import_av, open_container
 
-__all__ = ["VideoWriter", "FrameFolderWriter", "encode_srgb8", "frame_codes", "OUTPUT_VIDEO_SUFFIXES"]
+__all__ = ["VideoWriter", "FrameFolderWriter", "encode_srgb8", "frame_codes", "output_colour", "OUTPUT_VIDEO_SUFFIXES"]
 
 OUTPUT_VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm")
 H264_CRF = "18"              # visually lossless for most footage; the relit frames are 8-bit anyway
@@ -169,11 +169,10 @@ class VideoWriter:
                 stream.options = {"crf": H264_CRF, "preset": H264_PRESET}
             stream.width, stream.height = info.width, info.height
             stream.thread_type = "AUTO"
-            colour = {"colorspace": 1, "color_primaries": 1, "color_trc": 13, "color_range": 1}  # 709, sRGB curve
-            colour.update({k: v for k, v in info.colour.items() if v not in (0, 2)})  # the source's, where tagged
-            self._colour = colour
-            for key, value in colour.items():
+            self._colour = output_colour(info)
+            for key, value in self._colour.items():
                 setattr(stream.codec_context, key, value)
+            self._space, self._range = _conversion(self._colour, info.height)
             self.stream = stream
             if audio_from is not None:
                 self._audio = _AudioCopy(Path(audio_from), self.container, suffix)
@@ -194,9 +193,7 @@ class VideoWriter:
             raise ValueError(f"frame is {codes.shape} {codes.dtype}, the video is "
                              f"{self.info.height}x{self.info.width}x3 uint8")
         frame = av.VideoFrame.from_ndarray(codes, format="rgb24")
-        space = "itu709" if self._colour["colorspace"] == 1 else "itu601"
-        frame = frame.reformat(format=self.stream.pix_fmt, dst_colorspace=space,
-                               dst_color_range="JPEG" if self._colour["color_range"] == 2 else "MPEG")
+        frame = frame.reformat(format=self.stream.pix_fmt, dst_colorspace=self._space, dst_color_range=self._range)
         frame.pts = self.count
         frame.time_base = 1 / Fraction(self.info.fps)
         self._mux(self.stream.encode(frame))
@@ -245,6 +242,37 @@ class VideoWriter:
         self._audio = None
         self.container = None
         self.tmp.unlink(missing_ok=True)
+
+
+# FFmpeg's codes for "not said" (AVColorSpace, AVColorPrimaries, AVColorTransferCharacteristic:
+# 2; AVColorRange: 0); colorspace 0 is RGB, which a YCbCr stream cannot be
+_UNSPECIFIED = {"colorspace": (0, 2), "color_primaries": (0, 2), "color_trc": (0, 2), "color_range": (0,)}
+# the matrices swscale converts with, by AVColorSpace code: BT.709, FCC, BT.601 (470BG, SMPTE 170M),
+# SMPTE 240M, BT.2020 (non-constant luminance)
+_MATRICES = {1: "itu709", 4: "fcc", 5: "itu601", 6: "smpte170m", 7: "smpte240m", 9: "bt2020"}
+# a folder of frames holds sRGB images: BT.709 primaries (sRGB's), the sRGB curve, a BT.709 matrix, limited range
+SRGB_TAGS = {"colorspace": 1, "color_primaries": 1, "color_trc": 13, "color_range": 1}
+
+
+def output_colour(info: ClipInfo) -> dict:
+    """The colour tags of the output stream. A video's are its source's, tag by tag, and only
+    those it has: an untagged source gives an untagged output (a player makes the same guess
+    for both; video_io decodes an untagged stream by that guess, and the output is encoded by
+    it), never a claim the source did not make. A matrix swscale cannot encode with (BT.2020
+    constant luminance, ...) is left untagged. Frames from a folder are sRGB images, and are tagged as such."""
+    if info.kind != "video":
+        return dict(SRGB_TAGS)
+    tags = {k: int(v) for k, v in info.colour.items() if k in _UNSPECIFIED and int(v) not in _UNSPECIFIED[k]}
+    if tags.get("colorspace") not in (None, *_MATRICES):
+        del tags["colorspace"]
+    return tags
+
+
+def _conversion(tags: dict, height: int) -> tuple[str, str]:
+    """(matrix, range) that RGB frames are converted to YCbCr with: the tagged ones, else the
+    guess video_io reads an untagged stream with (BT.709 from 720 lines up, else BT.601; limited)."""
+    space = _MATRICES.get(tags.get("colorspace"), "itu709" if height >= 720 else "itu601")
+    return space, "JPEG" if tags.get("color_range") == 2 else "MPEG"
 
 
 def _raise_write_error(path: Path, exc) -> None:

@@ -210,3 +210,30 @@ def exr_bytes(tmp_dir, planes: dict[str, np.ndarray], compression: str = "zip") 
     data = path.read_bytes()
     path.unlink()
     return data
+
+
+# ------------------------------------------------------------------ a concurrent writer
+
+
+@contextmanager
+def writer_holding(output):
+    """A separate process that holds the writer's lock of `output` (relight.fileio.output_lock)
+    as a running `relight image` / `relight video` would, until the block ends (then killed with
+    SIGKILL, as kill -9 would: the kernel drops the lock). Yields the process."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("import sys; from relight.fileio import output_lock\n"
+            "with output_lock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(output)], cwd=root, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+        proc.stdin.close()
+        proc.stdout.close()

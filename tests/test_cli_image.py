@@ -183,3 +183,96 @@ def test_folder_mode_usage_errors(model, tmp_path, capsys):
     code, _, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", tmp_path / "o")
     assert code == 2 and "no photos" in err
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ issue 40: outputs
+
+
+def test_an_output_that_is_one_of_the_inputs_is_refused_and_the_input_kept(model, tmp_path, capsys):
+    photo = _save_photo(tmp_path / "p.png")
+    (tmp_path / "link.png").symlink_to(photo)
+    (tmp_path / "sub").mkdir()
+    light = tmp_path / "map.exr"
+    ones = np.ones((8, 16), np.float32)
+    write_exr(light, {"R": ones, "G": ones, "B": ones})
+    Image.fromarray(np.full((40, 30), 255, np.uint8)).save(tmp_path / "m.png")
+    kept = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    cases = [[photo, "--out", photo],                                   # the photo itself
+             [photo, "--out", tmp_path / "link.png"],                   # through a symlink
+             [tmp_path / "link.png", "--out", tmp_path / "sub" / ".." / "p.png"],
+             [photo, "--out", tmp_path / "m.png", "--mask", tmp_path / "m.png"],
+             [photo, "--out", light, "--light", light]]
+    for argv in cases:
+        if "--light" not in argv:
+            argv += ["--light", "studio"]
+        code, _, err = _run(capsys, *argv, "--model", model)
+        assert code == 2 and err.count("\n") == 1 and "writing would replace it" in err, (argv, err)
+        assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == kept, argv
+
+
+def test_a_second_writer_of_one_output_is_refused_and_kill_9_leftovers_are_cleared(model, tmp_path, capsys):
+    from fuzz_support import writer_holding
+
+    src = tmp_path / "in"
+    src.mkdir()
+    _save_photo(src / "p0.png")
+    out = tmp_path / "out"
+    for target, argv in ((out, [src, "--out", out]), (tmp_path / "o.png", [src / "p0.png", "--out", tmp_path / "o.png"])):
+        # what a run killed with -9 leaves: its temporary beside the output
+        leftover = (out if target == out else tmp_path) / ".o.png.abcd_123.tmp.png"
+        if target == out:
+            out.mkdir()
+            leftover = out / ".p0.png.abcd_123.tmp.png"
+        leftover.write_bytes(b"half a png")
+        with writer_holding(target) as other:
+            code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+            assert code == 2 and err.count("\n") == 1, err
+            assert f"(process {other.pid}) is writing {target}" in err and "wait for it" in err
+            assert leftover.exists()  # a live writer's temporaries are its own
+            assert not (target / "p0.png").exists() if target == out else not target.exists()
+        code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+        assert code == 0, err
+        assert not leftover.exists()
+        assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no lock file left
+    assert sorted(p.name for p in out.iterdir()) == ["p0.png"]
+
+
+def test_folder_mode_refuses_an_output_named_as_a_file_of_another_format(model, tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    _save_photo(src / "p0.png")
+    code, _, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", tmp_path / "o.gif")
+    assert code == 2 and ".gif is not a format" in err and "folder name without an extension" in err
+    assert not (tmp_path / "o.gif").exists()
+    code, _, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", tmp_path / "run.2")
+    assert code == 0, err  # a folder name with a dot is a folder name
+
+
+def test_too_bright_advises_only_what_helps(model, tmp_path, capsys):
+    import re
+
+    photo = _save_photo(tmp_path / "p.png")
+    out = tmp_path / "o.png"
+    code, _, err = _run(capsys, photo, "--light", "studio", "--exposure", 64, "--model", model, "--out", out)
+    assert code == 2 and "too bright" in err and not out.exists()
+    assert "--no-normalize" not in err  # it was not given: dropping it cannot help
+    most = re.search(r"give --exposure (\S+) or lower", err)
+    assert most, err
+    # the advice is right: the exposure it names relights
+    code, _, err = _run(capsys, photo, "--light", "studio", "--exposure", most.group(1), "--model", model,
+                        "--out", out)
+    assert code == 0, err
+
+
+def test_folder_progress_is_reported_when_stderr_is_not_a_terminal(model, tmp_path, capsys, monkeypatch):
+    from relight import cli_output
+
+    src = tmp_path / "in"
+    src.mkdir()
+    for i in range(3):
+        _save_photo(src / f"p{i}.png", seed=i)
+    monkeypatch.setattr(cli_output, "PROGRESS_EVERY", 0.0)  # a line at every photo
+    code, _, err = _run(capsys, src, "--light", "studio", "--model", model, "--out", tmp_path / "out")
+    assert code == 0, err
+    lines = [line.split(",")[0] for line in err.strip().splitlines() if " photos (" in line]
+    assert lines == [f"relight image: {i} of 3 photos ({100 * i / 3:.0f}%)" for i in (1, 2, 3)]

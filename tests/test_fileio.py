@@ -40,3 +40,33 @@ def test_sha256_matches_hashlib_across_chunk_boundary(tmp_path):
     p = tmp_path / "blob"
     p.write_bytes(data)
     assert fileio.file_sha256(p) == hashlib.sha256(data).hexdigest()
+
+
+def test_output_lock_is_one_writer_and_leaves_nothing(tmp_path):
+    out = tmp_path / "frames"
+    with fileio.output_lock(out, "relight video"):
+        assert fileio.lock_path(out).read_text().split() == [str(os.getpid()), "relight", "video"]
+        with pytest.raises(fileio.OutputBusy, match=rf"another relight video run \(process {os.getpid()}\) "
+                                                    rf"is writing {out}: wait for it"):
+            with fileio.output_lock(out, "relight image"):
+                pass
+    assert list(tmp_path.iterdir()) == []
+    fileio.lock_path(out).write_text("4242 relight video\n")  # left by a run killed with -9: not held
+    with fileio.output_lock(out):
+        pass
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stale_temps_are_the_atomic_writes_temporaries_only(tmp_path):
+    target = tmp_path / "o.mp4"
+    with fileio.atomic_path(target, ".mp4") as tmp:
+        assert fileio.stale_temps(target) == [tmp]  # the name atomic_path gives is recognised
+        tmp.write_bytes(b"x")
+    for name in ("o.mp4", ".o.mp4.lock", ".o.mp4x.abcdefgh.tmp.mp4", ".other.abcdefgh.tmp.mp4", "o.mp4.tmp.mp4"):
+        (tmp_path / name).write_bytes(b"keep")
+    assert fileio.stale_temps(target) == []
+    (tmp_path / ".o.mp4.k9_left_.tmp.mp4").write_bytes(b"half")
+    assert [p.name for p in fileio.stale_temps(target)] == [".o.mp4.k9_left_.tmp.mp4"]
+    assert [p.name for p in fileio.stale_temps_in(tmp_path)] == [".o.mp4.k9_left_.tmp.mp4",
+                                                                 ".o.mp4x.abcdefgh.tmp.mp4",
+                                                                 ".other.abcdefgh.tmp.mp4"]
