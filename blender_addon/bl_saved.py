@@ -16,12 +16,14 @@ SAVING: list = []  # [(thread, session, failures)] writing decomposition files a
 
 def wait_for_saves(context=None) -> None:
     """Let the decomposition files being written finish (before a file is opened), and
-    show a failure in the panel."""
+    show in the panel every photo whose file was not written, in one sentence."""
+    failed = []
     while SAVING:
         thread, _session, failures = SAVING.pop(0)
         thread.join()
-        if failures and context is not None:
-            set_status(context, failures[0], is_error=True)
+        failed += failures
+    if failed and context is not None:
+        set_status(context, work.save_failures_message(failed), is_error=True)
 
 
 def poll_saves():
@@ -44,6 +46,7 @@ def on_save_post(filepath="", *_args) -> None:
     if not blend:
         return
     copy = os.path.abspath(blend) != os.path.abspath(bpy.data.filepath or blend)
+    failures: list = []  # (photo, reason) of the files written here and now
     for session in list(state.SESSIONS.values()):
         if bl_images.photo_by_id(session.photo_id) is None:
             continue
@@ -57,18 +60,18 @@ def on_save_post(filepath="", *_args) -> None:
         meta = work.save_meta(session)
         if not copy:
             session.saved_to = path
-        failures: list = []
         if bl_session.updates_immediately():
             work.save_one(session, path, meta, failures)
-            if failures:
-                set_status(bpy.context, failures[0], is_error=True)
             continue
-        thread = threading.Thread(target=work.save_one, args=(session, path, meta, failures),
+        own: list = []
+        thread = threading.Thread(target=work.save_one, args=(session, path, meta, own),
                                   name="relight-save", daemon=False)
         thread.start()
-        SAVING.append((thread, session, failures))
+        SAVING.append((thread, session, own))
         if not bpy.app.timers.is_registered(poll_saves):
             bpy.app.timers.register(poll_saves, first_interval=0.2)
+    if failures:
+        set_status(bpy.context, work.save_failures_message(failures), is_error=True)
 
 
 def _copy_saved(source: str, target: str) -> None:

@@ -252,8 +252,32 @@ def save_decomposition(path: str | os.PathLike, decomposition, meta: dict, previ
     from relight.fileio import atomic_path
 
     with atomic_path(path, ".npz") as tmp:
-        np.savez_compressed(tmp, meta=np.array(json.dumps(info)), **arrays)
+        write_npz(tmp, dict(meta=np.array(json.dumps(info)), **arrays))
     return path
+
+
+def write_npz(path, arrays: dict) -> None:
+    """The file np.savez_compressed writes (np.load reads it), with the zip closed on every way out.
+
+    numpy 1.x (bpy 4.2 to 5.0's) leaves its ZipFile open when a write fails; on a full disk its
+    __del__ fails again, and Python prints "Exception ignored in ZipFile.__del__ ... [Errno 28]"
+    once per file. Here the first error is the one raised, and the file is let go of."""
+    import zipfile
+
+    from numpy.lib import format as npy_format
+
+    archive = zipfile.ZipFile(path, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True)
+    try:
+        for name, value in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                npy_format.write_array(member, np.asanyarray(value), allow_pickle=False)
+    except BaseException:
+        try:
+            archive.close()  # it lets go of the file even when its last write fails too
+        except (OSError, ValueError):
+            pass  # the disk is still full: the error raised below says so
+        raise
+    archive.close()
 
 
 def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:

@@ -202,13 +202,27 @@ def save_meta(session: state.PhotoSession) -> dict:
 
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
+    """Write one photo's decomposition; a failure is appended to `failures` as (photo, reason)."""
     try:
         # a small photo is its own preview: kept too, so reopening shows the result without the file
         engine.save_decomposition(path, session.decomposition, meta, session.preview or session.decomposition)
     except OSError as exc:
         session.saved_to = ""
-        failures.append(f"The relight of '{session.source}' could not be saved next to the .blend "
-                        f"({exc.strerror or exc}): it will need Relight after reopening.")
+        failures.append((session.source, exc.strerror or str(exc)))
+
+
+def save_failures_message(failures: list) -> str:
+    """One sentence naming every photo whose saved relight was not written ('' when none)."""
+    if not failures:
+        return ""
+    names = [f"'{name}'" for name, _ in failures]
+    reasons = list(dict.fromkeys(reason for _, reason in failures))
+    if len(names) == 1:
+        return (f"The relight of {names[0]} could not be saved next to the .blend ({reasons[0]}): "
+                "it will need Relight after reopening.")
+    listed = ", ".join(names[:-1]) + " and " + names[-1]
+    return (f"The relights of {len(names)} photos, {listed}, could not be saved next to the .blend "
+            f"({'; '.join(reasons)}): they will need Relight after reopening.")
 
 
 # Save Layers writes 14 float32 channels (relit RGBA, albedo, shading, residual RGB, alpha),
