@@ -239,7 +239,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m model.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("model", help=".safetensors checkpoint or .onnx file")
     p.add_argument("--data", required=True, help="dataset folder of finished scenes")
-    p.add_argument("--out", default="evaluation", help="output folder (default: ./evaluation)")
+    p.add_argument("--out", default=None,
+                   help="output folder (default: runs/evaluate-MODEL_NAME, never the repository's evaluation/ package)")
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--mask", choices=MASK_MODES, default="interior",
                    help="metric weight: fully covered person pixels (default) or the GT alpha")
@@ -251,6 +252,8 @@ def main(argv=None) -> int:
     p.add_argument("--sheet-rows", type=int, default=4)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
     args = p.parse_args(argv)
+    if args.out is None:  # ./evaluation was the default: inside a checkout, the evaluation/ package itself
+        args.out = str(Path("runs") / f"evaluate-{Path(args.model).stem}")
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     return run_report(

@@ -119,3 +119,21 @@ def test_the_graph_sees_lazy_and_relative_imports():
 def test_no_import_cycles(package):
     found = [c for c in cycles(import_graph()) if any(m.split(".")[0] == package for m in c)]
     assert found == [], f"import cycles through {package}/: {found}"
+
+
+def test_from_relight_import_relighter_and_import_relight_stays_light():
+    """Issue 40: `from relight import Relighter` failed; `import relight` alone loads nothing heavy."""
+    import subprocess
+    import sys
+
+    code = ("import sys, relight\n"
+            "heavy = sorted(m for m in ('numpy', 'onnxruntime', 'relight.runtime') if m in sys.modules)\n"
+            "assert heavy == [], heavy\n"
+            "from relight import Relighter, Decomposition, SHLight, sh_light\n"
+            "from relight.runtime import Relighter as R\n"
+            "assert Relighter is R and 'relight.runtime' in sys.modules\n"
+            "assert {'Relighter', 'sh_light'} <= set(dir(relight))\n"
+            "try:\n    relight.no_such_name\nexcept AttributeError as e:\n    assert 'no_such_name' in str(e)\n"
+            "else:\n    raise SystemExit('no AttributeError')\n")
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr

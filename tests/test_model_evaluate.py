@@ -292,3 +292,21 @@ def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
     path.write_bytes(bytes(data))
     with pytest.raises(ValueError, match="SHA-256 mismatch"):
         predictor.Predictor(path)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_without_out_the_reports_go_to_a_run_folder_not_evaluation(tmp_path, monkeypatch, capsys, one_thread):
+    """Issue 40: the default --out was ./evaluation, which from a checkout is the evaluation/
+    package's own folder (untracked reports beside its modules)."""
+    from export.random_model import random_relightnet
+    from model.checkpoint import save_model
+    from model.synthetic import write_analytic_dataset
+
+    data = tmp_path / "data"
+    write_analytic_dataset(data, n_scenes=2, size=32, order=2, lights=("studio", "city"))
+    ours = save_model(random_relightnet(1, sh_order=2, width=4, depth=2), tmp_path / "m" / "model.safetensors")
+    monkeypatch.chdir(tmp_path)
+    assert evaluate.main([str(ours), "--data", str(data), "--size", "32", "--sheet-rows", "1"]) == 0
+    assert not (tmp_path / "evaluation").exists()
+    assert (tmp_path / "runs" / "evaluate-model" / "evaluation.md").is_file()
+    assert "runs/evaluate-model/evaluation.md" in capsys.readouterr().out

@@ -66,3 +66,16 @@ def test_shipped_presets_name_registered_models():
     for p in quality.PRESETS:
         assert p.model is None or p.model in registry["models"], p
         assert quality.model_path(p.key).is_file()
+
+
+def test_docs_runtime_states_the_working_sizes_the_code_has():
+    """Issue 40: docs/runtime.md said 512 by default and presets 96/128/128."""
+    import re
+    from pathlib import Path
+
+    from relight.runtime import DEFAULT_WORKING_SIZE
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "runtime.md").read_text(encoding="utf-8")
+    assert re.search(r"## Loading: `Relighter\(.*working_size=(\d+)\)`", text).group(1) == str(DEFAULT_WORKING_SIZE)
+    stated = re.search(r'`quality.preset\("draft"\).working_size` (\d+), balanced (\d+), best (\d+)', text)
+    assert [int(n) for n in stated.groups()] == [quality.preset(k).working_size for k in ("draft", "balanced", "best")]
