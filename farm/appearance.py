@@ -52,6 +52,23 @@ class Part:
     source_ids: np.ndarray | None = None  # body vertex index of each vertex (body part only)
 
 
+FACE_PARTS = ("eyes", "lips", "brows")  # parts cut from the head's faces (farm.faces)
+
+
+def head_labels(parts: list[Part], body: Body) -> list[np.ndarray]:
+    """Per part, float [V]: 1 on the body's vertices whose dominant bone is the head (face, ears,
+    the scalp where no hair covers it) and on the face's detail parts, 0 elsewhere (hair, clothes,
+    the neck): the farm's head mask, rendered as the `head` channel."""
+    head = np.argmax(body.bone_weights, axis=1) == body.bone_labels.index("head")
+    out = []
+    for p in parts:
+        if p.name == "body" and p.source_ids is not None:
+            out.append(head[p.source_ids].astype(np.float64))
+        else:
+            out.append(np.full(len(p.vertices), 1.0 if p.name in FACE_PARTS else 0.0))
+    return out
+
+
 def _bone_group(labels: list[str], prefixes: tuple[str, ...]) -> np.ndarray:
     return np.array([any(l.split(".")[0].startswith(p) for p in prefixes) for l in labels])
 

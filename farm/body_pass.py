@@ -80,3 +80,15 @@ def body_pass(cam_vertices: np.ndarray, faces: np.ndarray, cam_normals: np.ndarr
     depth = depth.reshape(resolution, resolution, k).sum(axis=2) / np.maximum(hits, 1)
     return BodyBuffers(normal=normal.astype(np.float32), alpha=(hits / k).astype(np.float32),
                        depth=depth.astype(np.float32))
+
+
+def scene_body_buffers(sample):
+    """The unclothed body of a farm.scene.SceneSample seen by its camera (BodyBuffers)."""
+    from farm.bake import vertex_normals
+
+    if sample.body_mesh is None:
+        raise ValueError(f"scene {sample.index}: no body mesh was drawn (the body pass needs one)")
+    vertices, faces = sample.body_mesh
+    cam = sample.camera
+    normals = vertex_normals(vertices, faces) @ cam.world_to_camera.T
+    return body_pass(cam.to_camera(vertices), faces, normals, sample.options.resolution, cam.focal_mm)

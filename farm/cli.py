@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from farm.camera import FRAMINGS, parse_framings
 from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
 from farm.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
 from relight.cli_args import bounded_int, finite_float
@@ -37,6 +38,13 @@ def _passes(text: str) -> frozenset:
             f"--passes must be a comma list of {','.join(KNOWN_PASSES)}, got {text!r}"
         )
     return frozenset(names)
+
+
+def _framing(text: str) -> str:
+    try:
+        return ",".join(parse_framings(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
                    help="train maps, or only the held-out maps")
+    s.add_argument("--framing", type=_framing, default="full-body",
+                   help="framings a scene draws from, uniformly: 'all' or a comma list of "
+                        + ",".join(FRAMINGS) + " (farm/camera.py)")
+    s.add_argument("--hard-lights", type=finite_float(0, 1, what="share"), default=0.0, metavar="SHARE",
+                   help="share of the lights that are a hard light (sun, studio key and fill, lamp; "
+                        "farm/hard_lights.py) instead of a map")
     s.add_argument("--clip-frames", type=bounded_int(2, 1000), default=None, metavar="F",
                    help="render clips instead of stills: scene i is frame i mod F of clip i // F (farm/clips.py)")
     s.add_argument("--motion", choices=("turn", "sway"), default="turn",
@@ -112,7 +126,7 @@ def parse_args(argv: list[str]) -> RunConfig:
         resolution=a.res, lights=a.lights, samples=a.samples, denoise=a.denoise,
         denoise_prefilter=a.denoise_prefilter,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
-        specular=a.specular, light_pool=a.light_pool,
+        specular=a.specular, light_pool=a.light_pool, framing=a.framing, hard_lights=float(a.hard_lights),
     )
     job_module = a.job_module
     if a.clip_frames is not None:

@@ -48,6 +48,7 @@ class SampledLight:
     sh: np.ndarray  # [(order+1)^2, 3] camera frame, rotated and scaled
     sh8: np.ndarray  # [81, 3]
     sky: dict | None = None
+    hard: dict | None = None  # farm.hard_lights: kind, lobes, ambient
 
     def record(self) -> dict:
         out = {
@@ -61,6 +62,8 @@ class SampledLight:
         }
         if self.sky is not None:
             out["sky"] = self.sky
+        if self.hard is not None:
+            out["hard"] = self.hard
         return out
 
 

@@ -30,6 +30,11 @@ class SceneOptions:
     passes: frozenset = frozenset({"pt", "prt", "body"})
     specular: str = "auto"
     light_pool: str = "train"
+    # issue 37: the framings a scene draws from (farm.camera.FRAMINGS, "all" or a comma list;
+    # "full-body" draws nothing new: the scenes of before) and the share of lights that are hard
+    # lights (farm.hard_lights; 0 draws nothing new)
+    framing: str = "full-body"
+    hard_lights: float = 0.0
 
     def validate(self) -> None:
         checks = (
@@ -52,6 +57,12 @@ class SceneOptions:
             raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
         if self.specular not in SPECULAR_MODES:
             raise ValueError(f"SceneOptions.specular must be one of {SPECULAR_MODES}, got {self.specular!r}")
+        from farm.camera import parse_framings
+
+        parse_framings(self.framing)
+        if isinstance(self.hard_lights, bool) or not isinstance(self.hard_lights, (int, float)) \
+                or not 0.0 <= float(self.hard_lights) <= 1.0:
+            raise ValueError(f"SceneOptions.hard_lights must be a share in [0, 1], got {self.hard_lights!r}")
         if self.light_pool not in LIGHT_POOLS:
             raise ValueError(f"SceneOptions.light_pool must be 'train' or 'heldout', got {self.light_pool!r}")
 

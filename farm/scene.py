@@ -37,6 +37,10 @@ MAX_POSE_ATTEMPTS = 12
 # Capsule overlap (fraction of the two radii) above which a pose is rejected.
 MAX_PENETRATION = 0.3
 GEOMETRY_SAMPLES = 16
+# Streams of their own (default_rng([seed, index, stream])) for what issue 37 added, so that a
+# scene's body, clothes and light maps do not depend on --framing or --hard-lights (the bake is 1)
+SHOT_STREAM = 2
+HARD_LIGHT_STREAM = 3
 
 
 def _versions() -> dict:
@@ -97,6 +101,7 @@ class SceneSample:
     lights: list  # farm.lights.SampledLight
     timings: dict = field(default_factory=dict)
     body_mesh: tuple | None = None  # (vertices [V, 3] world, faces [F, 3]): the posed body without clothes
+    head_labels: list | None = None  # per part: float [V], 1 on the head's skin and face details (the head mask)
 
     @property
     def offsets(self) -> np.ndarray:
@@ -173,7 +178,7 @@ def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) 
 
 def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
     """sample_scene for a request already checked (check_request)."""
-    from farm import appearance, bodies, camera, lights, poses
+    from farm import appearance, bodies, camera, hard_lights, lights, poses
 
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
@@ -212,7 +217,9 @@ def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) ->
     stage("appearance", t0)
 
     t0 = time.perf_counter()
-    cam = camera.frame_person(np.concatenate([p.vertices for p in parts]), rng)
+    everything = np.concatenate([p.vertices for p in parts])
+    cam = camera.frame_person(everything, rng)
+    cam = camera.reframe(cam, everything, body, options.framing, [int(seed), int(index), SHOT_STREAM])
     stage("camera", t0)
 
     t0 = time.perf_counter()
@@ -221,11 +228,14 @@ def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) ->
         lights.sample_light(rng, pool, options.sh_order, cam.world_to_camera, render_sky)
         for _ in range(options.lights)
     ]
+    hard_lights.replace_share(scene_lights, options.hard_lights, [int(seed), int(index), HARD_LIGHT_STREAM],
+                              options.sh_order, cam.world_to_camera)
     stage("lights", t0)
     return SceneSample(
         index=int(index), seed=int(seed), options=options, body=params, pose=pose, yaw_deg=yaw,
         penetration=float(penetration), penetration_pair=pair, parts=parts, look=look, camera=cam,
         lights=scene_lights, timings=timings, body_mesh=(body.vertices, body.faces),
+        head_labels=appearance.head_labels(parts, body),
     )
 
 
@@ -290,7 +300,7 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
     offsets = sample.offsets
     passes.configure_film(scene, (options.resolution, options.resolution))
     blender_scene.camera_object(cam.location, cam.blender_rotation, cam.focal_mm, camera.SENSOR_MM, scene=scene)
-    attribute_names = ["normal", "depth"]
+    attribute_names = ["normal", "depth"] + (["head"] if sample.head_labels is not None else [])
     if baked.transport is not None:
         attribute_names += [f"t{i}" for i in range(_transport_blocks(options))]
     spec = blender_scene.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
@@ -302,6 +312,8 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
             "depth": np.repeat(cam_vertices[lo:hi, 1:2], 3, axis=1),
             "rest": part.rest,
         }
+        if sample.head_labels is not None:
+            attrs["head"] = np.repeat(sample.head_labels[i][:, None], 3, axis=1)
         if baked.transport is not None:
             for k, block in enumerate(blender_scene.pack_vectors(baked.transport[lo:hi])):
                 attrs[f"t{k}"] = block
@@ -344,6 +356,8 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
         "material": np.where(inside[..., None], geo.aovs["material"], 0.0).astype(np.float32),
         "depth": geo.aovs["depth"][..., 0].astype(np.float32),
     }
+    if "head" in geo.aovs:  # the head mask: the share of the pixel's person that is head skin or face
+        channels["head"] = np.clip(geo.aovs["head"][..., 0], 0.0, 1.0).astype(np.float32)
     if baked.transport is not None:
         n_coeffs = sh.num_coeffs(options.sh_order)
         stacked = np.concatenate([geo.aovs[f"t{i}"] for i in range(_transport_blocks(options))], axis=-1)
@@ -370,22 +384,11 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
     timings["path_trace_render_calls"] = path_trace_seconds
     if "body" in options.passes:
         t0 = time.perf_counter()
-        channels.update(body_buffers(sample).channels())
+        from farm.body_pass import scene_body_buffers
+
+        channels.update(scene_body_buffers(sample).channels())
         timings["body_pass"] = round(time.perf_counter() - t0, 4)
     return channels, timings
-
-
-def body_buffers(sample: SceneSample):
-    """The unclothed body seen by the scene's camera (farm.body_pass.BodyBuffers)."""
-    from farm.bake import vertex_normals
-    from farm.body_pass import body_pass
-
-    if sample.body_mesh is None:
-        raise ValueError(f"scene {sample.index}: no body mesh was drawn (the body pass needs one)")
-    vertices, faces = sample.body_mesh
-    cam = sample.camera
-    normals = vertex_normals(vertices, faces) @ cam.world_to_camera.T
-    return body_pass(cam.to_camera(vertices), faces, normals, sample.options.resolution, cam.focal_mm)
 
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *, sample_fn=None) -> Path:

@@ -49,6 +49,9 @@ _BODY = {
     "body_alpha": ("A",),
     "body_depth": ("Z",),
 }
+# optional: the farm's head mask (issue 37), the share of the pixel's person that is the head's
+# skin or the face's details (eyes, lips, brows); absent in scenes made before it
+_LABELS = {"head": ("A",)}
 _PER_LIGHT = ("image", "shading", "prt")
 _RGB = ("R", "G", "B")
 
@@ -78,6 +81,7 @@ class Scene:
     body_normal: np.ndarray | None = None  # [H, W, 3] unit, camera frame; 0 where the body is not seen
     body_alpha: np.ndarray | None = None   # [H, W, 1] coverage of the unclothed body
     body_depth: np.ndarray | None = None   # [H, W, 1] metres along the view axis; 0 off the body
+    head: np.ndarray | None = None         # [H, W, 1] head mask in [0, 1] (farm scenes since issue 37)
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -139,7 +143,8 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
     alpha (1), albedo (3), normal (3), material (3), depth (1) always;
     transport ((sh_order+1)^2) optionally; image.LK / shading.LK / prt.LK (3)
     for lights K = 0..len(meta["lights"])-1 optionally; body_normal (3),
-    body_alpha (1), body_depth (1) optionally, all three or none. `meta` needs `index`,
+    body_alpha (1), body_depth (1) optionally, all three or none; head (1, the head mask)
+    optionally. `meta` needs `index`,
     `sh_order`, `lights`; other keys (seed, camera, body, pose, appearance,
     passes, versions, timings) are stored as given. This function fills
     `format`, `resolution`, `channels`, `exr_sha256`.
@@ -181,8 +186,9 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
     for name, arr in channels.items():
         if name in _GEOMETRY:
             continue
-        if name in _BODY:
-            for suffix, plane in zip(_BODY[name], _as_planes(name, arr, len(_BODY[name]), hw)):
+        if name in _BODY or name in _LABELS:
+            sfx = _BODY.get(name) or _LABELS[name]
+            for suffix, plane in zip(sfx, _as_planes(name, arr, len(sfx), hw)):
                 planes[f"{name}.{suffix}"] = plane
             continue
         if name == "transport":
@@ -326,6 +332,7 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
     geometry = {g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _GEOMETRY.items()}
     if any(c.startswith("body_") for c in planes):
         geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _BODY.items()})
+    geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _LABELS.items() if f"{g}.{sfx[0]}" in planes})
     tnames = transport_channel_names(n)
     has_transport = any(c.startswith("transport.") for c in planes)
     transport = stack(tnames) if has_transport else None
