@@ -32,9 +32,10 @@ from evaluation.sheet import write_sheet
 from relight.fileio import atomic_write_text
 
 from model.data import EvaluationPairs
+from model.face_region import FaceRows
 from model.data_splits import find_scenes, held_out_light_names
 from model.geometry_diagnostics import (TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table,
-                                        parametric_transport_error)
+                                        parametric_transport_error, transport_normal)
 from model.pair_metrics import (MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction,
                                 gain_fitted, oracle_prt, render_np, shading_np, with_metric_weight)
 from model.predictor import Predictor
@@ -173,9 +174,11 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     rows = defaultdict(list)
     geometry, breakdown, transport_err = defaultdict(list), defaultdict(list), []
     sheet, per_pair = [], []
+    face = FaceRows(size)
     for i in range(len(pairs)):
         sample = with_metric_weight(numpy_sample(pairs[i]), mask)
         pred = {k: v[0] for k, v in ours(sample["input"][None]).items()}
+        face_rows(face, pred, sample, pairs.paths[pairs.pairs[i][0]], ours.tstar, order)
         rows["ours"].append(evaluate_prediction(pred, sample, ours.tstar))
         rows["identity"].append(baseline_identity(sample, exposure_matched=False))
         rows["identity, exposure-matched"].append(baseline_identity(sample, exposure_matched=True))
@@ -222,6 +225,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
                  .split("\n\n", 2)[2])
     if geo:
         text += "\n## Geometry and light\n\n" + geometry_table(geo, ceiling)
+    text += face.markdown()
     atomic_write_text(out / "evaluation.md", text +
                        "\nContact sheet columns: input, ours relit (over the GT background), GT, "
                        "|error| x4, albedo, shading, |residual| x10 (person maps times the GT alpha).\n")
@@ -229,10 +233,27 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
          "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
          "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs],
-         "per_pair": per_pair}, indent=1) + "\n")
+         "per_pair": per_pair, "face": face.summary()}, indent=1) + "\n")
     write_sheet(out / "contact_sheet.png", contact_sheet(sheet))
     return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
-            "parametric_transport_rel_l2": ceiling}
+            "parametric_transport_rel_l2": ceiling, "face": face.summary()}
+
+
+def face_rows(face: FaceRows, pred: dict, sample: dict, json_path, tstar: bool, order: int) -> None:
+    """The pair's rows over its face (model.face_region), when it has one: ours, the identity
+    baselines, the oracle, the breakdown's ceilings and the normals' angle."""
+    fs = face.face_sample(sample, json_path)
+    if fs is None:
+        return
+    face.add("ours", evaluate_prediction(pred, fs, tstar))
+    face.add("identity", baseline_identity(fs, exposure_matched=False))
+    face.add("identity, exposure-matched", baseline_identity(fs, exposure_matched=True))
+    face.add(ORACLE_ROW, oracle_prt(fs))
+    face.add(GAIN_ROW, gain_fitted(pred, fs, tstar))
+    if "normal" in fs and not tstar:
+        for name, row in error_breakdown(pred, fs, order).items():
+            face.add(name, row)
+        face.add_normals(transport_normal(pred["transport"]), channels_last(fs["normal"]), fs["metric_weight"])
 
 
 def main(argv=None) -> int:
