@@ -6,7 +6,11 @@ that model (python -m model.evaluate_photos, torch-free): out/demo/
 contact_sheet.png shows the photo, its albedo and the person relit by a
 directional light from 0, 90, 180 and 270 degrees and by a preset at 0 and
 180 degrees; out/demo/photos.md holds the reconstruction and light-motion
-numbers. While no model is registered it says so and runs
+numbers. out/demo/faces_sheet.png (issue 37) shows the three bundled real
+photos (astronaut, grace_hopper, obama_standing) relit the same way, a
+directional white light from 0, 90, 180 and 270 degrees and two presets
+(sunset, studio), each photo's row followed by a row of zooms on its face
+(the face box: the head of the person matte, `face_box`). While no model is registered it says so and runs
 the smallest real farm job instead (one posed, clothed human, path-traced
 and baked), relighting that scene's ground-truth decomposition,
 albedo * (T . L'), under the presets, next to Cycles' own render.
@@ -23,6 +27,63 @@ ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out" / "demo"
 PRESETS = ("sunset", "studio", "forest")  # training maps, as model.evaluate_photos.SHEET_PRESETS
 EXAMPLE_PHOTO = ROOT / "relight" / "data" / "examples" / "astronaut.jpg"
+FACE_PHOTOS = (EXAMPLE_PHOTO, ROOT / "relight" / "data" / "examples" / "grace_hopper.jpg",
+               ROOT / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg")
+FACE_DIRECTIONS = (0.0, 90.0, 180.0, 270.0)
+FACE_PRESETS = ("sunset", "studio")
+FACE_TILE = 224
+
+
+def face_box(matte, threshold: float = 0.5) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1) of a square around the head of a person matte [H, W]. The neck is the row
+    of the matte's top half whose width is smallest against the widest row above it (the head
+    narrows into the neck, the shoulders then widen past the head); the head is the matte from
+    its top row to the neck, and the box a square of 1.25 x the head's size about its centre. A
+    heuristic for upright people (the photos here), not a face detector."""
+    import numpy as np
+
+    m = np.asarray(matte) > threshold
+    rows = np.flatnonzero(m.any(axis=1))
+    if rows.size == 0:
+        raise ValueError("face_box: empty matte")
+    top, bottom = int(rows[0]), int(rows[-1]) + 1
+    widths = m.sum(axis=1).astype(np.float64)
+    k = max(1, (bottom - top) // 40)
+    smooth = np.convolve(widths, np.ones(2 * k + 1) / (2 * k + 1), mode="same")
+    start, stop = top + max(3, (bottom - top) // 20), top + (bottom - top) // 2
+    ratio = smooth[start:stop] / np.maximum.accumulate(smooth[top:stop])[start - top:]
+    neck = start + int(np.argmin(ratio)) if stop > start else bottom
+    cols = np.flatnonzero(m[top:neck].any(axis=0))
+    cy, cx = 0.5 * (top + neck), 0.5 * (cols[0] + cols[-1] + 1)
+    half = 0.625 * max(neck - top, cols[-1] + 1 - cols[0])
+    h, w = m.shape
+    return max(int(cy - half), 0), min(int(cy + half), h), max(int(cx - half), 0), min(int(cx + half), w)
+
+
+def faces_sheet(model: Path, quality: str = "balanced") -> Path:
+    """out/demo/faces_sheet.png: per photo, a row of the photo relit (input, a white directional
+    light from FACE_DIRECTIONS, FACE_PRESETS) and a row of the same cut to its face box."""
+    from evaluation import sheet
+    from relight import photo as photo_io
+    from relight import quality as presets
+    from relight.light import directional_light, sh_light
+    from relight.runtime import Relighter
+
+    preset = presets.preset(quality)
+    relighter = Relighter(model, working_size=preset.working_size)
+    rows = []
+    for path in FACE_PHOTOS:
+        image, file_mask = photo_io.read_photo(path)
+        dec = relighter.decompose(image, mask=file_mask, **preset.decompose_options())
+        lights = [directional_light(a, dec.sh_order) for a in FACE_DIRECTIONS]
+        lights += [sh_light(name, dec.sh_order) for name in FACE_PRESETS]
+        tiles = [image] + [dec.relight(light) for light in lights]
+        y0, y1, x0, x1 = face_box(dec.mask if dec.mask is not None else dec.layer("alpha"))
+        rows += [tiles, [t[y0:y1, x0:x1] for t in tiles]]
+        print(f"  {path.name}: face box rows {y0}-{y1}, columns {x0}-{x1}", flush=True)
+    labels = (["input"] + [f"white light {a:g} deg" for a in FACE_DIRECTIONS] + list(FACE_PRESETS))
+    return sheet.write_sheet(OUT / "faces_sheet.png",
+                             sheet.contact_sheet(rows, tile=FACE_TILE, gutter=2, backdrop=255, labels=labels))
 
 
 def relight_photo(model: Path) -> list[Path]:
@@ -65,7 +126,7 @@ def main() -> int:
         model = None
         print("no default model is registered in relight/models/models.json: relighting a "
               "rendered farm scene's ground-truth decomposition instead of the bundled photo", flush=True)
-    outs = relight_photo(model) if model else relight_farm_scene()
+    outs = relight_photo(model) + [faces_sheet(model)] if model else relight_farm_scene()
     print("\nwrote:")
     for p in outs:
         print("  ", p.relative_to(ROOT))
@@ -75,6 +136,8 @@ def main() -> int:
         from model import evaluate_photos
 
         print("contact sheet: " + " | ".join(evaluate_photos.column_labels()))
+        print("faces sheet: per photo a row relit (input | white light from 0, 90, 180, 270 deg | "
+              + " | ".join(FACE_PRESETS) + ") and a row of zooms on its face")
     return 0
 
 
