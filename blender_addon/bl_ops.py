@@ -12,12 +12,13 @@ import time
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_dials, bl_images, bl_layers, bl_saved, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
+from . import bl_dials, bl_images, bl_layers, bl_saved, bl_session, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
 from .bl_dials import compute_relit, schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
-from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, release_job, session_of,
-                         set_status, source_image, status_of, tell, write_output)
+from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, press_clock, release_job,
+                         seconds_note, session_of, set_status, source_image, status_of, tell, timed_light,
+                         write_output)
 
 
 def mask_inputs(settings, image) -> dict:
@@ -89,7 +90,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
                 raise ValueError("No light preset is installed.")
         else:
             # the World needs bpy: read here, before any time goes into the network
-            light, extra = target_light(context, order, model_path)
+            (light, extra), seconds = timed_light(target_light, context, order, model_path)
+            self._world_seconds += seconds
             rotation += extra
         return dict(photo_id=bl_images.photo_id(image, create=True), source=image.name, read_photo=read_photo,
                     mask=mask, model_path=model_path, relighter=relighter, long_side=long_side,
@@ -102,10 +104,11 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         return (settings.light_kind, settings.preset, settings.hdr_path, settings.rotation, settings.exposure,
                 settings.strength, settings.light_image.name if settings.light_image else "")
 
-    def _start(self, context, layers_later: bool = False):
+    def _start(self, context, layers_later: bool = False, press: tuple | None = None):
+        # the press: from the scene update Blender ran just before (a World's light read there) on
+        self._started, self._world_seconds = press or press_clock()
         if "job" in state.RUNNING:
             raise ValueError("A relight is already running; press Esc to cancel it first.")
-        self._started = time.monotonic()
         self._plan = self._make_plan(context)
         self._plan["layers_later"] = layers_later
         plan = self._plan
@@ -147,8 +150,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
     def _done(self, context) -> set:
         session = self._result["session"]
         wall = time.monotonic() - self._started
-        message = (f"Relit '{session.source}' in {wall:.1f} s "
-                   f"(network {self._result['network_seconds']:.1f} s).")
+        message = (f"Relit '{session.source}' in {wall:.1f} s"
+                   f"{seconds_note(self._world_seconds, self._result['network_seconds'])}.")
         if self._plan.get("layers_later"):
             start_layers(session, self._result["dials"])
             message = message[:-1] + "; the other layers follow."
@@ -169,8 +172,9 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
 
     def execute(self, context):
         # synchronous path: tests, scripts and background mode
+        press = press_clock()
         try:
-            self._start(context)
+            self._start(context, press=press)
             job_state = self._job.wait()
             if job_state is jobs.JobState.FAILED:
                 raise engine.user_error(self._job.error) \
@@ -188,8 +192,9 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
     def invoke(self, context, event):
         if self.runs_here(context):
             return self.execute(context)
+        press = press_clock()
         try:
-            self._start(context, layers_later=True)
+            self._start(context, layers_later=True, press=press)
         except ValueError as exc:
             return self._error(context, exc)
         context.window_manager.progress_begin(0, 100)
@@ -307,7 +312,10 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
 CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)
 
 
-_HANDLERS = ((bpy.app.handlers.depsgraph_update_post, bl_dials.on_depsgraph_update),
+# in this order: bl_session.on_update_post times the update bl_dials' handler is part of
+_HANDLERS = ((bpy.app.handlers.depsgraph_update_pre, bl_session.on_update_pre),
+             (bpy.app.handlers.depsgraph_update_post, bl_dials.on_depsgraph_update),
+             (bpy.app.handlers.depsgraph_update_post, bl_session.on_update_post),
              (bpy.app.handlers.load_post, bl_saved.on_load),
              (bpy.app.handlers.save_post, bl_saved.on_save_post),
              (bpy.app.handlers.undo_post, bl_layers.on_undo_redo),

@@ -6,13 +6,14 @@ import math
 import time
 
 import bpy
-from bpy.props import StringProperty
+from bpy.props import BoolProperty, StringProperty
 
 from relight.clip import DEFAULT_STABILITY
 
 from . import engine, jobs, quality, sequence
 from .bl_light import target_light
-from .bl_session import WorkerOperator, addon_settings, editor_image, release_job, set_status, status_of, tell
+from .bl_session import (WorkerOperator, addon_settings, editor_image, press_clock, release_job, seconds_note,
+                         set_status, status_of, tell, timed_light)
 
 SLOT = "sequence"  # its place in state.RUNNING (a sequence and a photo can be relit at once)
 SOURCES = {"SEQUENCE", "MOVIE"}
@@ -34,6 +35,9 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
 
     image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"},
                                description="Movie or image sequence to relight (default: the Image Editor's image)")
+    overwrite: BoolProperty(name="Overwrite", default=False, options={"SKIP_SAVE"},
+                            description="Replace the frames an earlier run left in the output folder "
+                                        "(the panel's Overwrite Frames does the same for one run)")
 
     def _make_plan(self, context) -> dict:
         from . import state
@@ -50,9 +54,19 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
         order = engine.known_sh_order(model_path)
         relighter = engine.open_relighter(model_path) if order is None else None
         order = relighter.sh_order if relighter is not None else order
-        light, extra_rotation = target_light(context, order, model_path)  # the World needs bpy: read here
+        folder = sequence.output_folder(bpy.data.filepath, image.name)
+        earlier = sequence.frames_in(folder)
+        overwrite = self.overwrite or settings.overwrite_frames
+        if earlier and not overwrite:
+            raise ValueError(f"'{folder.name}' beside the .blend holds {len(earlier)} frames of an earlier Relight "
+                             "Sequence: tick Overwrite next to Relight Sequence to replace them, or move or rename "
+                             "that folder to keep them.")
+        # the World needs bpy: read here
+        (light, extra_rotation), self._world_seconds = timed_light(target_light, context, order, model_path)
+        if overwrite:
+            settings.overwrite_frames = False  # one run's permission: the next run asks again
         return dict(path=bpy.path.abspath(image.filepath), source=image.source, name=image.name,
-                    folder=str(sequence.output_folder(bpy.data.filepath, image.name)), model_path=model_path,
+                    folder=str(folder), replace=earlier if overwrite else [], model_path=model_path,
                     relighter=relighter, long_side=quality.preset(settings.quality).working_size,
                     matte_method=quality.preset(settings.quality).matte_method,
                     augment=quality.preset(settings.quality).augment, light=light,
@@ -60,11 +74,12 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
                     stability=DEFAULT_STABILITY,
                     person=int(settings.person) if settings.person.isdigit() else None)
 
-    def _start(self, context) -> None:
+    def _start(self, context, press: tuple | None = None) -> None:
         from . import state
 
-        self._started = time.monotonic()
+        self._started, before = press or press_clock()
         self._plan = plan = self._make_plan(context)
+        self._world_seconds += before
         token, progress = engine.CancelToken(), sequence.SequenceProgress()
         self._job = jobs.BackgroundJob(lambda: sequence.relight_sequence(plan, progress, token),
                                        label="sequence", cancel_token=token, progress=progress)
@@ -79,8 +94,10 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
             space.image = image
             space.image_user.frame_duration = result["written"]
         wall = time.monotonic() - self._started
+        replace = self._plan["replace"]
+        replaced = f", replacing the {len(replace)} frames there before" if replace else ""
         message = (f"Relit {result['written']} frames of '{self._plan['name']}' into {result['folder']} in "
-                   f"{wall:.1f} s{sequence.nobody_note(result['nobody'])}.")
+                   f"{wall:.1f} s{seconds_note(self._world_seconds)}{replaced}{sequence.nobody_note(result['nobody'])}.")
         set_status(context, message)
         self.report({"INFO"}, message)
         return {"FINISHED"}
@@ -96,8 +113,9 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
 
     def execute(self, context):
         # synchronous path: tests, scripts and background mode
+        press = press_clock()
         try:
-            self._start(context)
+            self._start(context, press)
             if self._job.wait() is jobs.JobState.FAILED:
                 raise self._job.error
             return self._finish(context, self._job.result)
@@ -110,7 +128,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
         if self.runs_here(context):
             return self.execute(context)
         try:
-            self._start(context)
+            self._start(context, press_clock())
         except ValueError as exc:
             return self._stopped(context, exc)
         return self.start_polling(context)

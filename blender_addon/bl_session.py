@@ -2,6 +2,8 @@
 line, the photo in the editor and its session, handing an output buffer to Blender, and
 what the operators that run a job on a worker thread share (WorkerOperator)."""
 
+import time
+
 import bpy
 import numpy as np
 from bpy.props import BoolProperty
@@ -129,6 +131,7 @@ class WorkerOperator:
     _timer = None
     _plan = None
     _started = 0.0
+    _world_seconds = 0.0  # of the press, spent reading the World's light (bl_session.press_clock)
 
     def runs_here(self, context) -> bool:
         """Run on the calling thread: asked to (the property, RELIGHT_PHOTO_SYNC), or no window
@@ -151,3 +154,52 @@ class WorkerOperator:
         status = status_of(context)
         status.running, status.stage, status.progress = False, "", 0.0
         release_job(self._job, slot)
+
+
+# ------------------------------------------------------------------ how long a press took
+
+PRESS_GAP = 0.25  # s: a scene update that ended this shortly before an operator started was part of its press
+_UPDATE = {"began": 0.0, "ended": 0.0, "worlds": set(), "world_seconds": 0.0}
+
+
+@bpy.app.handlers.persistent
+def on_update_pre(*_args) -> None:
+    _UPDATE["began"], _UPDATE["worlds"] = time.monotonic(), set(state.WORLDS)
+
+
+@bpy.app.handlers.persistent
+def on_update_post(*_args) -> None:
+    """Registered after bl_dials.on_depsgraph_update: a World edit's light, read (a procedural
+    World baked with Cycles, seconds) by that handler, is inside this update."""
+    now = time.monotonic()
+    read_world = bool(set(state.WORLDS) - _UPDATE["worlds"])
+    _UPDATE["ended"], _UPDATE["world_seconds"] = now, (now - _UPDATE["began"]) if read_world else 0.0
+
+
+def press_clock() -> tuple[float, float]:
+    """(when the press began, seconds of it spent reading the World's light) at an operator's start.
+
+    Blender brings the scene up to date before it runs an operator; when the World changed, the
+    add-on's depsgraph handler reads its light there (a Sky World: a Cycles bake of 0.6-2 s), before
+    the operator's own code. That update is part of the press the artist waits for."""
+    now = time.monotonic()
+    if _UPDATE["world_seconds"] and now - _UPDATE["ended"] < PRESS_GAP:
+        began, seconds = _UPDATE["began"], _UPDATE["world_seconds"]
+        _UPDATE["world_seconds"] = 0.0  # counted once
+        return began, seconds
+    return now, 0.0
+
+
+def timed_light(read, *args):
+    """(read(*args), seconds it took when it read a World's light (not from the cache), else 0)."""
+    before, start = set(state.WORLDS), time.monotonic()
+    value = read(*args)
+    return value, (time.monotonic() - start) if set(state.WORLDS) - before else 0.0
+
+
+def seconds_note(world: float, network: float | None = None) -> str:
+    """' (reading the World's light 1.2 s, network 0.4 s)', the parts of a press worth naming."""
+    parts = [f"reading the World's light {world:.1f} s"] if world >= 0.05 else []
+    if network is not None:
+        parts.append(f"network {network:.1f} s")
+    return f" ({', '.join(parts)})" if parts else ""

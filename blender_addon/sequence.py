@@ -54,6 +54,17 @@ def output_folder(blend_path: str, image_name: str) -> Path:
     return Path(blend_path).parent / f"{safe}{OUTPUT_SUFFIX}"
 
 
+def frames_in(folder) -> list[Path]:
+    """The relit frames a run left in `folder` (frame_000001.png / .exr ...), in order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if _FRAME.fullmatch(p.name))
+
+
+_FRAME = re.compile(r"frame_\d{6,}\.(png|exr)")
+
+
 def open_frames(path: str, source: str, max_pixels: int | None = None):
     """(relight.video_io clip, output format) of a SEQUENCE's files or a MOVIE."""
     from relight.video_io import FrameFolder, VideoFile
@@ -99,6 +110,8 @@ def relight_sequence(plan: dict, progress: SequenceProgress, token: engine.Cance
                            matte_method=plan.get("matte_method", "ensemble"), augment=plan.get("augment", ()))
     folder = Path(plan["folder"])
     folder.mkdir(parents=True, exist_ok=True)
+    for old in plan.get("replace", ()):  # an earlier run's frames, replaced as the artist asked
+        Path(old).unlink(missing_ok=True)  # (all of them: a longer run's last frames would stay behind)
     writer = FrameFolderWriter(folder, fmt)
     for frame in clip.frames():
         token.check()

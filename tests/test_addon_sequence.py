@@ -108,3 +108,36 @@ def test_the_operator_refuses_a_still_photo(addon, frames):
     with pytest.raises(RuntimeError, match="movie or an image sequence"):
         bpy.ops.relight_photo.relight_sequence(image_name=still.name, synchronous=True)
     bpy.data.images.remove(still)
+
+
+def test_a_second_run_refuses_to_overwrite_the_first_runs_frames_until_asked(addon, tmp_path):
+    """Issue 40: run twice, Relight Sequence silently replaced the first run's frames."""
+    folder = tmp_path / "shot_0001_relit"
+    assert bpy.ops.relight_photo.relight_sequence(image_name=addon.name, synchronous=True) == {"FINISHED"}
+    first = {p.name: p.stat().st_mtime_ns for p in folder.glob("frame_*.png")}
+    assert len(first) == 6
+    (folder / "frame_000009.png").write_bytes((folder / "frame_000001.png").read_bytes())  # a longer run's
+    (folder / "notes.txt").write_text("the artist's own file")
+    status = bpy.context.window_manager.relight_photo_status
+    with pytest.raises(RuntimeError):
+        bpy.ops.relight_photo.relight_sequence(image_name=addon.name, synchronous=True)
+    assert status.is_error and status.message == (
+        "'shot_0001_relit' beside the .blend holds 7 frames of an earlier Relight Sequence: tick Overwrite next "
+        "to Relight Sequence to replace them, or move or rename that folder to keep them.")
+    assert {p.name: p.stat().st_mtime_ns for p in folder.glob("frame_00000[1-6].png")} == first  # untouched
+    # the panel's Overwrite, ticked: this run replaces them all (none of the earlier run's left behind)
+    settings = bpy.context.scene.relight_photo
+    settings.overwrite_frames = True
+    assert bpy.ops.relight_photo.relight_sequence(image_name=addon.name, synchronous=True) == {"FINISHED"}
+    assert "replacing the 7 frames there before" in status.message and not status.is_error
+    now = sorted(p.name for p in folder.iterdir())
+    assert now == [f"frame_{i:06d}.png" for i in range(1, 7)] + ["notes.txt"]
+    assert all(p.stat().st_mtime_ns != first[p.name] for p in folder.glob("frame_*.png"))
+    assert settings.overwrite_frames is False  # one run's permission: a third run asks again
+    with pytest.raises(RuntimeError, match="holds 6 frames of an earlier Relight Sequence"):
+        bpy.ops.relight_photo.relight_sequence(image_name=addon.name, synchronous=True)
+    # a script says so with the operator's own option
+    assert bpy.ops.relight_photo.relight_sequence(image_name=addon.name, synchronous=True,
+                                                  overwrite=True) == {"FINISHED"}
+    for image in [i for i in bpy.data.images if i.filepath.endswith("frame_000001.png")]:
+        bpy.data.images.remove(image)
