@@ -81,13 +81,31 @@ def _alpha_over_inputs(node):
     return node.inputs[1], node.inputs[2]
 
 
+def _to_render_size(node) -> None:
+    """A Scale node that fits its image to the render's size, the Resolution % included (Blender 4:
+    properties; Blender 5: menu inputs)."""
+    if hasattr(node, "space"):
+        node.space, node.frame_method = "RENDER_SIZE", "FIT"
+    else:
+        node.inputs["Type"].default_value = "Render Size"
+        node.inputs["Frame Type"].default_value = "Fit"
+
+
 def _composite_nodes(tree, scene, photo):
-    """Photo (background) and render (foreground) into an Alpha Over; returns the Alpha Over node."""
+    """Photo (background, scaled to the render's size) and render (foreground) into an Alpha Over;
+    returns the Alpha Over node."""
     nodes, links = tree.nodes, tree.links
     image = nodes.new("CompositorNodeImage")
     image.name = NODE_PREFIX + "Photo"
     image.image = photo
-    image.location = (-300.0, 200.0)
+    image.location = (-500.0, 200.0)
+    # the compositor centres an image at its own size: at a Resolution % under 100 the render is
+    # smaller, and the photo behind it must shrink with it (it showed its middle only)
+    scale = nodes.new("CompositorNodeScale")
+    scale.name = NODE_PREFIX + "Photo to Render Size"
+    _to_render_size(scale)
+    scale.location = (-300.0, 200.0)
+    links.new(image.outputs["Image"], scale.inputs["Image"])
     layers = nodes.new("CompositorNodeRLayers")
     layers.name = NODE_PREFIX + "Render"
     if hasattr(layers, "scene"):
@@ -96,7 +114,7 @@ def _composite_nodes(tree, scene, photo):
     over = nodes.new("CompositorNodeAlphaOver")  # premultiplied foreground: what Cycles renders
     over.name = NODE_PREFIX + "Over"
     background, foreground = _alpha_over_inputs(over)
-    links.new(image.outputs["Image"], background)
+    links.new(scale.outputs["Image"], background)
     links.new(layers.outputs["Image"], foreground)
     return over
 

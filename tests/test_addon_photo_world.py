@@ -112,7 +112,8 @@ def check_compositing(name: str) -> None:
     tree = scene.compositing_node_group if hasattr(scene, "compositing_node_group") else scene.node_tree
     over = next(n for n in tree.nodes if n.bl_idname == "CompositorNodeAlphaOver")
     sources = {link.from_node.bl_idname: link.from_node for s in over.inputs for link in s.links}
-    assert sources["CompositorNodeImage"].image == bpy.data.images[name]
+    scale = sources["CompositorNodeScale"]  # the photo, fitted to the render's size (Resolution %)
+    assert scale.inputs["Image"].links[0].from_node.image == bpy.data.images[name]
     assert "CompositorNodeRLayers" in sources
     assert over.outputs["Image"].links  # to the group output (Blender 5) or the Composite node (4)
 
