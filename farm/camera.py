@@ -180,7 +180,8 @@ def band(framing: str, marks: Landmarks) -> tuple[float, float, float]:
     raise ValueError(f"band: no cut for framing {framing!r}")
 
 
-def reframe(full_body: Camera, vertices: np.ndarray, body, framing_text: str, stream: list[int]) -> Camera:
+def reframe(full_body: Camera, vertices: np.ndarray, body, framing_text: str, stream: list[int],
+            body_yaw_deg: float = 0.0) -> Camera:
     """The scene's camera for the framings asked (SceneOptions.framing): one drawn uniformly from
     default_rng(stream), its own stream, so that the body, clothes and lights drawn from the
     scene's main stream stay the same whatever the framing; "full-body" keeps `full_body` (the
@@ -194,14 +195,23 @@ def reframe(full_body: Camera, vertices: np.ndarray, body, framing_text: str, st
         return full_body
     head = np.argmax(body.bone_weights, axis=1) == body.bone_labels.index("head")
     marks = landmarks(vertices, body.joints, body.bone_labels, body.vertices[head])
-    return frame_shot(vertices, marks, framing, rng)
+    return frame_shot(vertices, marks, framing, rng, body_yaw_deg)
 
 
-def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.random.Generator) -> Camera:
+def z_turn(degrees: float) -> np.ndarray:
+    """Rotation about world Z by `degrees` (counter-clockwise seen from above)."""
+    t = math.radians(degrees)
+    return np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0], [0.0, 0.0, 1.0]])
+
+
+def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.random.Generator,
+               body_yaw_deg: float = 0.0) -> Camera:
     """A camera for one of the cut framings: the band of the body (band()) fills `fill` of the
     frame height with its cut line on the frame's bottom edge and the head room above it; lens,
-    camera height (pitch: a high or low camera looks down or up at the head) and roll (a
-    photographer's tilt, now and then a strong one) drawn as photographers vary them."""
+    camera height (pitch: a high or low camera looks down or up at the head), roll (a
+    photographer's tilt, now and then a strong one) and the side it is taken from (about the
+    person's facing, `body_yaw_deg`) drawn as photographers vary them. The camera turned about
+    world Z by camera_azimuth_deg (recorded) looks along +Y turned by that much."""
     if framing == "full-body":
         return frame_person(vertices, rng)
     low, high, radius = band(framing, marks)
@@ -217,7 +227,11 @@ def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.ran
     if rng.random() < 0.1:  # a deliberate tilt
         roll = float(rng.choice([-1.0, 1.0]) * rng.uniform(8.0, 15.0))
     horizontal = float(rng.uniform(-0.5, 0.5))  # fraction of the horizontal slack (rule of thirds and such)
-    rot = orientation(pitch, roll)
+    # a portrait is taken from the front: the camera walks round the person (turned by
+    # body_yaw_deg, farm.scene) to within 45 degrees of its facing, one shot in six a profile
+    facing = float(rng.uniform(-45.0, 45.0) if rng.random() < 5.0 / 6.0
+                   else rng.choice([-1.0, 1.0]) * rng.uniform(45.0, 90.0))
+    rot = orientation(pitch, roll) @ z_turn(body_yaw_deg + facing).T
     right, forward, up = rot
     keep = (vertices[:, 2] >= low) & (vertices[:, 2] <= high)
     keep &= np.linalg.norm(vertices[:, :2] - marks.head[:2], axis=1) < radius
@@ -250,7 +264,8 @@ def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.ran
             cam.framing = framing
             cam.shot = {"band_z": [float(low), float(high)], "landmarks": marks.as_dict(),
                         "camera_above_eyes_m": float(cam.location[2] - marks.eyes_z),
-                        "elevation_from_eyes_deg": elevation}
+                        "elevation_from_eyes_deg": elevation, "facing_deg": facing,
+                        "camera_azimuth_deg": float(body_yaw_deg + facing)}
             return cam
         distance *= 1.05
     raise ValueError(f"could not frame the {framing} shot inside the image")

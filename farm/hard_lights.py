@@ -9,8 +9,8 @@ N). So the two agree the way they agree for a map with a sun in it, and the gap 
 (the shadow's sharpness above order N) is what the residual E and the path-traced images
 carry. A lobe is at least MIN_RADIUS_TEXELS texels wide so that a map of MAP_SIZE resolves it.
 
-Directions are drawn about the camera: azimuth 0 is the camera's side of the person (the
-person faces the camera before the body's own turn), positive toward the camera's right.
+Directions are drawn about the camera: azimuth 0 is the camera's side of the person, positive
+toward the camera's right (turned with the camera's own azimuth about world Z).
 """
 
 from __future__ import annotations
@@ -102,6 +102,11 @@ def sample_hard_light(rng: np.random.Generator, order: int, world_to_camera: np.
 
     kind = str(rng.choice(HARD_KINDS)) if kind is None else kind
     lobes, ambient = sample_lobes(kind, rng)
+    # about the camera: its horizontal view direction is +Y turned by theta about world Z
+    forward = np.asarray(world_to_camera, np.float64)[1]
+    t = math.atan2(-forward[0], forward[1])
+    turn = np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0], [0.0, 0.0, 1.0]])
+    lobes = [{**lobe, "direction": turn @ lobe["direction"]} for lobe in lobes]
     target = float(rng.uniform(0.7, 0.9))
     pixels = lobe_map(lobes, ambient)
     coeffs, scale = SHLight.resolve(pixels, max(order, 8), target=target).turned(0.0)

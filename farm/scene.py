@@ -219,7 +219,7 @@ def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) ->
     t0 = time.perf_counter()
     everything = np.concatenate([p.vertices for p in parts])
     cam = camera.frame_person(everything, rng)
-    cam = camera.reframe(cam, everything, body, options.framing, [int(seed), int(index), SHOT_STREAM])
+    cam = camera.reframe(cam, everything, body, options.framing, [int(seed), int(index), SHOT_STREAM], yaw)
     stage("camera", t0)
 
     t0 = time.perf_counter()

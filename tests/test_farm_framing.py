@@ -75,7 +75,8 @@ def test_cut_framings_keep_the_head_and_cut_below_their_band(framing):
         # the band's bottom on the frame's bottom edge (a steep camera sees a little more behind it)
         band_uv = uv[(verts[:, 2] >= low) & (verts[:, 2] <= high)]
         # or, where the band is wider than the frame allows, the frame widened in 5 % steps until it fits
-        widened = np.abs(band_uv[:, 0]).max() > 0.49 / 1.05
+        # (or a low camera came within a step of MIN_DEPTH_M of the body below the band)
+        widened = np.abs(band_uv[:, 0]).max() > 0.49 / 1.05 or cam.to_camera(verts)[:, 1].min() < 0.25
         assert band_uv[:, 1].min() < -0.49 or widened
         # head room: the band's top (the head's) (1 - fill) of the frame below the top edge
         if not widened:
@@ -210,7 +211,7 @@ def test_a_head_and_shoulders_scene_under_hard_lights_renders_its_head_mask(tmp_
 
     options = SceneOptions(resolution=64, lights=2, samples=8, denoise=False, bake_directions=64,
                            framing="head-and-shoulders", hard_lights=1.0)
-    s = dataset.read_scene(render_scene(1, 37, options, tmp_path))  # a person facing the camera (yaw -35 deg)
+    s = dataset.read_scene(render_scene(5, 37, options, tmp_path))  # short hair, the camera 6 deg off the face
     assert s.meta["camera"]["framing"] == "head-and-shoulders"
     assert [l["source"] for l in s.meta["lights"]] == ["hard", "hard"]
     inside = s.alpha[..., 0] > 0.999
@@ -238,3 +239,29 @@ def test_the_command_line_takes_the_framing_mix_and_the_hard_light_share(tmp_pat
     for bad in (["--framing", "portrait"], ["--hard-lights", "1.5"], ["--hard-lights", "nan"]):
         with pytest.raises(UsageError):
             parse_args(base + bad)
+
+
+def test_a_cut_framing_is_taken_from_the_persons_front_and_hard_lights_turn_with_the_camera():
+    verts, marks = _stick_person()
+    rng = np.random.default_rng(2)
+    for yaw in (0.0, 150.0, -100.0):
+        turned = (verts - [0.0, 0.0, 0.0]) @ camera.z_turn(yaw).T
+        m = camera.landmarks(turned, np.array([[0.0, 0.0, 1.52], [0.15, 0, 1.42], [-0.15, 0, 1.42], [0.1, 0, 0.92],
+                                               [-0.1, 0, 0.92], [0.1, 0, 0.5], [-0.1, 0, 0.5]]) @ camera.z_turn(yaw).T,
+                             ["head", "upperarm01.L", "upperarm01.R", "upperleg01.L", "upperleg01.R",
+                              "lowerleg01.L", "lowerleg01.R"], turned[4000:])
+        facings = []
+        for _ in range(30):
+            cam = camera.frame_shot(turned, m, "head-and-shoulders", rng, yaw)
+            person_front = camera.z_turn(yaw) @ np.array([0.0, -1.0, 0.0])  # the way the person faces
+            to_camera = -cam.world_to_camera[1] * np.array([1.0, 1.0, 0.0])
+            to_camera /= np.linalg.norm(to_camera)
+            facings.append(math.degrees(math.acos(np.clip(to_camera @ person_front, -1, 1))))
+            assert facings[-1] == pytest.approx(abs(cam.shot["facing_deg"]), abs=1e-6)
+            assert np.all(np.abs(cam.project(turned[(turned[:, 2] > m.shoulders)])) < 0.5)
+        assert max(facings) <= 90.0 + 1e-9 and np.mean(np.array(facings) <= 45.0) > 0.6
+        # a hard light's azimuth 0 is the camera's side: a lamp straight in front of the camera
+        lobes_rng = np.random.default_rng(0)
+        light = hard_lights.sample_hard_light(lobes_rng, 4, cam.world_to_camera, "studio")
+        key = np.array(light.hard["lobes"][0]["direction_camera"])
+        assert key[1] < 0.0  # the key is on the camera's side of the person (toward -Y in the camera frame)
