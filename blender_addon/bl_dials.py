@@ -186,7 +186,8 @@ _in_handler = False
 
 @bpy.app.handlers.persistent
 def on_depsgraph_update(scene, depsgraph) -> None:
-    """A World edit that changes its light (mapping, sky, image) relights live."""
+    """A World edit that changes its light (mapping, sky, image), or a lamp moved, changed, added or
+    removed (bl_world.lamps_changed), relights live."""
     global _in_handler
     if _in_handler or bl_world.baking():
         return  # bl_world.baking(): the updates our own bake scene causes
@@ -196,14 +197,15 @@ def on_depsgraph_update(scene, depsgraph) -> None:
             bl_images.sync_output_names()
         finally:
             _in_handler = False
-    if not depsgraph.id_type_updated("WORLD"):
-        return
     settings = getattr(scene, "relight_photo", None)
-    if settings is None or settings.light_kind != "WORLD" or scene.world is None:
+    lamps_moved = settings is not None and settings.light_kind == "WORLD" and bl_world.lamps_changed(scene, depsgraph)
+    if not depsgraph.id_type_updated("WORLD") and not lamps_moved:
+        return
+    if settings is None or settings.light_kind != "WORLD" or (scene.world is None and not lamps_moved):
         return
     if current_session(bpy.context) is None:
         return
-    if bl_world.fingerprint(scene.world) in state.WORLDS:
+    if not lamps_moved and bl_world.fingerprint(scene.world) in state.WORLDS:
         return  # an update that does not change the light
     _in_handler = True
     try:

@@ -17,7 +17,7 @@ def light_image_key(settings, model_path: str) -> tuple | None:
 def target_light(context, order: int, model_path: str):
     """(light, extra rotation in degrees) for the current settings.
 
-    The light is a relight.light.SHLight (a preset, an HDR file or the World),
+    The light is a relight.light.SHLight (a preset, an HDR file or the World with the scene's lamps),
     SH coefficients (a restored light transfer) or the Decomposition of another
     photo: engine.coefficients turns any of them into what a relight takes;
     ValueError says what is missing.
@@ -33,9 +33,19 @@ def target_light(context, order: int, model_path: str):
         return light_sources.hdr_file_light(path, order), 0.0
     if kind == "WORLD":
         world = context.scene.world
-        if world is None:
-            raise ValueError("The scene has no World to take the light from.")
-        return _world_light(world, order)
+        lamps = bl_world.scene_lamps(context.scene)
+        if not lamps:
+            if world is None:
+                raise ValueError("The scene has no World to take the light from.")
+            return _world_light(world, order)
+        light, rotation = None, 0.0
+        try:
+            if world is not None:
+                light, rotation = _world_light(world, order)
+        except ValueError as exc:
+            if str(exc) != light_sources.BLACK_WORLD:  # a black World is fine when the lamps light
+                raise
+        return light_sources.with_lamps(light, rotation, lamps, order), 0.0
     if kind == "IMAGE":
         if settings.light_image is None:
             raise ValueError("Choose the photo to take the light from.")

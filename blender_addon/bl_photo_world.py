@@ -1,7 +1,10 @@
-"""Photo Light -> World: the light the network estimated in the photo as the scene's World.
+"""Photo Light -> World: the light the network estimated in the photo as a key lamp and the World.
 
-The map (photo_light.write_light_map: relight.light_map, >= 0, Blender's
-equirect mapping) is written as a float32 EXR, loaded and packed into the
+The light is split (relight.key_light) into a key light, made a Sun lamp (an area
+lamp when it is wide; photo_light.lamp_setup) with its shadow on, and a smooth
+World for the rest; with `lamp_free` the whole light is one map (relight.light_map)
+and a key lamp made before is removed. The map (photo_light.write_light_map, >= 0,
+Blender's equirect mapping) is written as a float32 EXR, loaded and packed into the
 .blend, so it survives save and reopen with no file beside it, and feeds an
 Environment Texture (default mapping: the photo camera's frame) into a
 Background of strength 1. The World and its map are tagged with the photo's id
@@ -17,12 +20,13 @@ import tempfile
 import time
 
 import bpy
-from bpy.props import StringProperty
+from bpy.props import BoolProperty, StringProperty
 
 from . import bl_images, photo_light, state
 from .bl_session import set_status, source_image, tell
 
 WORLD = "light"   # the World's and its map image's tag (bl_images.OUTPUT_LAYER)
+KEY = "key"       # the key lamp's tag (its object and its light datablock)
 
 
 def photo_and_session(context, image_name: str = ""):
@@ -62,12 +66,13 @@ def tag(block, collection, photo, what: str) -> None:
         block.name = name
 
 
-def _map_image(photo, session):
-    """The light map as a packed float image (replacing the one made before for this photo)."""
+def _map_image(photo, session, lamp_free: bool = False):
+    """(The World map as a packed float image, replacing the one made before for this photo; the
+    key light or None)."""
     old = bl_images.output_by_tag(session.photo_id, WORLD)
     with tempfile.TemporaryDirectory(prefix="relight_light_") as folder:
         path = os.path.join(folder, "light.exr")
-        photo_light.write_light_map(session.decomposition.light, path)
+        _, key = photo_light.write_light_map(session.decomposition.light, path, lamp_free=lamp_free)
         image = bpy.data.images.load(path, check_existing=False)
         image.pack()  # the EXR's bytes go into the .blend: lossless float32
     if old is not None:
@@ -76,12 +81,17 @@ def _map_image(photo, session):
     # where Image > Unpack writes it: beside the .blend, named after the photo
     image.filepath_raw = "//" + bpy.path.clean_name(image.name) + ".exr"
     image.colorspace_settings.name = bl_images.LINEAR
-    return image
+    return image, key
 
 
-def make_world(scene, photo, session):
-    """Create or update the photo's World (its light map, strength 1) and make it the scene's."""
-    image = _map_image(photo, session)
+def make_world(scene, photo, session, lamp_free: bool = False):
+    """Create or update the photo's World (its map, strength 1) and make it the scene's; with the key
+    light, create or update its lamp (make_key_lamp), else remove the one made before. Returns the World."""
+    image, key = _map_image(photo, session, lamp_free)
+    if key is None:
+        remove_key_lamp(session.photo_id)
+    else:
+        make_key_lamp(scene, photo, session, key)
     world = tagged(bpy.data.worlds, session.photo_id, WORLD)
     if world is None:
         world = bpy.data.worlds.new(photo_light.datablock_name(photo.name, WORLD))
@@ -109,6 +119,53 @@ def make_world(scene, photo, session):
         cycles.sample_map_resolution = 2 * image.size[0]
     scene.world = world
     return world
+
+
+def remove_key_lamp(photo_id: str) -> None:
+    """Remove the key lamp made for the photo (object and light), if any."""
+    obj = tagged(bpy.data.objects, photo_id, KEY)
+    if obj is not None:
+        data = obj.data
+        bpy.data.objects.remove(obj)
+        if data is not None and data.users == 0:
+            bpy.data.lights.remove(data)
+
+
+def make_key_lamp(scene, photo, session, key):
+    """Create or update, in place, the photo's key lamp (photo_light.lamp_setup of `key`): a Sun, or
+    a disk area lamp aimed at the person, its shadow on, linked into the scene."""
+    import mathutils
+
+    setup = photo_light.lamp_setup(key)
+    obj = tagged(bpy.data.objects, session.photo_id, KEY)
+    if obj is None or obj.type != "LIGHT":
+        data = bpy.data.lights.new(photo_light.datablock_name(photo.name, KEY), setup.kind)
+        obj = bpy.data.objects.new(data.name, data)
+    data = obj.data
+    if data.type != setup.kind:
+        data.type = setup.kind  # Sun <-> area in place: the same datablocks
+        data = obj.data
+    tag(obj, bpy.data.objects, photo, KEY)
+    tag(data, bpy.data.lights, photo, KEY)
+    if scene.objects.get(obj.name) is None:
+        scene.collection.objects.link(obj)
+    obj.location = setup.location
+    obj.rotation_mode = "QUATERNION"
+    obj.rotation_quaternion = mathutils.Vector(setup.direction).to_track_quat("Z", "Y")  # shines along -Z
+    obj.scale = (1.0, 1.0, 1.0)
+    data.color = setup.colour
+    data.energy = setup.energy
+    data.use_shadow = True
+    for name, value in (("exposure", 0.0), ("normalize", True)):  # Blender 4.3+: the plain units
+        if hasattr(data, name):
+            setattr(data, name, value)
+    if setup.kind == "SUN":
+        data.angle = setup.angle
+    else:
+        data.shape, data.size = "DISK", setup.size
+        if hasattr(data, "spread"):
+            data.spread = 3.141592653589793  # a Lambertian emitter, as photo_light assumes
+    return obj
 
 
 class RelitPhotoOperator:
@@ -145,9 +202,16 @@ class RELIGHT_PHOTO_OT_light_to_world(bpy.types.Operator, RelitPhotoOperator):
     bl_label = "Photo Light -> World"
     bl_options = {"REGISTER", "UNDO"}
 
+    lamp_free: BoolProperty(name="No Key Lamp", default=False, options={"SKIP_SAVE"},
+                            description="The whole light as one World map, without a key lamp")
+
     def step(self, context, photo, session) -> str:
-        world = make_world(context.scene, photo, session)
-        return f"The World '{world.name}' is now the light of '{photo.name}', strength 1"
+        world = make_world(context.scene, photo, session, self.lamp_free)
+        lamp = tagged(bpy.data.objects, session.photo_id, KEY)
+        if lamp is None:
+            return f"The World '{world.name}' is now the light of '{photo.name}', strength 1"
+        kind = "Sun" if lamp.data.type == "SUN" else "area lamp"
+        return (f"The {kind} '{lamp.name}' and the World '{world.name}' are now the light of '{photo.name}'")
 
 
 CLASSES = (RELIGHT_PHOTO_OT_light_to_world,)

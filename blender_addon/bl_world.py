@@ -3,7 +3,9 @@
 An Environment Texture world (optionally through a Mapping node that only
 rotates about Z) is read directly: its image, the Background strength and the
 Z rotation. Any other world (Sky Texture, gradients, node mixes) is baked by
-rendering a small equirectangular panorama of it with Cycles.
+rendering a small equirectangular panorama of it with Cycles. The scene's lamps
+(scene_lamps) join the World's light as relight.lamps.Lamp values; lamps_changed
+tells a depsgraph update that moved, changed, added or removed one.
 """
 
 from __future__ import annotations
@@ -253,3 +255,77 @@ def _node_state(world) -> tuple:
     links = tuple(sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
                          for l in tree.links if l.is_valid and not l.is_muted))
     return tuple(sorted(nodes, key=lambda n: n[0])), links
+
+
+# ------------------------------------------------------------------ lamps
+
+LAMP_TYPES = {"SUN", "POINT", "SPOT", "AREA"}
+
+
+def _lamp(obj):
+    """The lamp object `obj` as a relight.lamps.Lamp in world axes (its -Z is where it points)."""
+    from relight.lamps import Lamp
+
+    data = obj.data
+    matrix = obj.matrix_world
+    axis = matrix.to_3x3() @ _vector((0.0, 0.0, -1.0))
+    energy = float(data.energy) * 2.0 ** float(getattr(data, "exposure", 0.0))
+    kwargs = {}
+    if data.type == "SUN":
+        kwargs["angle"] = float(data.angle)
+    elif data.type in ("POINT", "SPOT"):
+        kwargs["radius"] = float(data.shadow_soft_size)
+        if data.type == "SPOT":
+            kwargs["spot_size"], kwargs["spot_blend"] = float(data.spot_size), float(data.spot_blend)
+    else:
+        scale = matrix.to_scale()
+        size = (float(data.size) * abs(scale[0]), float(data.size_y if data.shape in {"RECTANGLE", "ELLIPSE"}
+                                                         else data.size) * abs(scale[1]))
+        kwargs["size"], kwargs["shape"] = size, data.shape
+        if not getattr(data, "normalize", True):  # Blender 4.3+: Power per square metre of the lamp
+            energy *= size[0] * size[1] * (3.141592653589793 / 4.0 if data.shape in {"DISK", "ELLIPSE"} else 1.0)
+    rgb = tuple(max(0.0, float(c)) * max(0.0, energy) for c in data.color)
+    return Lamp(data.type, rgb, location=tuple(matrix.translation), axis=tuple(axis), **kwargs)
+
+
+def _vector(v):
+    import mathutils
+
+    return mathutils.Vector(v)
+
+
+def scene_lamps(scene) -> tuple:
+    """The lamps that light the scene's render (Sun, point, spot, area; not hidden from the render,
+    energy > 0), as relight.lamps.Lamp values, in a stable order."""
+    if scene is None:
+        return ()
+    out = []
+    for obj in sorted(scene.objects, key=lambda o: o.name):
+        if obj.type != "LIGHT" or obj.data is None or obj.data.type not in LAMP_TYPES or obj.hide_render:
+            continue
+        if float(obj.data.energy) <= 0:
+            continue
+        out.append(_lamp(obj))
+    return tuple(out)
+
+
+_seen_lamps: dict = {}  # scene name -> the lamps the last check saw
+
+
+def lamps_changed(scene, depsgraph) -> bool:
+    """True when this depsgraph update moved, changed, added or removed one of the scene's lamps
+    since the last call (cheap for updates that touch no lamp, an object or the scene's collections)."""
+    touched = False
+    for update in getattr(depsgraph, "updates", ()):
+        block = update.id
+        if isinstance(block, bpy.types.Light) or isinstance(block, (bpy.types.Scene, bpy.types.Collection)) \
+                or (isinstance(block, bpy.types.Object) and block.type == "LIGHT"):
+            touched = True
+            break
+    if not touched:
+        return False
+    lamps = scene_lamps(scene)
+    if _seen_lamps.get(scene.name) == lamps:
+        return False
+    _seen_lamps[scene.name] = lamps
+    return True

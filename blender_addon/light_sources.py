@@ -1,6 +1,6 @@
 """The panel's light sources (World, HDR file, preset, another photo) as relight.light.SHLight
-values, each read and projected once, with the artist's messages when one gives no light.
-Plain Python."""
+values, each read and projected once, with the artist's messages when one gives no light;
+the World's light with the scene's lamps added (with_lamps). Plain Python."""
 
 from __future__ import annotations
 
@@ -93,3 +93,32 @@ def preset_names() -> list[str]:
     from relight import presets
 
     return presets.list_presets() + presets.list_blender_presets()
+
+
+NO_LIGHT = ("The World and the scene's lamps give no light: raise the World's Background strength "
+            "or a lamp's power, or choose another light.")
+
+
+def with_lamps(world, rotation_deg: float, lamps, order: int, at=None):
+    """The World's light (a relight.light.SHLight, or None for no World or a black one) turned by its
+    own `rotation_deg`, plus the scene's lamps (relight.lamps.Lamp) projected to SH at the person
+    (photo_light.PERSON_POSITION unless `at`): one SHLight scaled to the reference luminance like
+    any map (so a lamp counts against the World as in a render; the level is Exposure's)."""
+    from relight import sh, sh_rotation
+    from relight.lamps import lamps_coeffs
+    from relight.light import REFERENCE_LUMINANCE, SHLight
+
+    from .photo_light import PERSON_POSITION
+
+    n = sh.num_coeffs(order)
+    total = lamps_coeffs(lamps, PERSON_POSITION if at is None else at, order)
+    if world is not None:
+        base = world.base[:n]
+        if rotation_deg % 360.0:
+            matrix = light_cache().get(("rot", float(rotation_deg), order), lambda: sh_rotation.rotation_matrix(
+                sh_rotation.z_rotation(rotation_deg), order))
+            base = matrix @ base
+        total = total + base
+    if not sh.mean_luminance(total) > 0:
+        raise ValueError(NO_LIGHT)
+    return SHLight(total, REFERENCE_LUMINANCE)

@@ -5,7 +5,10 @@ decided here: the map of the session's light (relight.light_map, written as a
 lossless EXR that Blender packs into the .blend), the datablocks' names, and
 the camera and floor that match the photo. Scene frame: the photo camera of
 docs/conventions.md (looking along +Y, X right, Z up), so the light needs no
-rotation; the camera stands CAMERA_HEIGHT above a floor at z = 0.
+rotation; the camera stands CAMERA_HEIGHT above a floor at z = 0. The key light
+(relight.key_light) becomes a Sun, or an area lamp when it is wide, aimed at the
+person, who stands PERSON_DISTANCE ahead of the camera with PERSON_POSITION at
+their middle: where the scene's lamps are projected to SH (light_sources.with_lamps).
 """
 
 from __future__ import annotations
@@ -19,6 +22,12 @@ DEFAULT_LENS_MM = 50.0      # when the photo does not say its focal length (EXIF
 CAMERA_HEIGHT = 1.5         # metres above the floor: a standing photographer
 FLOOR_HALF_WIDTH = 20.0     # metres either side of the view axis
 FLOOR_DEPTH = 40.0          # metres in front of the camera
+PERSON_DISTANCE = 3.0       # metres ahead of the camera: where the person stands
+PERSON_POSITION = (0.0, PERSON_DISTANCE, 1.0)   # the middle of a standing person: where lamps light them
+SUN_DISTANCE = 5.0          # metres from the person toward the light: where the Sun lamp is drawn (a Sun has
+                            # no position; only its direction lights)
+AREA_DISTANCE = 4.0         # metres from the person: where a wide key's area lamp stands
+AREA_MAX_HALF_ANGLE = math.radians(75.0)  # a wider key is drawn as a disk of this half-angle (same irradiance)
 _EXIF_IFD = 0x8769           # the Exif sub-IFD
 _FOCAL_35MM = 0xA405         # FocalLengthIn35mmFilm
 
@@ -73,12 +82,56 @@ def focal_35mm(path: str) -> float | None:
     return value if 1.0 <= value <= 2000.0 else None  # 0 means "unknown" in EXIF
 
 
-def write_light_map(light, path: str, width: int = MAP_WIDTH):
-    """The map of the SH light `light` [n, 3] (relight.light_map) written to `path` as a float32
-    EXR (atomically); returns the LightMap."""
+def write_light_map(light, path: str, width: int = MAP_WIDTH, lamp_free: bool = False):
+    """The World map of the SH light `light` [n, 3] written to `path` as a float32 EXR (atomically):
+    the smooth World left after the key light (relight.key_light.split_light), or with `lamp_free`
+    the whole light as one map (relight.light_map). Returns (pixels, the KeyLight or None)."""
     from relight.exr import write_exr
-    from relight.light_map import light_map
 
-    result = light_map(light, width)
-    write_exr(path, {c: result.pixels[..., i] for i, c in enumerate("RGB")})
-    return result
+    if lamp_free:
+        from relight.light_map import light_map
+
+        pixels, key = light_map(light, width).pixels, None
+    else:
+        from relight.key_light import split_light
+
+        split = split_light(light, width)
+        pixels, key = split.pixels, split.key
+    write_exr(path, {c: pixels[..., i] for i, c in enumerate("RGB")})
+    return pixels, key
+
+
+@dataclass(frozen=True)
+class LampSetup:
+    """A Blender lamp for a key light: `kind` SUN or AREA, `location`, `direction` (unit, from the
+    person toward the lamp: the lamp's local +Z, so it shines along -direction), `colour` (largest
+    channel 1), `energy` (a Sun's Strength in W/m^2, an area lamp's Power in W), a Sun's `angle`
+    (radians), an area disk's `size` (diameter, m)."""
+
+    kind: str
+    location: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    colour: tuple[float, float, float]
+    energy: float
+    angle: float = 0.0
+    size: float = 0.0
+
+
+def lamp_setup(key) -> LampSetup:
+    """The lamp that gives the person the key light `key` (relight.key_light.KeyLight).
+
+    A Sun: Strength = the key's Blender strength, Angle = its angle. A wide key (KeyLight.wide): a
+    disk of half-angle a (<= AREA_MAX_HALF_ANGLE) seen from the person at AREA_DISTANCE D, which
+    is the key's cone; a Lambertian disk of Power P gives a surface facing it E = P / (pi (D^2 +
+    r^2)) = P cos^2 a / (pi D^2), so P = pi E D^2 / cos^2 a with E the key's facing irradiance.
+    """
+    direction = tuple(float(v) for v in key.direction)
+    colour = tuple(float(v) for v in key.colour)
+    person = PERSON_POSITION
+    if not key.wide:
+        location = tuple(p + SUN_DISTANCE * d for p, d in zip(person, direction))
+        return LampSetup("SUN", location, direction, colour, key.blender_strength, angle=2.0 * key.half_angle)
+    half = min(key.half_angle, AREA_MAX_HALF_ANGLE)
+    location = tuple(p + AREA_DISTANCE * d for p, d in zip(person, direction))
+    power = math.pi * key.blender_strength * AREA_DISTANCE ** 2 / math.cos(half) ** 2
+    return LampSetup("AREA", location, direction, colour, power, size=2.0 * AREA_DISTANCE * math.tan(half))

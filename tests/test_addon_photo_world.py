@@ -1,7 +1,7 @@
 """Relight Photo add-on: Photo Light -> World and Compositing Setup under headless bpy.
 
-The World holds the map of the light the network estimated (relight.light_map
-of the session's light, packed into the .blend), the compositing setup puts a
+The World holds the map of the light the network estimated (the smooth World of
+relight.key_light.split_light of the session's light, packed into the .blend), the compositing setup puts a
 render over the photo with a shadow-catcher floor, both survive save and
 reopen, and the buttons refuse in the artist's words when nothing was relit or
 the photo changed since."""
@@ -20,7 +20,7 @@ import blender_addon
 from blender_addon import bl_images, bl_photo_world, photo_light, state
 from relight import exr, sh
 from relight.light import directional_light
-from relight.light_map import light_map
+from relight.key_light import split_light
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
 H, W = 72, 48  # test_addon_blender's photo
@@ -92,7 +92,8 @@ def check_world(name: str) -> None:
     image = texture.image
     assert image.packed_file is not None and image.name == f"{name}.light"
     assert tuple(image.size) == (photo_light.MAP_WIDTH, photo_light.MAP_WIDTH // 2)
-    expected = light_map(_session(name).decomposition.light, photo_light.MAP_WIDTH).pixels
+    # the smooth World left after the key light (the key lamp: tests/test_addon_lamps.py)
+    expected = split_light(_session(name).decomposition.light, photo_light.MAP_WIDTH).pixels
     np.testing.assert_array_equal(_world_map(world), expected)  # a float32 EXR, packed: lossless
 
 
@@ -156,7 +157,8 @@ def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     check_world(name)
     status = bpy.context.window_manager.relight_photo_status
-    assert not status.is_error and status.message.startswith(f"The World '{name}.light' is now the light of")
+    assert not status.is_error and status.message.startswith(
+        f"The Sun '{name}.key' and the World '{name}.light' are now the light of '{name}'")
 
     # a new Relight, a new light: pressing again updates the same World and replaces its map
     world = bpy.context.scene.world
@@ -182,7 +184,7 @@ def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
         assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}, what
         world_map = _world_map(bpy.context.scene.world)
         assert np.all(np.isfinite(world_map)) and world_map.min() >= 0.0, what
-        np.testing.assert_array_equal(world_map, light_map(light, photo_light.MAP_WIDTH).pixels)
+        np.testing.assert_array_equal(world_map, split_light(light, photo_light.MAP_WIDTH).pixels)
     assert world_map.max() > 1e29  # the bright light stayed bright
 
 

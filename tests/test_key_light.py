@@ -303,11 +303,11 @@ def test_point_spot_and_area_lamps_follow_cycles_units_and_inverse_square():
     tilted = lamps.Lamp("SPOT", (100.0,) * 3, location=(0.0, 3.0, 3.0),
                         axis=(math.sin(t), 0.0, -math.cos(t)), spot_size=2 * half, spot_blend=1.0)
     np.testing.assert_allclose(lamps.lamp_coeffs(tilted, at, 2), 0.5 * lamps.lamp_coeffs(point, at, 2), rtol=1e-9)
-    # area: P cos / (pi D^2) in front, nothing behind
+    # area: P cos / (pi (D^2 + r^2)) in front (r: the disk of the same area), nothing behind
     area = lamps.Lamp("AREA", (100.0,) * 3, location=(0.0, 3.0, 3.0), axis=(0.0, math.sin(0.5), -math.cos(0.5)),
                       size=(0.01, 0.01))
     np.testing.assert_allclose(facing(lamps.lamp_coeffs(area, at, 2), [0, 0, 1]),
-                               100 * math.cos(0.5) / (4 * math.pi), rtol=1e-6)
+                               100 * math.cos(0.5) / (math.pi * (4 + 1e-4 / math.pi)), rtol=1e-12)
     behind = lamps.Lamp("AREA", (100.0,) * 3, location=(0.0, 3.0, 3.0), axis=(0.0, 0.0, 1.0))
     assert not np.any(lamps.lamp_coeffs(behind, at, 2))
     assert not np.any(lamps.lamp_coeffs(lamps.Lamp("POINT", (1.0,) * 3, location=tuple(at)), at, 2))
