@@ -67,3 +67,58 @@ def write_video(path: Path, frames, fps=24) -> Path:
     for f in frames:
         writer.write(f)
     return writer.close()
+
+
+# A still shot with sensor noise (issue 40, "Clips"): one photo, no motion, only noise changes
+STILL_PHOTO = REPO / "relight" / "data" / "examples" / "astronaut.jpg"
+STILL_MATTE = REPO / "evaluation" / "data" / "matte_eval" / "reference" / "astronaut.png"  # its person, by hand
+NOISE_SIGMA = 2.0  # 8-bit sRGB codes: a clean sensor's noise, as in the issue
+
+
+def noisy_still(n: int, height: int = 256, sigma: float = NOISE_SIGMA, seed: int = 0,
+                photo: Path = STILL_PHOTO) -> list[np.ndarray]:
+    """n linear float32 frames [height, w, 3] of one still photo: its sRGB codes (resized to
+    `height`) plus independent Gaussian noise of `sigma` codes per pixel, channel and frame,
+    rounded and clipped to 8 bits as a video's frames are (seeded: the same frames every run)."""
+    from relight.colour import srgb_decode, srgb_encode
+    from relight.photo import read_photo
+    from relight.resample import resize_linear
+
+    img, _ = read_photo(photo)
+    codes = srgb_encode(resize_linear(img, height, int(round(img.shape[1] * height / img.shape[0])))) * 255.0
+    rng = np.random.default_rng(seed)
+    return [srgb_decode((np.clip(np.rint(codes + rng.normal(0.0, sigma, codes.shape)), 0, 255) / 255.0)
+                        .astype(np.float32)).astype(np.float32) for _ in range(n)]
+
+
+def still_region(height: int = 256, matte: Path = STILL_MATTE, photo: Path = STILL_PHOTO) -> np.ndarray:
+    """[height, w] float32 in {0, 1}: the photo's person (its reference matte > 0.5), where the
+    still shot's flicker is measured: fixed, so the measure does not move with the relighter's matte."""
+    from relight.photo import read_photo
+    from relight.resample import resize_linear
+
+    img, _ = read_photo(photo)
+    ref, _ = read_photo(matte)
+    width = int(round(img.shape[1] * height / img.shape[0]))
+    return (resize_linear(ref[..., 0], height, width) > 0.5).astype(np.float32)
+
+
+def lowpass_flicker(frames, region: np.ndarray, block: int | None = None) -> float:
+    """The low-pass frame-to-frame change of a clip over `region` [H, W]: model.evaluate_clips.flicker
+    (mean over frame pairs of sum |X_t - X_t-1| / sum X_t) of the frames averaged over blocks of
+    `block` x `block` pixels (default: 1/32 of the frame's height, 16 px at 512), the region's blocks
+    those it mostly covers. The blocks average the photo's pixel noise away (by `block`), what the
+    relighter changes at its working resolution (about 1/128 of the person) stays."""
+    from model.evaluate_clips import flicker
+
+    frames = np.stack(frames)
+    h, w = frames.shape[1:3]
+    k = block or max(1, int(round(h / 32)))
+    hb, wb = h // k, w // k
+
+    def blocks(x):  # [..., H, W, C] -> [..., hb, wb, C]
+        x = x[..., :hb * k, :wb * k, :]
+        return x.reshape(*x.shape[:-3], hb, k, wb, k, x.shape[-1]).mean(axis=(-4, -2))
+
+    area = blocks(region[..., None].astype(np.float32))[..., 0]
+    return flicker(blocks(frames.astype(np.float64)), np.broadcast_to(area, (len(frames), hb, wb)))
