@@ -18,7 +18,13 @@ not change within a shot is held or smoothed over its frames:
 * **maps**: the transport (and residual; and the albedo of models that are not
   photo-consistent) and the person matte are smoothed over frames where the photo
   agrees with the previous frame (relight.clip_maps); the detail transfer uses each
-  frame's own photo, so texture stays sharp.
+  frame's own photo, so texture stays sharp;
+* **a still picture** (clip_maps.Stillness: the frame's blocks against the picture the
+  held state belongs to) holds more: the matte where the picture is still, the maps and the
+  light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
+  x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
+  keeps the previous grid (_on_held_grid). A still shot with sensor noise relit frame by frame
+  moved 15x as much as it came; these bring it to ~1.2-1.8x (docs/video.md, "A still shot").
 
 `stability` in [0, 1] sets the windows: 0 is independent per-frame processing
 (exactly `relight image` on each frame), 1 the longest windows (most lag when the
@@ -35,7 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.box import Box
-from relight.clip_maps import FILTER_MODES, MapSmoother, MatteSmoother, grid_grey, history_weight
+from relight.clip_maps import (FILTER_MODES, MapSmoother, MatteSmoother, Stillness, grid_axes, grid_grey,
+                               history_weight, sample_separable)
 from relight.decomposition import Decomposition
 from relight.refine import consistent_albedo
 
@@ -48,6 +55,13 @@ MAP_WINDOW = 9          # frames: the maps' and the matte's effective EMA window
 # the network's estimate follows the body's view; a whole-shot mean cost 0.95 dB on that clip, 9
 # frames 0.4 dB, 5 frames (stability 0.5) 0.2 dB, for flicker within 0.2 points of the whole shot's
 LIGHT_WINDOW = 9
+# frames: the maps' and the matte's window at stability 1 where the picture is still (clip_maps.Stillness):
+# there the network's answers differ by the photo's noise alone, which MAP_WINDOW left flickering (docs/video.md)
+STILL_WINDOW = 129
+# share of the person that must be still before its light and maps are held, and the share from which
+# they are fully held (still_weight): a still shot with sigma 2/255 noise measured 99.3 %, the farm clip
+# of a person turning in place 80-85 % (93 % once)
+STILL_PERSON = (0.9, 0.98)
 CUT_THRESHOLD = 0.35    # histogram total variation between consecutive frames that starts a new shot
 CUT_BINS = 8            # per channel, of the sRGB thumbnail's joint histogram
 CUT_THUMB = 96          # px: longest side of the thumbnail the histogram counts
@@ -89,6 +103,30 @@ def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
                          mask=mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
 
 
+def _regridded(d: Decomposition, box: Box, size: tuple) -> Decomposition:
+    """`d` on another grid of its photo (the crop `box` resized to `size`): the network's maps
+    resampled bilinearly (edge values held past the old crop), the working photo cut and
+    resized again from the frame as decompose() does."""
+    from relight.resample import resize_linear
+
+    gy, gx = grid_axes(d.box, d.working_size, box, size)
+    h, w = d.working_size
+    gy, gx = np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)
+    parts = [d.albedo, d.transport, d.residual, d.alpha[..., None]]
+    if d.network_alpha is not None:
+        parts.append(d.network_alpha[..., None])
+    out, _ = sample_separable(np.concatenate(parts, axis=2), gy, gx)
+    n = d.transport.shape[2]
+    split = np.cumsum([3, n, n, 1])
+    albedo, transport, residual, alpha = (np.ascontiguousarray(a) for a in np.split(out, split, axis=2)[:4])
+    network_alpha = np.ascontiguousarray(out[..., -1]) if d.network_alpha is not None else None
+    y0, y1, x0, x1 = box
+    photo_working = resize_linear(d.photo[y0:y1, x0:x1], *size)
+    return Decomposition(albedo=albedo, transport=transport, residual=residual, light=d.light, alpha=alpha[..., 0],
+                         box=box, working_size=tuple(size), photo=d.photo, photo_working=photo_working,
+                         mask=d.mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=network_alpha)
+
+
 class CutDetector:
     """A new shot where consecutive frames' colour histograms differ by more than the threshold."""
 
@@ -116,17 +154,38 @@ class CutDetector:
 
 
 class ShotLight:
-    """The mean of the per-frame light estimates over the shot's last `window` frames."""
+    """The mean of the per-frame light estimates over the shot's last `window` frames; while the
+    person is still, held: the previous light weighted by `hold` x how still (still_weight)."""
 
-    def __init__(self, window: int):
+    def __init__(self, window: int, hold: float = 0.0):
         self.lights: deque = deque(maxlen=max(1, int(window)))
+        self.hold = float(hold)
+        self.held: np.ndarray | None = None  # the last light given
 
     def reset(self) -> None:
         self.lights.clear()
+        self.held = None
 
-    def update(self, light: np.ndarray) -> np.ndarray:
+    def update(self, light: np.ndarray, still: float = 0.0) -> np.ndarray:
+        """The shot's light after this frame's estimate `light`; `still`: the person's stillness
+        in [0, 1] (still_weight)."""
         self.lights.append(np.asarray(light, np.float64))
-        return np.mean(self.lights, axis=0).astype(np.float32)
+        mean = np.mean(self.lights, axis=0)
+        k = self.hold * float(still)
+        if self.held is not None and k > 0.0:
+            mean = k * self.held + (1.0 - k) * mean
+        self.held = mean
+        return mean.astype(np.float32)
+
+
+def still_weight(still: np.ndarray, alpha: np.ndarray) -> float:
+    """How still the person is, in [0, 1]: 0 until STILL_PERSON[0] of the person (alpha-weighted)
+    is still, rising linearly to 1 at STILL_PERSON[1]. The light and the network's maps are the
+    whole person's: they are held only when nearly all of the person did not move."""
+    total = float(alpha.sum())
+    share = float((still * alpha).sum()) / total if total > 0 else 0.0
+    low, high = STILL_PERSON
+    return min(1.0, max(0.0, (share - low) / (high - low)))
 
 
 class ClipRelighter:
@@ -160,14 +219,16 @@ class ClipRelighter:
         self.matte_method, self.augment = matte_method, tuple(augment)
         self.stability = float(stability)
         history = history_weight(1.0 + self.stability * (MAP_WINDOW - 1))
+        hold = history_weight(1.0 + self.stability * (STILL_WINDOW - 1))
         self.cuts = CutDetector()
         if light_window is None:
             light_window = 1 + round(self.stability * (LIGHT_WINDOW - 1))
         elif isinstance(light_window, bool) or not isinstance(light_window, int) or light_window < 1:
             raise ValueError(f"light_window must be a whole number of frames >= 1, got {light_window!r}")
-        self.shot_light = ShotLight(light_window)
-        self.maps = MapSmoother(history, mode)
-        self.matte_filter = MatteSmoother(history)
+        self.shot_light = ShotLight(light_window, hold)
+        self.maps = MapSmoother(history, mode, hold)
+        self.matte_filter = MatteSmoother(history, hold)
+        self.stillness = Stillness(hold)
         config = json.loads(relighter.metadata.get("relight.network_config", "{}") or "{}")
         # the geometry-first model's albedo is photo / shading under its fitted light: re-derived
         # under the shot's light (docs/model.md); other models' albedo is smoothed like the maps
@@ -178,17 +239,23 @@ class ClipRelighter:
         self.shot_light.reset()
         self.maps.reset()
         self.matte_filter.reset()
+        self.stillness.reset()
 
     def state(self) -> dict[str, np.ndarray]:
         """Everything the next frame depends on, as arrays (np.savez-able); load_state() restores it."""
         lights = list(self.shot_light.lights)
         out = {"lights": np.stack(lights) if lights else np.zeros((0,))}
+        if self.shot_light.held is not None:
+            out["held_light"] = self.shot_light.held
         if self.cuts.previous is not None:
             out["cut_histogram"] = self.cuts.previous
         if self.matte_filter.previous is not None:
             out["matte"] = self.matte_filter.previous
             if self.matte_filter.box is not None:
                 out["matte_box"] = np.asarray(self.matte_filter.box)
+        if self.stillness.reference is not None:
+            out["still_reference"] = self.stillness.reference
+            out["still_block"] = np.asarray(self.stillness.block)
         maps = self.maps.state
         if maps is not None:
             out.update({"maps_box": np.asarray(maps["box"]), "maps_size": np.asarray(maps["size"]),
@@ -202,8 +269,15 @@ class ClipRelighter:
         self.cuts.previous = state.get("cut_histogram")
         for light in state["lights"]:
             self.shot_light.lights.append(np.asarray(light, np.float64))
+        if "held_light" in state:  # (a state saved before it was kept: the window's mean holds)
+            self.shot_light.held = np.asarray(state["held_light"], np.float64)
+        elif len(self.shot_light.lights):
+            self.shot_light.held = np.mean(self.shot_light.lights, axis=0)
         self.matte_filter.previous = state.get("matte")
         self.matte_filter.box = Box(*(int(v) for v in state["matte_box"])) if "matte_box" in state else None
+        if "still_reference" in state:  # (a state saved before it was kept: judged afresh)
+            self.stillness.reference = np.array(state["still_reference"], np.float32)
+            self.stillness.block = int(state["still_block"])
         if "maps_box" in state:
             self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
                                "size": tuple(int(v) for v in state["maps_size"]),
@@ -244,10 +318,16 @@ class ClipRelighter:
         estimate = np.asarray(d.light, np.float32)
         shot_light = estimate
         if self.stability > 0:
+            d = self._on_held_grid(d, analysis.matte_box)
+            self.stillness.update(analysis.frame, d.box)
             if analysis.smooth_matte:
-                d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box))
-            shot_light = self.shot_light.update(estimate)
-            d = self._stabilised(d, shot_light)
+                d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box, self.stillness.at))
+            still = self.stillness.on_grid(d.box, d.working_size)
+            person_still = still_weight(still, d.alpha)
+            shot_light = self.shot_light.update(estimate, person_still)
+            # the network's answer at a pixel depends on the whole crop: its maps are held where the
+            # picture is still only as far as the whole person is
+            d = self._stabilised(d, shot_light, still * np.float32(person_still))
         image = d.relight(self.light, self.exposure_ev)
         stats = d.last_stats
         return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
@@ -257,7 +337,29 @@ class ClipRelighter:
         """The next frame (linear float32 [H, W, 3]) relit: finish(analyse(frame, mask))."""
         return self.finish(self.analyse(frame, mask), layers)
 
-    def _stabilised(self, d: Decomposition, shot_light: np.ndarray) -> Decomposition:
+    def _on_held_grid(self, d: Decomposition, matte_box) -> Decomposition:
+        """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
+        only: the person (the matte's box) inside the previous crop, which lies within this frame's
+        own crop grown by its margin. A crop box that flicks by a pixel or two resamples a textured
+        photo differently each frame, which the detail transfer and the albedo carry into the relit
+        person (docs/video.md); the network's smooth maps are resampled onto the held grid instead."""
+        from relight.runtime import CROP_MARGIN
+
+        held = self.maps.state
+        if held is None or d.mask is None or tuple(held["box"]) == tuple(d.box):
+            return d
+        box = Box(*held["box"])
+        person = Box(*matte_box) if matte_box is not None else Box.around(d.mask)
+        if person is None:
+            return d
+        pad = int(np.ceil(CROP_MARGIN * max(person.height, person.width)))
+        outer = d.box.grown(pad, *d.size)
+        inside = lambda a, b: a[0] >= b[0] and a[1] <= b[1] and a[2] >= b[2] and a[3] <= b[3]  # noqa: E731
+        if not (inside(person, box) and inside(box, outer)):
+            return d
+        return _regridded(d, box, held["size"])
+
+    def _stabilised(self, d: Decomposition, shot_light: np.ndarray, still: np.ndarray) -> Decomposition:
         """The frame's decomposition with smoothed maps, under the shot's light."""
         maps = {"transport": d.transport}
         if self.reliable is None:  # the geometry-first model's E is 0 (docs/model.md): nothing to smooth
@@ -266,7 +368,7 @@ class ClipRelighter:
         if d.mask is None:  # the network's own matte: smoothed with the maps
             maps["alpha"] = d.alpha[..., None]
         grey = grid_grey(d.photo_working)
-        smooth = self.maps.update(d.box, d.working_size, grey, d.alpha, maps)
+        smooth = self.maps.update(d.box, d.working_size, grey, d.alpha, maps, still)
         transport = smooth["transport"]
         alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
         if self.reliable is not None:

@@ -10,7 +10,9 @@ frame's grid (the boxes may differ), optionally displaced by optical flow, and b
 `agree` = exp(-(d / AGREE_SCALE)^2), d the absolute difference between this frame's
 working-resolution photo and the previous one's warped the same way (sRGB grey): where
 the photo changed (the person moved more than the warp explains, or something new came
-in), the current maps win, so motion leaves no trail. `mode`: "ema" (no motion
+in), the current maps win, so motion leaves no trail. Where the picture is still
+(Stillness: the frame's own blocks, whatever the crop), the history's weight is the
+longer `hold` instead: a still shot's network answers differ only by its noise. `mode`: "ema" (no motion
 compensation: the boxes' geometry only), "flow" (DIS optical flow, OpenCV; measured
 against "ema" in docs/video.md). The full-resolution person matte gets the same
 agreement test against its own previous value (MatteSmoother).
@@ -21,13 +23,20 @@ from __future__ import annotations
 import numpy as np
 
 from relight.box import Box
+from relight.mask_ops import box_mean
 
-__all__ = ["MapSmoother", "MatteSmoother", "grid_grey", "FILTER_MODES",
-           "AGREE_SCALE", "MATTE_AGREE_SCALE"]
+__all__ = ["MapSmoother", "MatteSmoother", "Stillness", "grid_grey", "FILTER_MODES",
+           "AGREE_SCALE", "MATTE_AGREE_SCALE", "STILL_SCALE"]
 
 FILTER_MODES = ("ema", "flow")
 AGREE_SCALE = 0.08        # sRGB grey difference at which the history's weight falls to 1/e
 MATTE_AGREE_SCALE = 0.25  # alpha difference at which the matte's history weight falls to 1/e
+# sRGB grey difference of a frame's STILL_BLOCKS (3 x 3 of them averaged) from the picture the held
+# state belongs to at which a pixel stops counting as still: 10x sensor noise of sigma 2/255 there
+# (3 q x 3 q pixels averaged, q >= 1: <= 0.74/255; its difference from a long mean: ~0.003); a 0.3
+# contrast edge that moved by a third of a block changes its block by 0.1
+STILL_SCALE = 0.03
+STILL_BLOCKS = 256  # blocks along the frame's longer side: the stillness test's resolution
 
 
 def grid_grey(photo_working: np.ndarray) -> np.ndarray:
@@ -113,20 +122,23 @@ class MapSmoother:
     """Exponential smoothing of named working-resolution maps over a clip's frames, the
     previous frame's maps warped onto this frame's grid first (see the module doc)."""
 
-    def __init__(self, history: float, mode: str = "ema"):
-        if not 0.0 <= history < 1.0:
-            raise ValueError(f"history must be in [0, 1), got {history}")
+    def __init__(self, history: float, mode: str = "ema", hold: float = 0.0):
+        for name, value in (("history", history), ("hold", hold)):
+            if not 0.0 <= value < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {value}")
         if mode not in FILTER_MODES:
             raise ValueError(f"mode must be one of {FILTER_MODES}, got {mode!r}")
-        self.history, self.mode = float(history), mode
+        self.history, self.mode, self.hold = float(history), mode, float(hold)
         self.state: dict | None = None
 
     def reset(self) -> None:
         self.state = None
 
-    def update(self, box, size, grey: np.ndarray, alpha: np.ndarray, maps: dict) -> dict:
+    def update(self, box, size, grey: np.ndarray, alpha: np.ndarray, maps: dict,
+               still: np.ndarray | None = None) -> dict:
         """The smoothed `maps` ({name: [h, w, C]}) of this frame (grid `box`, `size`; its
-        sRGB grey [h, w] and alpha [h, w]); the state becomes them. Never modifies its inputs."""
+        sRGB grey [h, w] and alpha [h, w]; `still` [h, w]: the picture's stillness there,
+        Stillness.on_grid, None: nowhere); the state becomes them. Never modifies its inputs."""
         prev = self.state
         if prev is None or self.history == 0.0:
             out = dict(maps)
@@ -145,8 +157,10 @@ class MapSmoother:
             else:
                 warped, inside = sample_separable(stacked, gy, gx)
             prev_alpha, prev_grey = warped[..., -2], warped[..., -1]
-            agree = np.exp(-np.square((grey - prev_grey) / np.float32(AGREE_SCALE)))
-            k = (np.float32(self.history) * np.clip(prev_alpha, 0.0, 1.0) * agree * inside)[..., None]
+            weight = np.float32(self.history) * np.exp(-np.square((grey - prev_grey) / np.float32(AGREE_SCALE)))
+            if still is not None and self.hold > 0.0:
+                weight = np.maximum(weight, np.float32(self.hold) * still)
+            k = (weight * np.clip(prev_alpha, 0.0, 1.0) * inside)[..., None]
             out, c = {}, 0
             for name in names:
                 n = maps[name].shape[2]
@@ -159,21 +173,24 @@ class MapSmoother:
 
 class MatteSmoother:
     """The full-resolution person matte smoothed over frames where it hardly changed:
-    alpha = k * previous + (1 - k) * current, k = history * exp(-(|current - previous| /
-    MATTE_AGREE_SCALE)^2). A moving edge (a change near 1) takes the current matte at once;
-    the segmenter's small frame-to-frame jitter is averaged."""
+    alpha = k * previous + (1 - k) * current, k = max(history * exp(-(|current - previous| /
+    MATTE_AGREE_SCALE)^2), hold * still). A moving edge (a change near 1) takes the current
+    matte at once unless the picture there is still (Stillness): the segmenter's small
+    frame-to-frame jitter is averaged, and where the picture did not change at all its
+    jitter, however large, is held with the longer `hold`."""
 
-    def __init__(self, history: float):
-        self.history = float(history)
+    def __init__(self, history: float, hold: float = 0.0):
+        self.history, self.hold = float(history), float(hold)
         self.previous: np.ndarray | None = None
         self.box: Box | None = None  # holds every non-zero pixel of `previous`
 
     def reset(self) -> None:
         self.previous, self.box = None, None
 
-    def update(self, alpha: np.ndarray, box=None) -> np.ndarray:
+    def update(self, alpha: np.ndarray, box=None, still=None) -> np.ndarray:
         """The smoothed matte of this frame; `box` (relight.box.Box), when known, holds every
-        non-zero pixel of `alpha` (the person matte's box: spares a full-frame search)."""
+        non-zero pixel of `alpha` (the person matte's box: spares a full-frame search); `still`
+        (Stillness.at): (rows, cols) -> the picture's stillness at those pixels, None: nowhere."""
         prev = self.previous
         box = Box.around(alpha) if box is None else Box(*box)
         if prev is None or prev.shape != alpha.shape or self.history == 0.0:
@@ -190,9 +207,72 @@ class MatteSmoother:
                 av, pv = a[where], p[where]
                 d = (av - pv) * np.float32(1.0 / MATTE_AGREE_SCALE)
                 k = np.exp(-(d * d)) * np.float32(self.history)
+                if still is not None and self.hold > 0.0 and k.size:
+                    k = np.maximum(k, np.float32(self.hold) * still(where[0] + r0, where[1] + c0))
                 out[r0:r1, c0:c1][where] = av + k * (pv - av)
         self.previous, self.box = out, box
         return out
+
+
+class Stillness:
+    """Where the picture is still, judged on the frame's own blocks (q x q pixels, the frame's
+    longer side in STILL_BLOCKS of them), so a crop that moves with the person's box does not
+    count as change: still = exp(-(d / STILL_SCALE)^2), d the sRGB grey of the blocks around a
+    block (3 x 3) less the reference's. The reference is the picture the held state belongs to:
+    blended into with the same weight, hold * still, so a still picture's reference is its long
+    mean (its noise averaged) and a slow drift adds up against it until it no longer counts as still.
+    Only the blocks around the person's crop are computed; elsewhere the reference keeps the last
+    picture seen there (unseen: never still)."""
+
+    def __init__(self, hold: float):
+        self.hold = float(hold)
+        self.reference: np.ndarray | None = None  # [Hb, Wb] float32, NaN where never seen
+        self.block = 1
+        self.still: np.ndarray | None = None      # this frame's, over its blocks `span`
+        self.span: tuple | None = None            # (b0, b1, c0, c1): the blocks computed
+
+    def reset(self) -> None:
+        self.reference, self.still, self.span = None, None, None
+
+    def update(self, frame: np.ndarray, box) -> None:
+        """Judge `frame` (linear [H, W, 3]) around `box` (y0, y1, x0, x1) against the reference."""
+        from relight.colour import LUMINANCE_WEIGHTS, srgb_encode
+
+        H, W = frame.shape[:2]
+        q = max(1, int(round(max(H, W) / STILL_BLOCKS)))
+        hb, wb = -(-H // q), -(-W // q)
+        if self.reference is None or self.block != q or self.reference.shape != (hb, wb):
+            self.reference, self.block = np.full((hb, wb), np.nan, np.float32), q
+        y0, y1, x0, x1 = box
+        b0, b1, c0, c1 = y0 // q, -(-y1 // q), x0 // q, -(-x1 // q)
+        rows = np.arange(b0 * q, min(b1 * q, H), q)
+        cols = np.arange(c0 * q, min(c1 * q, W), q)
+        region = frame[b0 * q:min(b1 * q, H), c0 * q:min(c1 * q, W)] @ LUMINANCE_WEIGHTS.astype(np.float32)
+        sums = np.add.reduceat(np.add.reduceat(region, rows - b0 * q, axis=0), cols - c0 * q, axis=1)
+        counts = np.diff(np.append(rows, min(b1 * q, H)))[:, None] * np.diff(np.append(cols, min(c1 * q, W)))[None]
+        grey = srgb_encode((sums / counts).astype(np.float32)).astype(np.float32)
+        ref = self.reference[b0:b1, c0:c1]
+        seen = np.isfinite(ref)
+        change = box_mean(np.where(seen, grey - ref, np.float32(0.0)), 1)
+        seen_all = box_mean(seen.astype(np.float32), 1) > 0.999  # every block around it seen before
+        still = np.where(seen_all, np.exp(-np.square(change / np.float32(STILL_SCALE))), 0.0).astype(np.float32)
+        k = np.float32(self.hold) * still
+        self.reference[b0:b1, c0:c1] = np.where(seen, k * ref + (1 - k) * grey, grey)
+        self.still, self.span = still, (b0, b1, c0, c1)
+
+    def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """This frame's stillness at full-resolution pixels (rows, cols) (bilinear; 0 off its blocks)."""
+        b0, _, c0, _ = self.span
+        q = self.block
+        return sample(self.still[..., None], (rows + 0.5) / q - 0.5 - b0, (cols + 0.5) / q - 0.5 - c0)[0][..., 0]
+
+    def on_grid(self, box, size) -> np.ndarray:
+        """This frame's stillness [h, w] on a working grid (the crop `box` resized to `size`)."""
+        b0, _, c0, _ = self.span
+        q = self.block
+        gy, gx = grid_axes((b0 * q, (b0 + self.still.shape[0]) * q, c0 * q, (c0 + self.still.shape[1]) * q),
+                           self.still.shape, box, size)
+        return sample_separable(self.still[..., None], gy, gx)[0][..., 0]
 
 
 def history_weight(window: float) -> float:

@@ -12,7 +12,7 @@ import pytest
 from clip_support import background, person_clip, two_shots
 from relight import quality
 from relight.clip import LIGHT_WINDOW, ClipRelighter, CutDetector
-from relight.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, history_weight
+from relight.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, Stillness, history_weight
 from relight.light import sh_light
 from relight.runtime import Relighter
 
@@ -166,6 +166,46 @@ def test_map_smoother_keeps_still_maps_and_follows_a_change():
     new = {"t": maps["t"] + 1.0}
     out = smoother.update(box, size, np.where(grey > 0.5, grey - 0.5, grey + 0.5), alpha, new)
     np.testing.assert_allclose(out["t"], new["t"], rtol=0, atol=1e-6)
+
+
+def test_map_smoother_holds_still_pixels_with_the_longer_window():
+    rng = np.random.default_rng(1)
+    grey = rng.random((12, 10)).astype(np.float32)
+    alpha = np.ones((12, 10), np.float32)
+    smoother = MapSmoother(0.5, hold=0.9)
+    box, size = (0, 12, 0, 10), (12, 10)
+    smoother.update(box, size, grey, alpha, {"t": np.zeros((12, 10, 1), np.float32)})
+    still = np.zeros((12, 10), np.float32)
+    still[:6] = 1.0
+    out = smoother.update(box, size, grey, alpha, {"t": np.ones((12, 10, 1), np.float32)}, still)["t"][..., 0]
+    # the photo agrees everywhere (grey unchanged): k = max(0.5, 0.9 x still)
+    np.testing.assert_allclose(out[:6], 0.1, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(out[6:], 0.5, rtol=0, atol=1e-6)
+
+
+def test_stillness_counts_sensor_noise_as_still_and_a_shift_as_change():
+    from clip_support import noisy_still
+
+    frames = noisy_still(3, 128)
+    box = (8, 120, 8, 120)
+    judge = Stillness(history_weight(33.0))
+    judge.update(frames[0], box)
+    assert not judge.still.any()  # nothing seen before: nothing is still
+    for f in frames[1:]:
+        judge.update(f, box)
+        # noise of 2 codes, 3 x 3 pixels averaged (at 128 px a block is a pixel): the difference of
+        # two frames has sd 2 sqrt(2) / 3 / 255 = 0.0037, so still = exp(-(d / 0.03)^2) averages
+        # ~0.985 and its 1 % quantile (d = 2.6 sd) is ~0.90
+        assert judge.still.mean() > 0.97 and np.quantile(judge.still, 0.01) > 0.85
+    shifted = np.roll(frames[2], 2, axis=1)  # the picture moved by 2 px
+    judge.update(shifted, box)
+    assert (judge.still < 0.5).mean() > 0.3  # the textured photo changes over much of it
+    # sampled on a working grid and at full-resolution pixels alike
+    grid = judge.on_grid(box, (56, 56))
+    assert grid.shape == (56, 56)
+    rows, cols = np.array([10, 60, 100]), np.array([10, 60, 100])
+    np.testing.assert_allclose(judge.at(rows, cols), [judge.still[r - 8, c - 8] for r, c in zip(rows, cols)],
+                               atol=0.35)
 
 
 def test_flow_mode_follows_a_moving_picture_better_than_plain_smoothing():
