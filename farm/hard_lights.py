@@ -57,6 +57,23 @@ def lobe_map(lobes: list[dict], ambient: dict, size=MAP_SIZE) -> np.ndarray:
     return out.astype(np.float32)
 
 
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def mean_luminance(pixels: np.ndarray) -> float:
+    """Solid-angle-weighted mean luminance of an equirect map (what a map's scale normalizes)."""
+    _, solid = equirect_directions(*pixels.shape[:2])
+    return float(((pixels @ LUMINANCE) * solid[:, None]).sum() / (4.0 * math.pi))
+
+
+def facing_shading(pixels: np.ndarray, normal) -> float:
+    """Luminance of the shading (irradiance / pi) of an unoccluded white Lambertian surface with
+    this normal under the map, computed on the map's texels (no SH cut)."""
+    dirs, solid = equirect_directions(*pixels.shape[:2])
+    cos = np.clip(dirs @ np.asarray(normal, np.float64), 0.0, None)
+    return float(((pixels @ LUMINANCE) * cos * solid[:, None]).sum() / math.pi)
+
+
 def _kelvin_tint(rng, lo: float, hi: float) -> list[float]:
     """A rough blackbody white between lo and hi kelvin, luminance 1 (warm lamps, daylight)."""
     k = float(rng.uniform(lo, hi))
@@ -97,7 +114,8 @@ def sample_lobes(kind: str, rng: np.random.Generator) -> tuple[list[dict], dict]
 
 def sample_hard_light(rng: np.random.Generator, order: int, world_to_camera: np.ndarray, kind: str | None = None):
     """One hard light as a farm.lights.SampledLight (source "hard", name "hard:KIND"): its map,
-    its SH (order N and 8, camera frame) scaled to a reference luminance drawn in [0.7, 0.9]."""
+    its SH (order N and 8, camera frame) scaled so that a white surface facing the key shades a
+    drawn 0.9-1.3 (recorded as `key_shading`; the reference luminance is the mean that gives)."""
     from farm.lights import SampledLight
 
     kind = str(rng.choice(HARD_KINDS)) if kind is None else kind
@@ -107,11 +125,15 @@ def sample_hard_light(rng: np.random.Generator, order: int, world_to_camera: np.
     t = math.atan2(-forward[0], forward[1])
     turn = np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0], [0.0, 0.0, 1.0]])
     lobes = [{**lobe, "direction": turn @ lobe["direction"]} for lobe in lobes]
-    target = float(rng.uniform(0.7, 0.9))
     pixels = lobe_map(lobes, ambient)
+    # exposed for the key, as a photographer exposes a face: a white Lambertian surface facing the
+    # key light shades `exposure` (a map is scaled by its mean instead, which would put a lamp's
+    # lit side at 3-4 and its shadow near 0); the mean luminance that gives is the recorded target
+    exposure = float(rng.uniform(0.9, 1.3))
+    target = exposure * mean_luminance(pixels) / facing_shading(pixels, lobes[0]["direction"])
     coeffs, scale = SHLight.resolve(pixels, max(order, 8), target=target).turned(0.0)
     coeffs = sh_rotation.rotate(coeffs, world_to_camera)
-    record = {"kind": kind, "ambient": ambient,
+    record = {"kind": kind, "ambient": ambient, "key_shading": exposure,
               "lobes": [{**lobe, "direction": [float(x) for x in lobe["direction"]],
                          "direction_camera": [float(x) for x in world_to_camera @ lobe["direction"]]}
                         for lobe in lobes]}

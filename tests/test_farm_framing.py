@@ -147,6 +147,13 @@ def test_hard_lights_are_normalized_recorded_and_point_where_their_key_is(kind):
     record = light.record()
     json.dumps(record)
     key = np.array(record["hard"]["lobes"][0]["direction_camera"])
+    # exposed for the key: the SH's Lambert shading facing it (order 8: Lambert's bands above 2 are
+    # small, and the shadowed half's cut rings by a few per cent) is the drawn key_shading
+    from relight.prt import lambert_transport
+
+    facing = (lambert_transport(key[None], 8)[0] @ light.sh8) @ np.array([0.2126, 0.7152, 0.0722])
+    assert 0.9 <= record["hard"]["key_shading"] <= 1.3
+    assert facing == pytest.approx(record["hard"]["key_shading"], rel=0.05)
     assert key == pytest.approx(w2c @ np.array(record["hard"]["lobes"][0]["direction"]))
     # band 1 of the SH (Y_1-1 ~ y, Y_10 ~ z, Y_11 ~ x) points at the key: the ambient and the
     # fill pull it off by at most their share of the light
