@@ -7,13 +7,14 @@ photo, the network, relighting and packing pixels run on a worker thread.
 """
 
 import math
+import os
 import time
 
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from . import bl_dials, bl_images, bl_layers, bl_saved, bl_session, engine, jobs, mask_choice, output_names, photo_pixels, quality, state, work
-from .bl_dials import compute_relit, schedule_refresh
+from .bl_dials import schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
 from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, press_clock, release_job,
@@ -256,7 +257,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         return {"PASS_THROUGH"}
 
 
-class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
+class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator, WorkerOperator):
     """Save the relit photo and its layers (albedo, shading, residual, alpha) as one multi-layer EXR"""
 
     bl_idname = "relight_photo.save_layers"
@@ -267,6 +268,8 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
     filter_glob: StringProperty(default="*.exr", options={"HIDDEN"})
     check_existing: BoolProperty(default=True, options={"HIDDEN"})  # the file browser warns on overwrite
     image_name: StringProperty(name="Image", default="", options={"SKIP_SAVE"})
+
+    SLOT = "save_layers"  # its place in state.RUNNING: one save at a time, beside a Relight
 
     def _session(self, context):
         if self.image_name or editor_image(context) is not None:
@@ -292,21 +295,99 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator):
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
 
+    def _start(self, context) -> None:
+        """The checks and the light here (the World needs bpy); relighting, the layers and the EXR
+        (seconds at 24 MP) on a worker, into a temporary file beside the target."""
+        from relight.fileio import temp_path_beside
+
+        self._started = time.monotonic()
+        if self.SLOT in state.RUNNING:
+            raise ValueError("The layers are already being saved; press Esc to cancel that first.")
+        session = self._session(context)
+        if not self.filepath:
+            raise ValueError("Choose a file to save the layers to.")
+        path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
+        work.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
+        dials = current_dials(context, session)
+        import threading
+        from pathlib import Path
+
+        tmp = str(temp_path_beside(Path(path), ".exr"))
+        self._plan = plan = dict(session=session, dials=dials, path=path, tmp=tmp, handover=threading.Lock(),
+                                 source=session.source)
+        token, progress = engine.CancelToken(), jobs.Progress()
+        self._job = jobs.BackgroundJob(lambda: work.save_layers_work(plan, progress, token), label="save-layers",
+                                       cancel_token=token, progress=progress)
+        state.RUNNING[self.SLOT] = self._job
+
+    def _finish(self, context) -> set:
+        """The worker is done: its file takes the chosen name (or its error is said)."""
+        job, plan = self._job, self._plan
+        self._plan = None  # not the session: Blender may keep this operator for its redo panel
+        if job.poll() is jobs.JobState.FAILED:
+            return self._failed(context, job.error)
+        os.replace(job.take_result(), plan["path"])
+        wall = time.monotonic() - self._started
+        return tell(self, context, f"Saved the layers of '{plan['source']}' to {plan['path']} in {wall:.1f} s.",
+                    is_error=False)
+
+    def _failed(self, context, exc) -> set:
+        if isinstance(exc, engine.Cancelled):
+            self.report({"WARNING"}, "Saving the layers cancelled: nothing was written.")
+            set_status(context, "Saving the layers cancelled: nothing was written.")
+            return {"CANCELLED"}
+        if isinstance(exc, OSError):
+            return tell(self, context, f"Cannot write '{self.filepath}': {exc.strerror or exc}.")
+        return tell(self, context, str(exc) if isinstance(exc, ValueError) else str(engine.user_error(exc)))
+
     def execute(self, context):
         try:
-            session = self._session(context)
-            if not self.filepath:
-                raise ValueError("Choose a file to save the layers to.")
-            path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
-            work.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
-            dials = current_dials(context, session)
-            relit = compute_relit(context, session, dials)
-            engine.save_layers(path, relit, engine.LayerMaps(session.decomposition, *dials[:3]))
+            self._start(context)
         except ValueError as exc:
             return tell(self, context, str(exc))
-        except OSError as exc:
+        except OSError as exc:  # the temporary file beside the target
             return tell(self, context, f"Cannot write '{self.filepath}': {exc.strerror or exc}.")
-        return tell(self, context, f"Saved the layers of '{session.source}' to {path}.", is_error=False)
+        if not self.runs_here(context):  # after the file browser, with a UI: poll the worker
+            context.window_manager.progress_begin(0, 100)
+            return self.start_polling(context)
+        try:
+            self._job.wait()
+            return self._finish(context)
+        finally:
+            release_job(self._job, self.SLOT)
+
+    def _cleanup(self, context) -> None:
+        context.window_manager.progress_end()
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+        self.stop_polling(context, self.SLOT)
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            plan = self._plan
+            with plan["handover"]:  # the worker hands its file over under this lock, or leaves none
+                self._job.cancel()
+                if plan.get("written"):
+                    os.unlink(plan["tmp"])
+            self._cleanup(context)
+            self._plan = None
+            return self._failed(context, engine.Cancelled())
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        if self._job.poll() is jobs.JobState.RUNNING:
+            progress, elapsed = self._job.progress, time.monotonic() - self._started
+            status = status_of(context)
+            status.stage, status.progress, status.elapsed = progress.stage, min(progress.fraction, 0.99), elapsed
+            context.window_manager.progress_update(int(100 * status.progress))
+            if context.workspace is not None:
+                context.workspace.status_text_set(
+                    f"Relight Photo: {progress.stage.lower()} ({elapsed:.1f} s), Esc to cancel")
+            return {"PASS_THROUGH"}
+        self._cleanup(context)
+        try:
+            return self._finish(context)
+        except OSError as exc:  # putting the file in place
+            return self._failed(context, exc)
 
 
 CLASSES = (RELIGHT_PHOTO_OT_relight, RELIGHT_PHOTO_OT_save_layers)

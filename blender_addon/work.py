@@ -247,3 +247,69 @@ def check_layers_target(path: str, height: int, width: int) -> None:
     if free < need:
         raise ValueError(f"The disk holding '{folder}' has {free / 1e6:.0f} MB free; the layers need about "
                          f"{need / 1e6:.0f} MB: free some space or choose another place.")
+
+
+# ------------------------------------------------------------------ Save Layers on the worker
+
+class PlanarLayerMaps(engine.LayerMaps):
+    """engine.LayerMaps, each map made straight into planes ([3, H, W]: every channel contiguous),
+    so relight.photo.write_layers_exr takes its channels as they are instead of copying them (at
+    24 MP a map and its copy were 576 MB each); a black residual is one zero plane for its three
+    channels. `check` runs before each map (Esc), `entered(name)` says which one is made."""
+
+    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float, check=None, entered=None):
+        super().__init__(decomposition, light, rotation_deg, exposure_ev)
+        self._check, self._entered = check or (lambda: None), entered or (lambda name: None)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._names:
+            raise KeyError(name)
+        self._check()
+        self._entered(name)
+        self._made = getattr(self, "_made", set()) | {name}
+        d = self._decomposition
+        h, w = d.size
+        if name == "alpha":
+            out = d.layer("alpha", self._coeffs, self._exposure)
+        elif name == "residual" and not d.has_residual:
+            zero = np.zeros((h, w), np.float32)
+            out = np.lib.stride_tricks.as_strided(zero, (h, w, 3), (4 * w, 4, 0), writeable=False)
+        else:
+            planes = np.empty((3, h, w), np.float32)
+            out = d.layer(name, self._coeffs, self._exposure, out=planes.transpose(1, 2, 0))
+        if len(self._made) == len(self._names):  # the writer has every map: it compresses and writes now
+            self._entered("")
+        return out
+
+
+LAYER_STAGES = {"alpha": ("Making the alpha layer", 0.15), "albedo": ("Making the albedo layer", 0.20),
+                "shading": ("Making the shading layer", 0.30), "residual": ("Making the residual layer", 0.40),
+                "": ("Writing the EXR file", 0.50)}
+
+
+def save_layers_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> str:
+    """Save Layers' worker: the relit photo and its layers under the dials, written to plan["tmp"]
+    beside the chosen file (the main thread puts it in place; Esc leaves nothing). Returns the path."""
+    session, tmp = plan["session"], plan["tmp"]
+    d = session.decomposition
+    light, rotation, exposure, strength = plan["dials"]
+    h, w = d.size
+    try:
+        progress.enter("Relighting at full size", 0.02)
+        buffer = pixel_buffers.BUFFERS.take(h * w * 4)  # the pooled RGBA buffer, as three planes (+ one unused)
+        planes = buffer[:3 * h * w].reshape(3, h, w)
+        relit = planes.transpose(1, 2, 0)
+        d.relight(engine.coefficients(d, light, rotation), exposure_ev=exposure, out=relit)
+        pixel_buffers.blend_into(relit, d.photo, strength)
+        maps = PlanarLayerMaps(d, light, rotation, exposure, token.check,
+                               lambda name: progress.enter(*LAYER_STAGES[name]))
+        engine.save_layers(tmp, relit, maps)
+        del relit, planes
+        pixel_buffers.BUFFERS.give(buffer)
+        with plan["handover"]:  # Esc now or never: the main thread cancels under the same lock
+            token.check()
+            plan["written"] = True
+    except BaseException:
+        os.unlink(tmp) if os.path.exists(tmp) else None
+        raise
+    return tmp

@@ -547,7 +547,7 @@ def test_save_layers_refusals_reach_the_panel_before_any_work(addon, settings, t
     relight(name)
     status = bpy.context.window_manager.relight_photo_status
     computed = []
-    monkeypatch.setattr(bl_ops, "compute_relit", lambda *a, **k: computed.append(1))  # the work: never reached
+    monkeypatch.setattr(bl_ops.work, "save_layers_work", lambda *a, **k: computed.append(1))  # never reached
     (tmp_path / "taken.exr").mkdir()
     cases = [(tmp_path / "taken.exr", f"'{tmp_path / 'taken.exr'}' is a folder: choose a file name for the layers."),
              (tmp_path / "no" / "l.exr", f"The folder '{tmp_path / 'no'}' does not exist: choose another place"),
