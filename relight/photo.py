@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import decode_alpha_codes, decode_srgb_codes, srgb_encode
+from relight.colour import decode_alpha_codes, decode_srgb_codes
 from relight.fileio import atomic_path
 from relight.image_limits import check_declared_size, check_max_pixels
 from relight.png_decoder import check_png_chunks, read_png16
@@ -27,8 +27,9 @@ from relight.png_decoder import check_png_chunks, read_png16
 __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
            "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
-STRIP_ROWS = 256             # rows converted at a time: bounds temporaries for huge photos
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
+# lossless, and at 24 MP 0.5x the time of ZIP on OpenEXR's threads at the same size (docs/BENCHMARKS.md)
+EXR_COMPRESSION = "piz"
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 
@@ -101,8 +102,6 @@ def _decoder_errors(path: Path, what: str):
 
 
 def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    from PIL import ImageOps
-
     im = _open_pillow(path)
     try:
         with _decoder_errors(path, "corrupt or truncated image"):
@@ -123,10 +122,17 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
                     if decoded is not None:
                         return _decode_16bit(*decoded)
                 im.load()
-                im = ImageOps.exif_transpose(im)
-                return _pillow_to_linear(im, path)
+                return _pillow_to_linear(_upright(im), path)
     finally:
         im.close()
+
+
+def _upright(im):
+    """The image turned as its EXIF orientation says; itself when it says nothing (exif_transpose
+    would copy it: 72 MB at 24 MP)."""
+    from PIL import ImageOps
+
+    return ImageOps.exif_transpose(im) if im.getexif().get(0x0112, 1) not in (0, 1) else im
 
 
 def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -149,7 +155,8 @@ def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         return np.repeat(lin[..., None], 3, axis=2), None
     has_alpha = mode in ("RGBA", "LA", "PA", "La", "RGBa") or (mode == "P" and "transparency" in im.info) \
         or (mode in ("L", "RGB") and "transparency" in im.info)
-    rgba = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+    mode = "RGBA" if has_alpha else "RGB"
+    rgba = np.asarray(im if im.mode == mode else im.convert(mode))  # convert() to its own mode copies
     return decode_srgb_codes(rgba[..., :3]), decode_alpha_codes(rgba[..., 3]) if has_alpha else None
 
 
@@ -237,8 +244,6 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
 
 
 def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
-    from PIL import ImageOps
-
     im = _open_pillow(path)
     try:
         with _decoder_errors(path, "corrupt or truncated mask image"):
@@ -248,7 +253,7 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 im.load()
-                im = ImageOps.exif_transpose(im)
+                im = _upright(im)
                 if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
                     return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
                 if im.mode == "F":
@@ -279,26 +284,29 @@ def _out_dir(path: Path) -> None:
 
 def write_png(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
     """Write linear RGB as an 8-bit sRGB PNG (values clipped to [0, 1]), atomically;
-    `metadata` goes into tEXt chunks."""
-    from PIL import Image
-    from PIL.PngImagePlugin import PngInfo
+    `metadata` goes into text chunks (relight.png_encoder: the sRGB curve by table, rows
+    deflated in bands on threads)."""
+    from relight.png_encoder import write_png_file
 
     path = Path(path)
     _out_dir(path)
     a = _check_image(linear)
-    h, w = a.shape[:2]
-    u8 = np.empty((h, w, 3), np.uint8)
-    for r0 in range(0, h, STRIP_ROWS):
-        strip = a[r0:r0 + STRIP_ROWS]
-        if not np.all(np.isfinite(strip)):
-            raise ValueError("image to write contains NaN or Inf")
-        u8[r0:r0 + STRIP_ROWS] = np.rint(srgb_encode(strip.astype(np.float32, copy=False)) * 255.0)
-    info = PngInfo()
-    for key, value in (metadata or {}).items():
-        info.add_text(key, value)
     with atomic_path(path, ".png") as tmp:
-        Image.fromarray(u8, "RGB").save(tmp, format="PNG", compress_level=4, pnginfo=info)
+        with open(tmp, "wb") as f:
+            write_png_file(f, a, metadata)
     return path
+
+
+def exr_threads() -> None:
+    """Let OpenEXR compress (and decompress) a file's blocks on threads: its global pool is
+    empty until set (docs/BENCHMARKS.md, "Writing the output"); set once, to the cores
+    available (at most 4)."""
+    from relight.exr import _openexr
+
+    OpenEXR = _openexr()
+    if hasattr(OpenEXR, "set_global_thread_count") and OpenEXR.global_thread_count() == 0:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        OpenEXR.set_global_thread_count(min(4, cores))
 
 
 def _rgb_channels(prefix: str, image: np.ndarray) -> dict[str, np.ndarray]:
@@ -318,7 +326,8 @@ def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarr
     channels = _rgb_channels("", a)
     if alpha is not None:
         channels["A"] = np.ascontiguousarray(alpha, dtype=np.float32)
-    return write_exr(path, channels, attributes=metadata)
+    exr_threads()
+    return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
 
 
 def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray],
@@ -348,7 +357,8 @@ def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[st
             raise ValueError(f"{key} layer is {img.shape}, relit image is {relit.shape}")
         channels.update(_rgb_channels(f"{LAYER_NAME}.{pass_name}.", img))
     channels[f"{LAYER_NAME}.Alpha.A"] = np.ascontiguousarray(alpha)
-    return write_exr(path, channels, attributes=metadata)
+    exr_threads()
+    return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
 
 
 def write_image(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from relight.fileio import temp_path_beside
+from relight.png_encoder import encode_srgb8
 from relight.video_io import ClipInfo, import_av, open_container
 
 __all__ = ["VideoWriter", "FrameFolderWriter", "encode_srgb8", "frame_codes", "output_colour", "OUTPUT_VIDEO_SUFFIXES"]
@@ -35,46 +36,6 @@ AUDIO_COPY = {".mp4": {"aac", "mp3", "alac", "ac3", "eac3", "opus", "flac"}, ".m
               ".mov": {"aac", "mp3", "alac", "ac3", "pcm_s16le", "pcm_s24le", "pcm_f32le"},
               ".webm": {"opus", "vorbis"}, ".mkv": None}  # None: anything
 AUDIO_REENCODE = {".webm": "libopus"}  # the rest: aac
-
-
-_ENCODE_BINS = 4096  # bins of sqrt(linear): each holds at most one rounding threshold (the closest two
-                     # thresholds, near code 255, are 0.0039 apart in sqrt(linear))
-_ENCODE: tuple[np.ndarray, np.ndarray] | None = None
-
-
-def _encode_tables() -> tuple[np.ndarray, np.ndarray]:
-    """(code at each sqrt bin's lower edge, the linear value where code k + 1 begins, k = 0..255)."""
-    global _ENCODE
-    if _ENCODE is None:
-        from relight.colour import srgb_decode
-
-        # rint(255 srgb_encode(x)) steps from k to k + 1 where srgb_encode(x) = (k + 0.5) / 255
-        steps = srgb_decode((np.arange(255, dtype=np.float64) + 0.5) / 255.0)
-        edges = (np.arange(_ENCODE_BINS + 1, dtype=np.float64) / _ENCODE_BINS) ** 2
-        codes = np.searchsorted(steps, edges, side="right").astype(np.uint8)
-        _ENCODE = codes, np.append(steps, np.inf).astype(np.float32)
-    return _ENCODE
-
-
-def encode_srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB codes, clipped to [0, 1] and rounded: a table lookup in
-    sqrt(linear) and one comparison with the next code's threshold, 3x faster than
-    evaluating the curve on a 1080p frame. It gives rint(255 srgb_encode(x)) except within
-    float32 rounding of a threshold (one code off, 1e-5 of random values); decoded codes
-    (decode_srgb) come back exactly."""
-    a = np.asarray(linear, np.float32)
-    out = np.empty(a.shape, np.uint8)
-    codes, steps = _encode_tables()
-    rows = max(1, (1 << 18) // max(1, a[0].size)) if a.ndim > 1 else a.shape[0]
-    for r0 in range(0, a.shape[0], rows):  # strips: temporaries stay in cache
-        x = a[r0:r0 + rows]
-        if not np.all(np.isfinite(x)):
-            raise ValueError("frame to write contains NaN or Inf")
-        x = np.clip(x, 0.0, 1.0)
-        code = codes[(np.sqrt(x) * np.float32(_ENCODE_BINS)).astype(np.intp)]
-        code += x >= steps[code]
-        out[r0:r0 + rows] = code
-    return out
 
 
 def frame_codes(linear: np.ndarray, codes: np.ndarray | None = None, changed=None) -> np.ndarray:

@@ -102,8 +102,11 @@ def image_argv(draw, files, out_dir: str) -> list[str]:
     model = "model" if sane else draw(st.sampled_from(["model", "tampered.onnx", "missing"]))
     argv += ["--model", files[model], "--quality", "draft"]
     argv += ["--matte", "network" if sane else draw(st.sampled_from(["network", "person", "bogus"]))]
-    out = draw(st.sampled_from(["o.png", "o.exr", None] if sane else ["o.png", "o.txt", "nowhere/o.png", "outdir"]))
-    if out is not None:
+    out = draw(st.sampled_from(["o.png", "o.exr", None] if sane else ["o.png", "o.txt", "nowhere/o.png", "outdir",
+                                                                       "=input", "o.gif"]))
+    if out == "=input":  # issue 40: the output is the photo (or folder) itself: refused, the input kept
+        argv += ["--out", argv[1]]
+    elif out is not None:
         argv += ["--out", str(Path(out_dir) / out)]
     for option in draw(st.lists(st.sampled_from(["--rotate", "--exposure", "--threads", "--max-pixels", "--person",
                                                  "--mask", "--layers", "--no-normalize", "--quality"]), max_size=3)):
@@ -172,7 +175,13 @@ def test_fuzz_image_arguments(files, capfd):
         (Path(out_dir) / "outdir").mkdir()
         argv = data.draw(image_argv(files, out_dir))
         new_case("test_fuzz_image_arguments")
+        out = argv[argv.index("--out") + 1] if "--out" in argv else None
+        onto_input = out is not None and out == argv[1]
+        before = Path(out).read_bytes() if onto_input and Path(out).is_file() else None
         code, _ = _check_run("cli.image", argv, capfd)
+        if onto_input:
+            assert code == 2, argv
+            assert before is None or Path(out).read_bytes() == before  # the input is kept byte for byte
         written = [p for p in Path(out_dir).rglob("*") if p.is_file()]
         if code == 2:
             assert written == [], written  # nothing partial

@@ -269,3 +269,86 @@ def test_writes_are_atomic_and_checked(tmp_path):
         ph.write_png(tmp_path / "x.png", bad)
     assert np.all(np.asarray(Image.open(tmp_path / "x.png")) == 0)
     assert [p.name for p in tmp_path.iterdir()] == ["x.png"]
+
+
+def _idat_stream(path) -> tuple[dict, bytes]:
+    """(IHDR fields, the IDAT chunks' bytes joined) of a PNG, every chunk's CRC checked."""
+    import struct
+    import zlib
+
+    data = (tmp := open(path, "rb")).read()
+    tmp.close()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, kinds = 8, b"", []
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        assert struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])[0] == zlib.crc32(kind + body), kind
+        kinds.append(kind)
+        if kind == b"IHDR":
+            w, h, depth, colour = struct.unpack(">IIBB", body[:10])
+            header = {"size": (w, h), "depth": depth, "colour": colour}
+        idat += body if kind == b"IDAT" else b""
+        pos += 12 + n
+    assert kinds[0] == b"IHDR" and kinds[-1] == b"IEND"
+    return header, idat
+
+
+@pytest.mark.parametrize("engine", ["installed", "zlib"])
+@pytest.mark.parametrize("shape", [(1, 1), (2, 7), (255, 3), (256, 5), (257, 4), (700, 33)])
+def test_the_fast_png_writer_is_a_valid_png_of_the_rounded_codes(tmp_path, monkeypatch, engine, shape):
+    """Issue 40: the PNG writer is relight.png_encoder's (table sRGB encode, Up filter, bands deflated
+    on threads, ISA-L when installed): a strict zlib inflate (its Adler-32 checked) of the bands
+    joined gives the Up-filtered rows of the codes, which Pillow decodes, metadata included."""
+    import zlib
+
+    from relight import png_encoder
+
+    if engine == "zlib":
+        monkeypatch.setattr(png_encoder, "deflate_module", lambda: (zlib, 1, zlib.Z_RLE))
+    h, w = shape
+    lin = np.random.default_rng(h * w).uniform(-0.1, 1.2, (h, w, 3)).astype(np.float32) ** 2
+    lin[0, 0] = [-0.0, 1.0, 0.5]  # -0.0: its sign bit must not index past the encode table
+    meta = {"relight": '{"quality": "balanced"}', "Comment": "caf\u00e9 \u2014 \u263a"}
+    ph.write_png(tmp_path / "o.png", lin, meta)
+    want = np.rint(srgb_encode(np.clip(lin, 0, 1)) * 255).astype(np.uint8)
+    with Image.open(tmp_path / "o.png") as im:
+        got = np.asarray(im)
+        assert im.mode == "RGB" and im.info == meta
+    # the table gives the curve's rounding except within float32 rounding of a threshold
+    assert np.abs(got.astype(int) - want).max() <= 1 and np.mean(got != want) < 1e-3
+    header, idat = _idat_stream(tmp_path / "o.png")
+    assert header == {"size": (w, h), "depth": 8, "colour": 2}
+    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + 3 * w)
+    assert np.all(rows[:, 0] == 2)  # "Up" on every row
+    flat = got.reshape(h, 3 * w)
+    np.testing.assert_array_equal(rows[:, 1:], np.concatenate([flat[:1], flat[1:] - flat[:-1]]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.png"]
+
+
+def test_a_nan_in_a_late_band_leaves_no_png(tmp_path):
+    from relight import png_encoder
+
+    lin = np.full((png_encoder.BAND_ROWS * 3, 4, 3), 0.5, np.float32)
+    lin[-1, -1, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        ph.write_png(tmp_path / "o.png", lin)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_exr_output_is_lossless_piz_written_on_openexrs_threads(tmp_path):
+    """Issue 40: ZIP on one thread took 3x PIZ on OpenEXR's threads at 24 MP for the same size
+    (benchmarks/bench_write.py); PIZ is lossless."""
+    import OpenEXR
+
+    lin = np.random.default_rng(3).uniform(0, 4, (300, 41, 3)).astype(np.float32)
+    ph.write_exr_image(tmp_path / "o.exr", lin, alpha=np.full((300, 41), 0.5, np.float32))
+    ph.write_layers_exr(tmp_path / "l.exr", lin, {"albedo": lin, "shading": lin, "residual": lin,
+                                                  "alpha": np.ones((300, 41), np.float32)})
+    for name in ("o.exr", "l.exr"):
+        with OpenEXR.File(str(tmp_path / name)) as f:
+            assert f.header()["compression"] == OpenEXR.PIZ_COMPRESSION
+    assert OpenEXR.global_thread_count() >= 1
+    back, alpha = ph.read_photo(tmp_path / "o.exr")
+    np.testing.assert_allclose(back, lin, rtol=1e-7, atol=0)
+    np.testing.assert_allclose(alpha, 0.5, rtol=1e-7)
