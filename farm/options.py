@@ -82,7 +82,7 @@ class SceneOptions:
     def expected_channels(self) -> int:
         """Float32 channels a scene EXR holds for these options (docs/ARCHITECTURE.md table)."""
         n = (self.sh_order + 1) ** 2
-        channels = 1 + 3 + 3 + 3 + 1  # alpha, albedo, normal, material, depth
+        channels = 1 + 3 + 3 + 3 + 1 + 1  # alpha, albedo, normal, material, depth, head
         if "prt" in self.passes:
             channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
         if "pt" in self.passes:

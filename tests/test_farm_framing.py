@@ -220,6 +220,7 @@ def test_a_head_and_shoulders_scene_under_hard_lights_renders_its_head_mask(tmp_
                            framing="head-and-shoulders", hard_lights=1.0)
     s = dataset.read_scene(render_scene(5, 37, options, tmp_path))  # short hair, the camera 6 deg off the face
     assert s.meta["camera"]["framing"] == "head-and-shoulders"
+    assert len(s.meta["channels"]) == options.expected_channels()  # the disk check's count, head included
     assert [l["source"] for l in s.meta["lights"]] == ["hard", "hard"]
     inside = s.alpha[..., 0] > 0.999
     head = s.head[..., 0]

@@ -14,10 +14,10 @@ def test_json_round_trip_is_lossless():
 
 
 def test_expected_channels_follow_the_dataset_table():
-    # 11 always-present channels; prt adds n transport + 6 per light; pt adds 3 per light;
-    # body adds its normal, coverage and depth
-    assert SceneOptions(sh_order=4, lights=4).expected_channels() == 11 + 25 + 24 + 12 + 5
-    assert SceneOptions(sh_order=2, lights=1, passes=frozenset({"pt"})).expected_channels() == 11 + 3
+    # 12 always-present channels (the head mask since issue 37); prt adds n transport + 6 per light;
+    # pt adds 3 per light; body adds its normal, coverage and depth
+    assert SceneOptions(sh_order=4, lights=4).expected_channels() == 12 + 25 + 24 + 12 + 5
+    assert SceneOptions(sh_order=2, lights=1, passes=frozenset({"pt"})).expected_channels() == 12 + 3
     assert SceneOptions(lights=3, passes=frozenset({"prt"})).path_traced_images() == 0
 
 

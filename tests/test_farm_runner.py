@@ -129,11 +129,12 @@ def test_options_reach_scene_options_one_to_one():
     config = cli.parse_args(["--out", "x", "--scenes", "3", "--seed", "7", "--res", "64", "--lights", "2",
                              "--samples", "8", "--no-denoise", "--order", "2", "--directions", "64",
                              "--passes", "prt", "--specular", "off", "--light-pool", "heldout",
-                             "--denoise-prefilter", "accurate"])
+                             "--denoise-prefilter", "accurate", "--framing", "face,waist-up", "--hard-lights", "0.25"])
     assert config.scene.to_json() == {
         "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "denoise_prefilter": "accurate",
         "sh_order": 2,
-        "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout"}
+        "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout",
+        "framing": "face,waist-up", "hard_lights": 0.25}
     assert list(config.indices) == [0, 1, 2]
     # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
     from farm import scene
@@ -141,11 +142,13 @@ def test_options_reach_scene_options_one_to_one():
     options = scene.SceneOptions.from_json(json.loads(json.dumps(config.scene.to_json())))
     options.validate()
     assert (options.resolution, options.lights, options.samples, options.denoise, options.denoise_prefilter,
-            options.sh_order, options.bake_directions, options.passes, options.specular, options.light_pool) == (
-        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout")
+            options.sh_order, options.bake_directions, options.passes, options.specular, options.light_pool,
+            options.framing, options.hard_lights) == (
+        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout", "face,waist-up", 0.25)
     assert set(config.scene.to_json()) == {f.name for f in dataclasses.fields(scene.SceneOptions)}
-    # Raw float32 channels of a 64x64 prt-only scene: 11 geometry + 9 transport + 2*3*2 per light.
-    assert config.scene.expected_channels() == 11 + 9 + 12
+    # Raw float32 channels of a 64x64 prt-only scene: 12 geometry (the head mask included) + 9
+    # transport + 2*3*2 per light.
+    assert config.scene.expected_channels() == 12 + 9 + 12
     assert config.scene.path_traced_images() == 0
 
 
@@ -342,14 +345,14 @@ def test_disk_without_room_for_a_scene_stops_before_rendering(tmp_path):
     disk = tmp_path / "disk"
     disk.mkdir()
     env = farm_env(tmp_path, DISK=str(disk))
-    # A 256x256 scene at K=4, order 4 holds 11 + 25 + 3*4*3 + 5 (body) = 77 float32 channels:
-    # 77 * 256*256*4 B = 19.25 MiB raw, + 1 MiB sidecar allowance = 20.2 MiB.
+    # A 256x256 scene at K=4, order 4 holds 12 (the head mask included) + 25 + 3*4*3 + 5 (body) =
+    # 78 float32 channels: 78 * 256*256*4 B = 19.5 MiB raw, + 1 MiB sidecar allowance = 20.5 MiB.
     r = _on_small_disk("4m", f'{PYTHON} -m farm --out "$DISK/out" --scenes 2 --seed 0 '
                        f"--job-module {FAULT_JOB} --no-progress", env)
     assert r.returncode == 1
     lines = error_lines(r.stderr)
     assert len(lines) == 1 and lines[0].startswith("farm: error: output disk full: 4.0 MiB free in")
-    assert "20.2 MiB needed" in lines[0]
+    assert "20.5 MiB needed" in lines[0]
     assert events(tmp_path) == []  # no scene started
 
 
