@@ -178,12 +178,10 @@ class ShotLight:
         return mean.astype(np.float32)
 
 
-def still_weight(still: np.ndarray, alpha: np.ndarray) -> float:
-    """How still the person is, in [0, 1]: 0 until STILL_PERSON[0] of the person (alpha-weighted)
-    is still, rising linearly to 1 at STILL_PERSON[1]. The light and the network's maps are the
-    whole person's: they are held only when nearly all of the person did not move."""
-    total = float(alpha.sum())
-    share = float((still * alpha).sum()) / total if total > 0 else 0.0
+def still_weight(share: float) -> float:
+    """How still the person is, in [0, 1], from the share of them that is still: 0 until
+    STILL_PERSON[0], rising linearly to 1 at STILL_PERSON[1]. The light and the network's maps
+    are the whole person's: they are held only when nearly all of the person did not move."""
     low, high = STILL_PERSON
     return min(1.0, max(0.0, (share - low) / (high - low)))
 
@@ -318,16 +316,22 @@ class ClipRelighter:
         estimate = np.asarray(d.light, np.float32)
         shot_light = estimate
         if self.stability > 0:
-            d = self._on_held_grid(d, analysis.matte_box)
-            self.stillness.update(analysis.frame, d.box)
+            held = self.maps.state
+            self.stillness.update(analysis.frame, d.box if held is None else d.box.union(Box(*held["box"])))
+            if d.mask is not None:
+                person_still = still_weight(self.stillness.share(d.mask))
+            else:  # the network's matte: on its grid
+                grid = self.stillness.on_grid(d.box, d.working_size)
+                person_still = still_weight(float((grid * d.alpha).sum() / max(float(d.alpha.sum()), 1e-6)))
+            if person_still > 0.0:
+                d = self._on_held_grid(d, analysis.matte_box)
             if analysis.smooth_matte:
                 d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box, self.stillness.at))
-            still = self.stillness.on_grid(d.box, d.working_size)
-            person_still = still_weight(still, d.alpha)
             shot_light = self.shot_light.update(estimate, person_still)
             # the network's answer at a pixel depends on the whole crop: its maps are held where the
             # picture is still only as far as the whole person is
-            d = self._stabilised(d, shot_light, still * np.float32(person_still))
+            still = self.stillness.on_grid(d.box, d.working_size) * np.float32(person_still)
+            d = self._stabilised(d, shot_light, still)
         image = d.relight(self.light, self.exposure_ev)
         stats = d.last_stats
         return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
@@ -339,8 +343,8 @@ class ClipRelighter:
 
     def _on_held_grid(self, d: Decomposition, matte_box) -> Decomposition:
         """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
-        only: the person (the matte's box) inside the previous crop, which lies within this frame's
-        own crop grown by its margin. A crop box that flicks by a pixel or two resamples a textured
+        only (finish() asks when the person is still): the person (the matte's box) inside the
+        previous crop, which lies within this frame's own crop grown by its margin. A crop box that flicks by a pixel or two resamples a textured
         photo differently each frame, which the detail transfer and the albedo carry into the relit
         person (docs/video.md); the network's smooth maps are resampled onto the held grid instead."""
         from relight.runtime import CROP_MARGIN

@@ -240,17 +240,21 @@ class Stillness:
 
         H, W = frame.shape[:2]
         q = max(1, int(round(max(H, W) / STILL_BLOCKS)))
-        hb, wb = -(-H // q), -(-W // q)
+        hb, wb = H // q, W // q  # whole blocks only: a partial one at the frame's edge is never still
         if self.reference is None or self.block != q or self.reference.shape != (hb, wb):
             self.reference, self.block = np.full((hb, wb), np.nan, np.float32), q
         y0, y1, x0, x1 = box
-        b0, b1, c0, c1 = y0 // q, -(-y1 // q), x0 // q, -(-x1 // q)
-        rows = np.arange(b0 * q, min(b1 * q, H), q)
-        cols = np.arange(c0 * q, min(c1 * q, W), q)
-        region = frame[b0 * q:min(b1 * q, H), c0 * q:min(c1 * q, W)] @ LUMINANCE_WEIGHTS.astype(np.float32)
-        sums = np.add.reduceat(np.add.reduceat(region, rows - b0 * q, axis=0), cols - c0 * q, axis=1)
-        counts = np.diff(np.append(rows, min(b1 * q, H)))[:, None] * np.diff(np.append(cols, min(c1 * q, W)))[None]
-        grey = srgb_encode((sums / counts).astype(np.float32)).astype(np.float32)
+        b0, b1, c0, c1 = min(y0 // q, hb), min(-(-y1 // q), hb), min(x0 // q, wb), min(-(-x1 // q), wb)
+        region = frame[b0 * q:b1 * q, c0 * q:c1 * q]
+        # block sums per channel: every q-th row added in turn (whole rows at a time), then every q-th column
+        rows = region[0::q].copy()
+        for i in range(1, q):
+            rows += region[i::q]
+        sums = rows[:, 0::q].copy()
+        for i in range(1, q):
+            sums += rows[:, i::q]
+        grey = srgb_encode((sums @ LUMINANCE_WEIGHTS.astype(np.float32)) * np.float32(1.0 / (q * q)))
+        grey = grey.astype(np.float32)
         ref = self.reference[b0:b1, c0:c1]
         seen = np.isfinite(ref)
         change = box_mean(np.where(seen, grey - ref, np.float32(0.0)), 1)
@@ -260,11 +264,24 @@ class Stillness:
         self.reference[b0:b1, c0:c1] = np.where(seen, k * ref + (1 - k) * grey, grey)
         self.still, self.span = still, (b0, b1, c0, c1)
 
-    def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """This frame's stillness at full-resolution pixels (rows, cols) (bilinear; 0 off its blocks)."""
-        b0, _, c0, _ = self.span
+    def share(self, mask: np.ndarray) -> float:
+        """The mask-weighted share of this frame's blocks that are still (`mask` [H, W], the person's
+        full-resolution matte, read at the blocks' centres)."""
+        b0, b1, c0, c1 = self.span
         q = self.block
-        return sample(self.still[..., None], (rows + 0.5) / q - 0.5 - b0, (cols + 0.5) / q - 0.5 - c0)[0][..., 0]
+        weight = mask[b0 * q + q // 2:b1 * q:q, c0 * q + q // 2:c1 * q:q]
+        total = float(weight.sum(dtype=np.float64))
+        return float((self.still * weight).sum(dtype=np.float64)) / total if total > 0 else 0.0
+
+    def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """This frame's stillness at full-resolution pixels (rows, cols): their blocks' (0 off them)."""
+        b0, b1, c0, c1 = self.span
+        q = self.block
+        r, c = rows // q - b0, cols // q - c0
+        inside = (r >= 0) & (r < b1 - b0) & (c >= 0) & (c < c1 - c0)
+        out = np.zeros(rows.shape, np.float32)
+        out[inside] = self.still[r[inside], c[inside]]
+        return out
 
     def on_grid(self, box, size) -> np.ndarray:
         """This frame's stillness [h, w] on a working grid (the crop `box` resized to `size`)."""
