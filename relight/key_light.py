@@ -12,9 +12,13 @@ from bands 1 and 2 of a light, projected on the key's direction d,
     s_l = (4 pi / (2l + 1)) sum_m L_lm Y_lm(d) = S g_l,     s_2 / s_1 = cos a,   S = 2 s_1 / (1 + c):
 
 the closed forms `fit_key` uses (on the luminance for the angle, per channel for the
-colour). d is where the light's luminance SH up to band DIRECTION_BANDS peaks (for band 1
-alone that is the band-1 vector; a delta's truncated SH peaks at the delta). The key is
-then shrunk, if needed, until what is left has irradiance >= 0 everywhere.
+colour). When the light has band 4 and g_4(a) / g_2(a) = s_4 / s_2 has a root (a <= 49
+degrees), the angle comes from bands 2 and 4 instead and S = min(s_2 / g_2, s_1 / g_1): a
+broad sky adds to band 1 about d and would widen the s_2 / s_1 cone (a 2-degree sun under
+a sky: 30 degrees). d is where the light's luminance SH up to band DIRECTION_BANDS peaks
+(for band 1 alone that is the band-1 vector; a delta's truncated SH peaks at the delta).
+The key is then shrunk, if needed, until what is left is a light (mean >= 0 per channel,
+order-2 irradiance >= 0 or no lower than the light's own).
 
 The rest (`smooth_world`) is capped at band WORLD_ORDER = 2: band 3 is invisible to a
 diffuse surface (A_3 = 0) and band 4 nearly so (A_4 / A_0 = 1/24), and those are the bands
@@ -49,12 +53,19 @@ __all__ = ["KeyLight", "LightSplit", "cone_profile", "lobe_coeffs", "key_directi
 DIRECTION_BANDS = 2      # bands whose luminance peak is the key's direction (benchmarks/bench_key_light.py)
 WORLD_ORDER = 2          # the smooth World's highest band
 CHROMA_ORDER = 1         # the World's chromaticity: SH up to this band (1: linear in the direction)
+WIDTH_FROM_BAND4 = True  # the key's width from bands 2 and 4 when they agree (benchmarks/bench_key_light.py)
+WIDTH_STEPS = 50         # bisection steps of that width
 WIDE_ANGLE_DEG = 90.0    # a key wider than this (full angle) becomes an area light in Blender
 SEARCH_POINTS = 2048     # Fibonacci directions of the coarse peak search (about 4.5 degrees apart)
 REFINE_STEPS = 24        # halvings of the local search: 4.5 / 2^24 degrees
 SHRINK_STEPS = 40        # bisection steps on the key's share when the rest would have negative irradiance
 CHROMA_PENALTY = 1e4     # weight of a negative chromaticity against the irradiance fit (per unit of |M|^2)
 CHROMA_STEPS = 30        # active-set steps of the chromaticity fit
+
+
+@functools.lru_cache(maxsize=8)
+def _gauss_legendre(n: int):
+    return np.polynomial.legendre.leggauss(n)
 
 
 def cone_profile(half_angle: float, order: int) -> np.ndarray:
@@ -69,7 +80,7 @@ def cone_profile(half_angle: float, order: int) -> np.ndarray:
         return np.ones(order + 1)
     # the mean of P_l over the cap mu in [cos a, 1], by Gauss-Legendre quadrature exact for degree
     # <= order (no cancellation, unlike the closed form's (P_{l-1} - P_{l+1}) / (1 - c) near a delta)
-    x, w = np.polynomial.legendre.leggauss(order // 2 + 1)
+    x, w = _gauss_legendre(order // 2 + 1)
     one_minus_c = 2.0 * math.sin(a / 2.0) ** 2
     mu = 1.0 - one_minus_c * (1.0 - x) / 2.0
     p_prev, p = np.ones_like(mu), mu
@@ -99,6 +110,13 @@ def _fibonacci(n: int) -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=4)
+def _search_basis(bands: int) -> np.ndarray:
+    out = sh.sh_basis(_fibonacci(SEARCH_POINTS), bands)
+    out.flags.writeable = False
+    return out
+
+
 def _band_slice(lo: int, hi: int) -> slice:
     return slice(lo * lo, (hi + 1) * (hi + 1))
 
@@ -122,7 +140,7 @@ def key_direction(coeffs, bands: int = DIRECTION_BANDS) -> np.ndarray:
         return sh.sh_basis(dirs, bands) @ w
 
     grid = _fibonacci(SEARCH_POINTS)
-    best = grid[int(np.argmax(score(grid)))]
+    best = grid[int(np.argmax(_search_basis(bands) @ w))]
     step = math.radians(4.5)
     offsets = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64)
     for _ in range(REFINE_STEPS):
@@ -225,6 +243,30 @@ def _order2(coeffs: np.ndarray) -> np.ndarray:
     return out
 
 
+def _width_from_band4(L: np.ndarray, d: np.ndarray, s2y: float) -> float | None:
+    """The half-angle a of the cone about d with g_4(a) / g_2(a) = s_4 / s_2 (luminance; bisection:
+    the ratio falls from 1 at a delta to 0 as the cone widens), or None when the light has no band
+    4 or the ratio is <= 0 (a cone wider than 49 degrees, where band 4 says little); 0 (a delta) for
+    a ratio >= 1."""
+    if not WIDTH_FROM_BAND4 or L.shape[0] < 25 or not s2y > 0:
+        return None
+    s4y = float((4.0 * math.pi / 9.0) * (sh.sh_basis(d, 4)[16:25] @ L[16:25]) @ LUMINANCE_WEIGHTS)
+    ratio = s4y / s2y
+    if ratio >= 1.0:
+        return 0.0  # as sharp as a delta or sharper (a broad part adds to band 4 about d): a delta
+    if not ratio > 0.0:
+        return None
+    lo, hi = 0.0, math.acos(math.sqrt(3.0 / 7.0))  # g_4 / g_2 reaches 0 where P_3-P_5 balance: ~49 deg
+    for _ in range(WIDTH_STEPS):
+        mid = 0.5 * (lo + hi)
+        g = cone_profile(mid, 4)
+        if g[4] / g[2] > ratio:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
 def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     """The key light of the SH light `coeffs` [n, 3] (order >= 1) by the module docstring's
     closed forms; shrunk, if needed, until the rest's irradiance (order 2) is >= 0 in every
@@ -238,20 +280,28 @@ def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     s1y = float(s1 @ LUMINANCE_WEIGHTS)
     if not s1y > 0:
         return KeyLight(d, np.zeros(3), 0.0)
-    c = 1.0
+    c, s2y = 1.0, s1y
     if L.shape[0] >= 9:
         s2y = float((4.0 * math.pi / 5.0) * (basis[4:9] @ L[4:9]) @ LUMINANCE_WEIGHTS)
         c = min(1.0, max(0.0, s2y / s1y))                      # hemisphere at most (g_2 = 0)
     rgb = np.maximum(s1, 0.0) * 2.0 / (1.0 + c)
+    half = _width_from_band4(L, d, s2y)
+    if half is not None:  # bands 2 and 4 agree on a cone: its width from them, its strength from band 2
+        g = cone_profile(half, 2)
+        c = math.cos(half)
+        rgb = np.maximum(s1, 0.0) / s1y * min(s2y / g[2], s1y / g[1])
     key = KeyLight(d, rgb, math.acos(c))
     rest = _order2(L)
-    # what is left must be a light: its order-2 luminance radiance and every channel's order-2
-    # irradiance >= 0, or no lower than the light's own (a delta's order-2 radiance dips to
+    # what is left must be a light: its mean >= 0 per channel, its order-2 luminance radiance and
+    # every channel's order-2 irradiance >= 0, or no lower than the light's own (a delta's order-2 radiance dips to
     # -0.18 of its peak, its order-2 irradiance to -3.5 %)
     floor = np.minimum(_order2_min(rest), 0.0) - 1e-12 * max(1.0, float(np.abs(L[0]).max()))
 
-    def fits(t: float) -> bool:
-        return bool(np.all(_order2_min(rest - t * _order2(key_coeffs(key, 2))) >= floor))
+    key2 = _order2(key_coeffs(key, 2))
+    tiny = 1e-12 * max(1.0, float(np.abs(L[0]).max()))
+
+    def fits(t: float) -> bool:  # and never more light than there is: the rest's mean >= 0 per channel
+        return bool(np.all(_order2_min(rest - t * key2) >= floor) and np.all(rest[0] - t * key2[0] >= -tiny))
 
     if fits(1.0):
         return key
@@ -265,15 +315,13 @@ def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     return KeyLight(d, rgb * lo, key.half_angle)
 
 
-def _luminance_map(lum: np.ndarray, height: int) -> np.ndarray:
-    """max(0, the order-2 luminance [9]) at a 2H x H map's texels, through relight.light_map's
-    irradiance-preserving non-negative fit where it would go negative; [H, 2H]."""
+def _luminance_coeffs(lum: np.ndarray) -> np.ndarray:
+    """The order-2 luminance [9] itself when it is >= 0 on relight.light_map's fit grid, else
+    relight.light_map's irradiance-preserving non-negative fit of it (to be clamped at 0); [9, 1]."""
     from relight import light_map
 
-    values = light_map._evaluate(lum[:, None], height)[..., 0]
-    if values.min() < 0:
-        values = np.maximum(light_map._evaluate(light_map._fit(lum[:, None], height), height)[..., 0], 0.0)
-    return values
+    values = light_map._evaluate(lum[:, None], light_map.FIT_HEIGHT)
+    return lum[:, None] if values.min() >= 0 else light_map._fit(lum[:, None], light_map.FIT_HEIGHT)
 
 
 def _chroma_fit(M: np.ndarray, r: np.ndarray, phi: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -306,7 +354,8 @@ def smooth_world(residual, width: int = 512) -> np.ndarray:
     height = light_map.check_width(width) // 2
     lum = R @ LUMINANCE_WEIGHTS
     fit_height = min(height, light_map.FIT_HEIGHT)
-    f = _luminance_map(lum, fit_height).reshape(-1)
+    c_lum = _luminance_coeffs(lum)
+    f = np.maximum(light_map._evaluate(c_lum, fit_height)[..., 0], 0.0).reshape(-1)
     basis, omega = light_map._grid(fit_height, 2)
     dirs = sh_projection.equirect_directions(fit_height, 2 * fit_height)[0].reshape(-1, 3)
     phi = sh.sh_basis(dirs, CHROMA_ORDER)                                              # [N, m]
@@ -318,10 +367,10 @@ def smooth_world(residual, width: int = 512) -> np.ndarray:
     if np.any(support):
         for c in range(3):
             q[:, c] = _chroma_fit(A * P, A[:, 0] * R[:, c], phi[support], weight / weight.sum())
-    values = f.reshape(fit_height, 2 * fit_height) if fit_height == height else _luminance_map(lum, height)
-    full = sh_projection.equirect_directions(height, 2 * height)[0]
+    values = f.reshape(fit_height, 2 * fit_height) if fit_height == height else \
+        np.maximum(light_map._evaluate(c_lum, height)[..., 0], 0.0)
     with np.errstate(over="ignore"):
-        out = (values[..., None] * np.maximum(sh.sh_basis(full, CHROMA_ORDER) @ q, 0.0)).astype(np.float32)
+        out = (values[..., None] * np.maximum(light_map._evaluate(q, height), 0.0)).astype(np.float32)
     if not np.all(np.isfinite(out)):
         raise ValueError("the light is too bright for a float32 map (texels beyond 3.4e38)")
     return np.maximum(out, 0.0)
