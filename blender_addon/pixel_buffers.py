@@ -27,11 +27,16 @@ class BufferPool:
         self._lock = threading.Lock()
 
     def take(self, n: int) -> np.ndarray:
+        buf = self.take_pooled(n)
+        return np.empty(n, np.float32) if buf is None else buf
+
+    def take_pooled(self, n: int) -> np.ndarray | None:
+        """A kept buffer of `n` values, or None (nothing is allocated)."""
         with self._lock:
             for i, buf in enumerate(self._free):
                 if buf.size == n:
                     return self._free.pop(i)
-        return np.empty(n, np.float32)
+        return None
 
     def give(self, buf: np.ndarray) -> None:
         """Hand back a buffer nobody reads any more."""

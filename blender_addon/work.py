@@ -255,11 +255,14 @@ class PlanarLayerMaps(engine.LayerMaps):
     """engine.LayerMaps, each map made straight into planes ([3, H, W]: every channel contiguous),
     so relight.photo.write_layers_exr takes its channels as they are instead of copying them (at
     24 MP a map and its copy were 576 MB each); a black residual is one zero plane for its three
-    channels. `check` runs before each map (Esc), `entered(name)` says which one is made."""
+    channels. `check` runs before each map (Esc), `entered(name)` says which one is made ('' once
+    the writer has them all)."""
 
-    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float, check=None, entered=None):
+    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float, check=None, entered=None,
+                 alpha_out: np.ndarray | None = None):
         super().__init__(decomposition, light, rotation_deg, exposure_ev)
         self._check, self._entered = check or (lambda: None), entered or (lambda name: None)
+        self._alpha_out = alpha_out  # [H, W] to make the alpha in (a spare plane), or None
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self._names:
@@ -270,7 +273,7 @@ class PlanarLayerMaps(engine.LayerMaps):
         d = self._decomposition
         h, w = d.size
         if name == "alpha":
-            out = d.layer("alpha", self._coeffs, self._exposure)
+            out = d.layer("alpha", self._coeffs, self._exposure, out=self._alpha_out)
         elif name == "residual" and not d.has_residual:
             zero = np.zeros((h, w), np.float32)
             out = np.lib.stride_tricks.as_strided(zero, (h, w, 3), (4 * w, 4, 0), writeable=False)
@@ -296,16 +299,20 @@ def save_layers_work(plan: dict, progress: jobs.Progress, token: engine.CancelTo
     h, w = d.size
     try:
         progress.enter("Relighting at full size", 0.02)
-        buffer = pixel_buffers.BUFFERS.take(h * w * 4)  # the pooled RGBA buffer, as three planes (+ one unused)
-        planes = buffer[:3 * h * w].reshape(3, h, w)
-        relit = planes.transpose(1, 2, 0)
+        # the relit photo as three planes: of a pooled RGBA buffer when one is kept (its fourth plane
+        # then takes the alpha), else of their own (288 MB at 24 MP, not the pool's 384)
+        pooled = pixel_buffers.BUFFERS.take_pooled(h * w * 4)
+        planes = np.empty((3, h, w), np.float32) if pooled is None else pooled.reshape(4, h, w)
+        relit = planes[:3].transpose(1, 2, 0)
         d.relight(engine.coefficients(d, light, rotation), exposure_ev=exposure, out=relit)
         pixel_buffers.blend_into(relit, d.photo, strength)
         maps = PlanarLayerMaps(d, light, rotation, exposure, token.check,
-                               lambda name: progress.enter(*LAYER_STAGES[name]))
+                               lambda name: progress.enter(*LAYER_STAGES[name]),
+                               alpha_out=None if pooled is None else planes[3])
         engine.save_layers(tmp, relit, maps)
-        del relit, planes
-        pixel_buffers.BUFFERS.give(buffer)
+        del relit, planes, maps
+        if pooled is not None:
+            pixel_buffers.BUFFERS.give(pooled)
         with plan["handover"]:  # Esc now or never: the main thread cancels under the same lock
             token.check()
             plan["written"] = True

@@ -190,3 +190,29 @@ def test_the_exr_writer_gets_planes_it_need_not_copy(relit, monkeypatch):
     residual = [seen[f"Relight.Residual.{c}"] for c in "RGB"]
     assert all(np.shares_memory(residual[0], c) for c in residual) and not residual[0].any()
     assert not any(np.shares_memory(residual[0], c) for c in relit_rgb)
+
+
+def test_a_pooled_rgba_buffer_holds_the_relit_planes_and_the_alpha(relit, monkeypatch):
+    """With a 384 MB RGBA buffer kept for reuse (24 MP), the relit photo takes three of its planes
+    and the alpha the fourth: no new memory for either; the file is the same."""
+    import relight.exr
+
+    from blender_addon import pixel_buffers
+
+    name, folder = relit
+    assert bpy.ops.relight_photo.save_layers(filepath=str(folder / "fresh.exr"), image_name=name) == {"FINISHED"}
+    monkeypatch.setattr(pixel_buffers.BufferPool, "MIN_VALUES", 1)  # the test photo's buffer counts as large
+    h, w = state.SESSIONS[bpy.data.images[name][bl_images.PHOTO_ID]].photo.shape[:2]
+    kept = np.empty(h * w * 4, np.float32)
+    pixel_buffers.BUFFERS.clear()
+    pixel_buffers.BUFFERS.give(kept)
+    seen, write = {}, relight.exr.write_exr
+    monkeypatch.setattr(relight.exr, "write_exr", lambda path, channels, **kw: seen.update(channels) or
+                        write(path, channels, **kw))
+    assert bpy.ops.relight_photo.save_layers(filepath=str(folder / "pooled.exr"), image_name=name) == {"FINISHED"}
+    for channel in ("Relight.Relit.R", "Relight.Relit.G", "Relight.Relit.B", "Relight.Alpha.A"):
+        assert np.shares_memory(seen[channel], kept), channel
+    assert pixel_buffers.BUFFERS.take_pooled(h * w * 4) is kept  # handed back for the next write
+    fresh, pooled = _exr(folder / "fresh.exr"), _exr(folder / "pooled.exr")
+    for channel in fresh:
+        np.testing.assert_array_equal(pooled[channel], fresh[channel])
