@@ -261,6 +261,8 @@ class Stillness:
         seen_all = box_mean(seen.astype(np.float32), 1) > 0.999  # every block around it seen before
         still = np.where(seen_all, np.exp(-np.square(change / np.float32(STILL_SCALE))), 0.0).astype(np.float32)
         k = np.float32(self.hold) * still
+        # a new array, never the old one changed: a job's saved state (relight.cli_video) is a snapshot
+        self.reference = self.reference.copy()
         self.reference[b0:b1, c0:c1] = np.where(seen, k * ref + (1 - k) * grey, grey)
         self.still, self.span = still, (b0, b1, c0, c1)
 

@@ -130,6 +130,20 @@ def test_state_round_trip_continues_exactly(relighter, clip12):
         np.testing.assert_array_equal(second.relight(f).image, want)
 
 
+def test_state_is_a_snapshot_the_next_frame_does_not_change(relighter, clip12):
+    """relight.cli_video keeps state() after each frame written and saves it on Ctrl-C, while the
+    next frame is finished: the filters must replace their arrays, never change them in place."""
+    runner = ClipRelighter(relighter, sh_light("studio", relighter.sh_order), stability=0.5, threads=1)
+    for f in clip12[:3]:
+        runner.relight(f)
+    state = runner.state()
+    kept = {k: np.array(v, copy=True) for k, v in state.items()}
+    assert {"still_reference", "held_light", "matte", "maps_grey"} <= set(state)
+    runner.relight(clip12[3])
+    for k, v in kept.items():
+        np.testing.assert_array_equal(state[k], v, err_msg=k)
+
+
 def test_a_frame_without_a_person_passes_through_and_the_next_starts_afresh(relighter, clip12):
     light = sh_light("studio", relighter.sh_order)
     runner = ClipRelighter(relighter, light, stability=0.5, threads=1)
