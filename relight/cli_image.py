@@ -170,13 +170,15 @@ def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
     return path
 
 
-def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None, light) -> Path:
-    """Read, decompose, relight and write one photo; nothing is written on failure."""
+def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str | None, light,
+             read=None) -> Path:
+    """Read, decompose, relight and write one photo; nothing is written on failure. `read`: a
+    future of read_photo_and_mask already under way (its errors are raised here)."""
     from relight.photo import write_image, write_layers_exr
 
     import json
 
-    image, mask = read_photo_and_mask(photo_path, mask_path, args.max_pixels)
+    image, mask = read.result() if read is not None else read_photo_and_mask(photo_path, mask_path, args.max_pixels)
     d = relighter.decompose(image, mask, **decompose_options(args))
     relit = d.relight(light, args.exposure)
     stats = d.last_stats
@@ -259,13 +261,25 @@ def run_image(args) -> int:
         out = _output_for(source, args.out, args.layers)
     check_not_an_input(out, {"photo": source, **light_inputs(args)})
     with claim_output(out, "relight image"):
-        relighter = open_relighter(args)
-        light = target_light(args, relighter)
-        if not folder:
-            written = _process(relighter, source, out, args, args.mask, light)
-            print(f"wrote {written}")
-            return 0
-        return _run_folder(relighter, source, out, args, light)
+        if folder:
+            relighter = open_relighter(args)
+            return _run_folder(relighter, source, out, args, target_light(args, relighter))
+        # the photo is decoded on a thread while the models load (both mostly outside the GIL);
+        # its errors still come after the model's and the light's, as when read in turn. Not
+        # beside --light-from's photo: two readers at once would race on the warnings filters
+        from concurrent.futures import ThreadPoolExecutor
+
+        reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="relight-read")
+        try:
+            read = reader.submit(read_photo_and_mask, source, args.mask, args.max_pixels) \
+                if args.light_from is None else None
+            relighter = open_relighter(args)
+            light = target_light(args, relighter)
+            written = _process(relighter, source, out, args, args.mask, light, read)
+        finally:
+            reader.shutdown(wait=False, cancel_futures=True)
+        print(f"wrote {written}")
+        return 0
 
 
 def _run_folder(relighter, source: Path, out_dir: Path, args, light) -> int:
