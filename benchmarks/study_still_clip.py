@@ -133,7 +133,9 @@ def held_clip(relighter, light, frames, hold: set, stability: float = 0.5):
                 out = dataclasses.replace(out, albedo=_onto(self.first_albedo.albedo, self.first_albedo, out))
             return out
 
-    runner = Held(_Network(relighter, hold), light, stability=stability, threads=1, matte_method=method)
+    # the level prior applied by _Network only when a part of it is held: otherwise the runtime's own
+    network = _Network(relighter, hold) if hold & {"light estimate", "level prior"} else relighter
+    runner = Held(network, light, stability=stability, threads=1, matte_method=method)
     if "shot light" in hold:
         update, given = runner.shot_light.update, []
 
