@@ -118,13 +118,12 @@ def output_lock(final, what: str = "relight"):
     """Hold the one writer's lock of output `final` (a file or a folder) for the block;
     `what` (the command) is named to a second writer, with this process's id.
 
-    The lock is an flock on `.NAME.lock` beside `final`: the kernel drops it when the
-    process ends however it ends (kill -9 included), so a lock is never stale. A second
+    The lock is an flock on `.NAME.lock` beside `final` (on Windows msvcrt's lock of one
+    byte): the kernel drops it when the process ends however it ends (kill -9 included), so
+    a lock is never stale. A second
     writer gets OutputBusy at once (never waits). The file is removed on release while
     still locked; a process that opened it just before re-opens the path and locks anew.
     """
-    import fcntl
-
     path = lock_path(final)
     while True:
         try:
@@ -133,9 +132,9 @@ def output_lock(final, what: str = "relight"):
             raise OSError(exc.errno, f"cannot write in {path.parent} ({os.strerror(exc.errno)}): "
                                      "choose an output in a folder you can write to") from None
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            _try_lock(fd)
         except BlockingIOError:
-            pid, _, holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip().partition(" ")
+            pid, _, holder = _read_head(fd).decode("utf-8", "replace").strip().partition(" ")
             os.close(fd)
             who = f"another {holder or 'relight'} run" + (f" (process {pid})" if pid.isdigit() else "")
             raise OutputBusy(f"{who} is writing {final}: wait for it to finish, or choose another "
@@ -149,7 +148,8 @@ def output_lock(final, what: str = "relight"):
         os.close(fd)  # the holder removed the file between our open and lock: lock the new one
     try:
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {what}\n".encode("utf-8"), 0)  # who holds it, for the refusal
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, f"{os.getpid()} {what}\n".encode("utf-8"))  # who holds it, for the refusal
         yield path
     finally:
         try:
@@ -157,3 +157,26 @@ def output_lock(final, what: str = "relight"):
         except OSError:
             pass
         os.close(fd)
+
+
+def _read_head(fd: int) -> bytes:
+    os.lseek(fd, 0, os.SEEK_SET)
+    return os.read(fd, 200)
+
+
+try:
+    import fcntl
+
+    def _try_lock(fd: int) -> None:
+        """Lock the file exclusively or raise BlockingIOError (another holds it)."""
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+except ImportError:  # Windows: a byte far past the text locked instead (its locks are mandatory)
+    import msvcrt
+
+    def _try_lock(fd: int) -> None:
+        """Lock the file exclusively or raise BlockingIOError (another holds it)."""
+        os.lseek(fd, 1 << 20, os.SEEK_SET)
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            raise BlockingIOError from None
