@@ -279,11 +279,10 @@ class Stillness:
         """This frame's stillness at full-resolution pixels (rows, cols): their blocks' (0 off them)."""
         b0, b1, c0, c1 = self.span
         q = self.block
-        r, c = rows // q - b0, cols // q - c0
-        inside = (r >= 0) & (r < b1 - b0) & (c >= 0) & (c < c1 - c0)
-        out = np.zeros(rows.shape, np.float32)
-        out[inside] = self.still[r[inside], c[inside]]
-        return out
+        padded = np.pad(self.still, 1)  # a ring of 0: whatever lies off the blocks reads it
+        r = np.clip(rows // q - (b0 - 1), 0, b1 - b0 + 1)
+        c = np.clip(cols // q - (c0 - 1), 0, c1 - c0 + 1)
+        return padded[r, c]
 
     def on_grid(self, box, size) -> np.ndarray:
         """This frame's stillness [h, w] on a working grid (the crop `box` resized to `size`)."""
