@@ -20,6 +20,11 @@ printed per photo and over all.
     /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/pose_landmark/pose_landmark_full.tflite \\
         relight/models/person_matte_pose_segmentation.onnx PHOTOS...
 
+    # the face landmark network of relight/face_mesh.py (issue 37), the same way; CROPS: face
+    # crops as relight.face_mesh makes them (tools/face_mesh_crops.py writes the bundled photos')
+    /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/face_landmark/face_landmark.tflite \\
+        relight/models/face_landmark.onnx CROPS...
+
 (MP: the mediapipe/modules folder of the unpacked mediapipe 0.10.21 wheel.)
 The pose segmentation is compared as probabilities (sigmoid of the TFLite
 logits), the detector's box regressors in pixels of its 224 x 224 input and
@@ -67,13 +72,20 @@ def against_litert(tflite: str, model: str, photos: list[str]) -> float:
     outputs = [o.name for o in session.get_outputs()]
     _, h, w, _ = inp["shape"]
     detector = outputs == ["boxes", "scores"]
+    face = {"landmarks": "conv2d_21", "face_flag": "conv2d_31"} if outputs == ["landmarks", "face_flag"] else (
+        {"boxes": "regressors", "scores": "classificators"} if detector and "regressors" in by_name else None)
     worst = 0.0
     for path in photos:
         x = _rgb(path, w, h).astype(np.float32) / 255.0
         interpreter.set_tensor(inp["index"], (x * 2 - 1 if detector else x)[None])
         interpreter.invoke()
         got = session.run(outputs, {"image": x.transpose(2, 0, 1)[None]})
-        if detector:
+        if face is not None:  # relight/face_mesh.py's networks: landmarks in input pixels, the face flag a probability
+            refs = [interpreter.get_tensor(by_name[face[n]]["index"]).astype(np.float64) for n in outputs]
+            if "face_flag" in outputs:
+                refs[1] = 1.0 / (1.0 + np.exp(-np.clip(refs[1], -80, 80)))
+            refs = [r.reshape(g.shape) for r, g in zip(refs, got)]
+        elif detector:
             refs = [interpreter.get_tensor(by_name[n]["index"]) for n in ("Identity", "Identity_1")]
         else:
             logits = interpreter.get_tensor(by_name["Identity_2"]["index"]).astype(np.float64)

@@ -17,6 +17,16 @@ scratch virtual environment (never the project's: mediapipe pins numpy<2 and pro
         --output Identity_2:mask --sigmoid --fp16-weights \
         --out relight/models/person_matte_pose_segmentation.onnx
 
+The face mesh's landmark network (relight/face_mesh.py, issue 37; the wheel's short-range face
+detector converts the same way, --output regressors:boxes --output classificators:scores
+--signed-input, within 1.1e-3 of the TFLite reference, but is not shipped: the first crop comes
+from the person matte's head):
+    $PY tools/convert_mediapipe_matte.py $MP/face_landmark/face_landmark.tflite \
+        --output conv2d_21:landmarks --output conv2d_31:face_flag --sigmoid-output face_flag \
+        --fp16-weights --out relight/models/face_landmark.onnx
+and its triangles (relight/models/face_mesh_triangles.json) from the wheel's
+mediapipe/python/solutions/face_mesh_connections.py: tools/face_mesh_triangles.py.
+
 The same network with its 33 body landmarks too (not shipped; benchmarks/study_skin_probe.py
 measured a face probe with it): --output Identity_2:mask --output Identity:landmarks
 --sigmoid-output mask (within 1.4e-3 of the TFLite reference kernels, landmarks in pixels of
@@ -332,6 +342,12 @@ def convert(tflite_path: Path, out_path: Path, outputs_wanted: list[tuple[str, s
                         for n, j in enumerate(ins)]
             target = activation(out, fused)
             nodes.append(helper.make_node("Add" if kind == "ADD" else "Mul", operands, [target]))
+        elif kind == "PRELU":  # the face landmark model's; slope per channel, NHWC [1, 1, C] -> [C, 1, 1]
+            slope = consts[ins[1]].astype(np.float32)
+            if slope.size != shape[ins[0]][-1]:
+                raise ValueError(f"PRELU slope of shape {slope.shape} is not per channel (operator {i})")
+            nodes.append(helper.make_node("PRelu", [name[ins[0]], const(slope.reshape(-1, 1, 1), out + "_slope")],
+                                          [out]))
         elif kind in ("RELU", "HARD_SWISH", "LOGISTIC"):
             onnx_op = {"RELU": "Relu", "HARD_SWISH": "HardSwish", "LOGISTIC": "Sigmoid"}[kind]
             nodes.append(helper.make_node(onnx_op, [name[ins[0]]], [out]))
