@@ -11,6 +11,9 @@ Each flow runs in its own child process (so ru_maxrss is that flow's peak):
   timer events (the relit image first), then the other layers' worker;
 - again: Relight, then Relight again with the outputs there (its peak alone);
 - save_layers: Relight, then `bpy.ops.relight_photo.save_layers` (timed alone);
+- save_layers_ui: the same Save Layers as the file browser's confirm runs it with a UI: the
+  operator's execute, then its modal handler ticked by timer events every 0.05 s; the longest
+  main-thread stretch (a probe between ticks) is recorded;
 - reopen: Relight, save the .blend, `wm.open_mainfile` (peak of the open and
   restore only: the maximum is reset before it);
 - reopen_ui: the same with a UI: the Relight modal, the save's thread, the
@@ -40,7 +43,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-FLOWS = ("relight", "ui", "again", "save_layers", "reopen", "reopen_ui")
+FLOWS = ("relight", "ui", "again", "save_layers", "save_layers_ui", "reopen", "reopen_ui")
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
@@ -138,6 +141,13 @@ def child(flow: str, photo: str, quality: str, mask: str, out: str) -> None:
             result["step_s"], result["step_peak"], result["step_where"] = \
                 time.perf_counter() - t, sampler.peak, sampler.where
             result["exr_mb"] = (folder / "layers.exr").stat().st_size / 1e6
+        elif flow == "save_layers_ui":
+            sampler.reset()
+            t = time.perf_counter()
+            result["main_stretch"] = _modal_save_layers(bpy, bl_ops, bl_session, image.name, folder / "layers.exr")
+            result["step_s"], result["step_peak"], result["step_where"] = \
+                time.perf_counter() - t, sampler.peak, sampler.where
+            result["exr_mb"] = (folder / "layers.exr").stat().st_size / 1e6
         elif flow in ("reopen", "reopen_ui"):
             blend = folder / "bench.blend"
             bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -171,6 +181,39 @@ def _modal_relight(bpy, bl_ops, bl_session, image_name: str) -> None:
         result = op.modal(context, tick)
     assert result == {"FINISHED"}, result
     run_timer(Probe(), bl_ops.poll_layers, "layers")
+
+
+def _modal_save_layers(bpy, bl_ops, bl_session, image_name: str, path: Path) -> float:
+    """Save Layers as the UI runs it (execute after the file browser, then timer ticks); returns the
+    longest main-thread stretch in seconds."""
+    import types
+
+    from benchmarks.bench_addon import Probe
+
+    class WindowManager:
+        relight_photo_status = bpy.context.window_manager.relight_photo_status
+
+        def __getattr__(self, name):  # progress_begin/update/end, event_timer_add/remove, modal_handler_add
+            return lambda *a, **k: None
+
+    bl_session.updates_immediately = lambda: False
+    cls = bl_ops.RELIGHT_PHOTO_OT_save_layers
+    op = types.SimpleNamespace(filepath=str(path), image_name=image_name, synchronous=False, _job=None,
+                               _timer=None, _plan=None, _started=0.0, SLOT=cls.SLOT,
+                               report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
+    for klass in reversed([k for k in cls.__mro__ if k.__module__.startswith("blender_addon")]):
+        for name, value in vars(klass).items():
+            if isinstance(value, types.FunctionType) and not name.startswith("__"):
+                setattr(op, name, value.__get__(op))
+    context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=WindowManager(), workspace=None,
+                                    space_data=None, window=object())
+    probe, tick = Probe(), types.SimpleNamespace(type="TIMER")
+    result = probe.call("save layers: execute", op.execute, context)
+    while result == {"RUNNING_MODAL"} or result == {"PASS_THROUGH"}:
+        probe.idle(bl_session.POLL_SECONDS)
+        result = probe.call("save layers: modal tick", op.modal, context, tick)
+    assert result == {"FINISHED"}, result
+    return probe.worst
 
 
 def main(argv=None) -> int:
@@ -207,8 +250,8 @@ def main(argv=None) -> int:
           "| its s | process max RSS (GB) |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        step = {"again": "Relight again", "save_layers": "Save Layers", "reopen": "open_mainfile",
-                "reopen_ui": "open_mainfile"}.get(r["flow"], "")
+        step = {"again": "Relight again", "save_layers": "Save Layers", "save_layers_ui": "Save Layers (UI)",
+                "reopen": "open_mainfile", "reopen_ui": "open_mainfile"}.get(r["flow"], "")
         step_cols = (f"{step} | {r['step_peak'] / gb:.2f} | {r['step_s']:.1f}" if step else " | | ")
         print(f"| {r['flow']} | {r['before'] / gb:.2f} | {r['relight_peak'] / gb:.2f} | {r['relight_s']:.1f} | "
               f"{r['after'] / gb:.2f} | {step_cols} | {r['maxrss'] / gb:.2f} |")
@@ -219,6 +262,8 @@ def main(argv=None) -> int:
             print(f"  - second step: {r['step_where'] or '-'}")
         if "exr_mb" in r:
             print(f"  - layers EXR: {r['exr_mb']:.0f} MB")
+        if "main_stretch" in r:
+            print(f"  - longest main-thread stretch while saving: {r['main_stretch']:.3f} s")
     return 0
 
 

@@ -29,7 +29,7 @@ def check_photo_size(width: int, height: int) -> None:
 
 DEFAULT_MEGAPIXELS = image_limits.DEFAULT_MAX_PIXELS // 1_000_000  # the panel's Max Photo Size
 MOST_MEGAPIXELS = image_limits.MAX_PIXELS // 1_000_000
-GB_PER_MEGAPIXEL = 0.16  # measured: Relight + Save Layers of a 24 MP photo peak near 3.9 GB (docs/benchmarks/addon.md)
+GB_PER_MEGAPIXEL = 0.16  # Relight + Save Layers of a 24 MP photo: 3.4 GB, the whole UI flow more (docs/benchmarks/addon.md)
 
 
 def check_photo_pixels(width: int, height: int, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS,
