@@ -94,6 +94,10 @@ def addon(model, tmp_path_factory):
     write_person_png(folder / "person.png")
     write_person_png(folder / "cutout.png", with_alpha=True)
     blender_addon.register()
+    # the World tests here read the World alone: the startup scene's lamp would join its light
+    # (lamps in, issue 38: tests/test_addon_lamps.py)
+    for lamp in [obj for obj in bpy.data.objects if obj.type == "LIGHT"]:
+        bpy.data.objects.remove(lamp)
     photo = bpy.data.images.load(str(folder / "person.png"))
     cutout = bpy.data.images.load(str(folder / "cutout.png"))
     yield {"model": model, "photo": photo.name, "cutout": cutout.name, "folder": folder}
