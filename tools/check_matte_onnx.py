@@ -20,10 +20,12 @@ printed per photo and over all.
     /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/pose_landmark/pose_landmark_full.tflite \\
         relight/models/person_matte_pose_segmentation.onnx PHOTOS...
 
-    # the face landmark network of relight/face_mesh.py (issue 37), the same way; CROPS: face
-    # crops as relight.face_mesh makes them (tools/face_mesh_crops.py writes the bundled photos')
+    # the face landmark network of relight/face_mesh.py (issue 37), the same way, on the
+    # bundled photos' face crops as relight.face_mesh makes them (3.1e-05 input pixels; the
+    # whole photos resized: 4.6e-05); `benchmarks/study_face_mesh.py --crops /tmp/crops`
+    # writes them (project environment)
     /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/face_landmark/face_landmark.tflite \\
-        relight/models/face_landmark.onnx CROPS...
+        relight/models/face_landmark.onnx /tmp/crops/*.png
 
 (MP: the mediapipe/modules folder of the unpacked mediapipe 0.10.21 wheel.)
 The pose segmentation is compared as probabilities (sigmoid of the TFLite
