@@ -78,6 +78,11 @@ def features(meta: dict) -> dict[str, bool]:
         "barefoot": "shoes" not in garments,
         "all diffuse": bool(look.get("diffuse_only")),
     })
+    from farm.camera import FRAMINGS
+
+    framing = meta.get("camera", {}).get("framing", "full-body")  # absent before issue 37
+    f.update({f"framing: {name}": framing == name for name in FRAMINGS})
+    f["hard light (any)"] = any(light.get("source") == "hard" for light in meta.get("lights", []))
     return f
 
 

@@ -273,3 +273,13 @@ def test_a_cut_framing_is_taken_from_the_persons_front_and_hard_lights_turn_with
         light = hard_lights.sample_hard_light(lobes_rng, 4, cam.world_to_camera, "studio")
         key = np.array(light.hard["lobes"][0]["direction_camera"])
         assert key[1] < 0.0  # the key is on the camera's side of the person (toward -Y in the camera frame)
+
+
+def test_the_dataset_summary_counts_framings_and_hard_lights():
+    from farm import summary
+
+    f = summary.features({"camera": {"framing": "waist-up"}, "lights": [{"source": "bundled"}, {"source": "hard"}]})
+    assert f["framing: waist-up"] and not f["framing: full-body"] and f["hard light (any)"]
+    old = summary.features({"camera": {}, "lights": [{"source": "sky"}]})  # a sidecar from before issue 37
+    assert old["framing: full-body"] and not old["hard light (any)"]
+    assert sum(v for k, v in old.items() if k.startswith("framing: ")) == 1
