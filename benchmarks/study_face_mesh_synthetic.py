@@ -76,6 +76,17 @@ def main(argv=None) -> int:
             mesh_plain = face_relight.layer_from_normals(d, mesh, layer.box, layer.normals, covered, alpha,
                                                          refit=False)
             truth_plain = face_relight.layer_from_normals(d, mesh, layer.box, truth_n, covered, alpha, refit=False)
+            # the ceiling of a whole-head geometry: the truth's normals over all of the head mask
+            # (scalp, hair-covered or not, ears), on a grid of the head's box, the network's light
+            hy, hx = np.nonzero(face)
+            hb = (int(hy.min()), int(hy.max()) + 1, int(hx.min()), int(hx.max()) + 1)
+            hs = min(1.0, face_relight.GRID_MAX / max(hb[1] - hb[0], hb[3] - hb[2]))
+            hshape = (max(4, round((hb[1] - hb[0]) * hs)), max(4, round((hb[3] - hb[2]) * hs)))
+            head_n = resize_linear(np.ascontiguousarray(s.normal[hb[0]:hb[1], hb[2]:hb[3]]), *hshape)
+            hlen = np.linalg.norm(head_n, axis=-1, keepdims=True)
+            head_cov = (resize_linear(face[hb[0]:hb[1], hb[2]:hb[3], None], *hshape)[..., 0] > 0.5) & (hlen[..., 0] > 0.5)
+            head_n = np.where(hlen > 0.5, head_n / np.maximum(hlen, 1e-9), np.float32([0, -1, 0]))
+            head_layer = face_relight.layer_from_normals(d, mesh, hb, head_n, head_cov, alpha, refit=False)
             w = face.copy()
             region = np.zeros_like(w)
             region[y0:y1, x0:x1] = 1
@@ -90,15 +101,21 @@ def main(argv=None) -> int:
                 ceiling = truth_layer.apply(d.photo, truth_layer.light, d.fit_light(L), before.copy())
                 plain = mesh_plain.apply(d.photo, d.light, d.fit_light(L), before.copy())
                 ceiling_plain = truth_plain.apply(d.photo, d.light, d.fit_light(L), before.copy())
+                head = head_layer.apply(d.photo, d.light, d.fit_light(L), before.copy())
                 rows.append([psnr(x, truth, w, g) for g in (False, True)
-                             for x in (before, after, ceiling, plain, ceiling_plain)])
+                             for x in (before, after, ceiling, plain, ceiling_plain)]
+                            + [psnr(x, truth, face, False) for x in (before, head, plain)])
     r = np.array(rows)
     print(f"{args.folder} ({args.quality}): {len(rows)} relit pairs over the face; skipped: {skipped or 'none'}")
     print("| | network | + face mesh | + truth normals in the mesh's region | + face mesh, network's light "
           "| + truth normals, network's light |")
     print("|---|---|---|---|---|---|")
     print("| face PSNR (dB) | " + " | ".join(f"{v:.2f}" for v in r[:, :5].mean(0)) + " |")
-    print("| face SI PSNR (dB) | " + " | ".join(f"{v:.2f}" for v in r[:, 5:].mean(0)) + " |")
+    print("| face SI PSNR (dB) | " + " | ".join(f"{v:.2f}" for v in r[:, 5:10].mean(0)) + " |")
+    hd = r[:, 11] - r[:, 10]
+    print(f"over the whole head mask (not only the mesh's box): network {r[:, 10].mean():.2f} dB, truth normals over "
+          f"the head {r[:, 11].mean():.2f} ({hd.mean():+.2f} +- {hd.std(ddof=1) / np.sqrt(len(hd)):.2f}), "
+          f"face mesh (network's light) {r[:, 12].mean():.2f} ({np.mean(r[:, 12] - r[:, 10]):+.2f})")
     for k, label in ((1, "mesh"), (2, "truth normals"), (3, "mesh, network's light"), (4, "truth, network's light")):
         diff = r[:, k] - r[:, 0]
         print(f"{label} - network: {diff.mean():+.2f} dB +- {diff.std(ddof=1) / np.sqrt(len(diff)):.2f} (s.e.), "
