@@ -57,7 +57,7 @@ MAP_WINDOW = 9          # frames: the maps' and the matte's effective EMA window
 LIGHT_WINDOW = 9
 # frames: the maps' and the matte's window at stability 1 where the picture is still (clip_maps.Stillness):
 # there the network's answers differ by the photo's noise alone, which MAP_WINDOW left flickering (docs/video.md)
-STILL_WINDOW = 129
+STILL_WINDOW = 257
 # share of the person that must be still before its light and maps are held, and the share from which
 # they are fully held (still_weight): a still shot with sigma 2/255 noise measured 99.3 %, the farm clip
 # of a person turning in place 80-85 % (93 % once)
