@@ -88,7 +88,7 @@ def make_world(scene, photo, session, lamp_free: bool = False):
     """Create or update the photo's World (its map, strength 1) and make it the scene's; with the key
     light, create or update its lamp (make_key_lamp), else remove the one made before. Returns the World."""
     image, key = _map_image(photo, session, lamp_free)
-    if key is None:
+    if key is None or not key.strength > 0:  # no key (lamp_free), or a light without a lobe: the World alone
         remove_key_lamp(session.photo_id)
     else:
         make_key_lamp(scene, photo, session, key)

@@ -96,6 +96,19 @@ def test_photo_light_makes_a_sun_with_the_key_lights_direction_colour_strength_a
     np.testing.assert_array_equal(_world_map(bpy.context.scene.world), light_map(wide, photo_light.MAP_WIDTH).pixels)
 
 
+def test_a_light_without_a_lobe_gets_no_lamp(addon, model):
+    name = _relit(model, addon)
+    _session(name).decomposition.light = sun_and_ambient([0.0, 0.0, 1.0], (1.0, 1.0, 1.0), 0.0, (0.2, 0.2, 0.2))
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+    assert key_object(name) is not None
+    uniform = np.zeros((25, 3))
+    uniform[0] = 1.0  # the same radiance from everywhere: nothing to make a key of
+    _session(name).decomposition.light = uniform
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+    assert key_object(name) is None and not bpy.data.lights
+    np.testing.assert_allclose(_world_map(bpy.context.scene.world), 0.5 / math.sqrt(math.pi), rtol=1e-5)
+
+
 def test_the_key_lamp_survives_save_and_reopen_and_is_updated_in_place(addon, model):
     name = _relit(model, addon)
     _session(name).decomposition.light = sun_and_ambient(kl.direction_from_angles(100.0, 20.0), (2.0, 1.0, 1.0),
