@@ -98,13 +98,12 @@ class FaceLayer:
     transport: np.ndarray    # [h, w, n]: v A_l / pi Y_lm(n)
     floor: float             # the network's shading floor (RELIABLE x the person's mean shading)
     mesh: face_mesh.FaceMesh
-    level: np.ndarray        # [3]: a gain on the mesh's shading (1)
     light: np.ndarray        # [n, 3]: the photo's light refitted to the face with the mesh's transport
 
     def shading(self, light: np.ndarray) -> np.ndarray:
-        """[h, w, 3]: level x T . L on the grid."""
+        """[h, w, 3]: T . L on the grid."""
         n = min(light.shape[0], self.transport.shape[-1])
-        return (self.transport[..., :n] @ light[:n].astype(np.float32)) * self.level.astype(np.float32)
+        return self.transport[..., :n] @ light[:n].astype(np.float32)
 
     def relit_box(self, photo_box: np.ndarray, light: np.ndarray, target: np.ndarray) -> np.ndarray:
         """The face box of the photo [H', W', 3] relit from light (the photo's) to target, with
@@ -228,5 +227,5 @@ def layer_from_normals(d, mesh, box, normals: np.ndarray, covered: np.ndarray, m
     albedo_grid = np.clip(on_grid(d, d.albedo, box, shape), 1e-3, 1.0)
     fit_weight = (weight > 0.5) * (photo_grid.max(axis=-1) < SATURATED)
     light = fit_light(transport, albedo_grid, photo_grid, fit_weight, d.light) if refit and fit_weight.sum() > 50 else d.light
-    return FaceLayer(box, normals, weight, transport, photo_floor(d), mesh, np.ones(3, np.float32),
+    return FaceLayer(box, normals, weight, transport, photo_floor(d), mesh,
                      np.asarray(light, np.float32))
