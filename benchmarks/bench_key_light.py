@@ -289,7 +289,8 @@ def measure(bpy, name, pixels, L, args, folder) -> dict:
         for setup in ("truth", *SETUPS):
             scene = build(bpy, kind)
             light_scene(bpy, scene, pixels if setup == "truth" else worlds[setup]["world_pixels"], folder,
-                        truth=setup == "truth", **{k: v for k, v in worlds.get(setup, {}).items() if k != "world_pixels"})
+                        truth=setup == "truth",
+                        **{k: v for k, v in worlds.get(setup, {}).items() if k != "world_pixels"})
             w, h = (2 * args.size, args.size) if kind == "spheres" else (args.size, args.size)
             images[setup] = render(bpy, scene, folder, w, h, args.samples)
             if setup == "truth" and kind == "spheres":
@@ -318,7 +319,8 @@ def measure(bpy, name, pixels, L, args, folder) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--size", type=int, default=64, help="sphere render height (width twice that); cube render side")
+    parser.add_argument("--size", type=int, default=64,
+                        help="sphere render height (width twice that); cube render side")
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--photos", action="store_true", help="also the bundled photos' estimated lights")
     parser.add_argument("--estimates", metavar="DATA",
@@ -354,13 +356,15 @@ def main(argv=None) -> int:
             print(f"| {row['light']} | {setup} | {row['diffuse'][setup]:.1f} | {row['glossy'][setup]:.1f} | "
                   f"{'no shadow' if shadow is None else f'{shadow:.0f}'} |")
         print(f"| {row['light']} | (truth's noise) | {row['noise']['diffuse']:.1f} | {row['noise']['glossy']:.1f} | |")
-    print("\n| light | dominance | key direction error (deg) | key angle (deg) | lamp | chroma spread true / key World / "
+    print("\n| light | dominance | key direction error (deg) | key angle (deg) | lamp | "
+          "chroma spread true / key World / "
           "map | irradiance error key+World / map | split (ms) |")
     print("|---|---|---|---|---|---|---|---|")
     for row in rows:
         sp, ir = row["spread"], row["irradiance"]
-        print(f"| {row['light']} | {row['dominance']:.2f} | {row['key_error']:.1f} | {row['angle']:.0f} | {row['lamp']} | "
-              f"{sp['true']:.3f} / {sp['key']:.3f} / {sp['map']:.3f} | {100 * ir['key']:.2f}% / {100 * ir['map']:.2f}% | "
+        print(f"| {row['light']} | {row['dominance']:.2f} | {row['key_error']:.1f} | {row['angle']:.0f} | "
+              f"{row['lamp']} | {sp['true']:.3f} / {sp['key']:.3f} / {sp['map']:.3f} | "
+              f"{100 * ir['key']:.2f}% / {100 * ir['map']:.2f}% | "
               f"{row['split_ms']:.0f} |")
     print("\n| setup | diffuse SNR median (dB) | glossy SNR median (dB) | shadow error median (deg) |")
     print("|---|---|---|---|")

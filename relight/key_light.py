@@ -269,8 +269,8 @@ def _width_from_band4(L: np.ndarray, d: np.ndarray, s2y: float) -> float | None:
 
 def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     """The key light of the SH light `coeffs` [n, 3] (order >= 1) by the module docstring's
-    closed forms; shrunk, if needed, until the rest's irradiance (order 2) is >= 0 in every
-    channel. A light without a positive lobe gives a key of strength 0."""
+    closed forms (the width from bands 1 and 2, or 2 and 4); shrunk, if needed, until what is
+    left is a light. A light without a positive lobe gives a key of strength 0."""
     L = sh.validate_coeffs(coeffs, "light")
     if L.shape[0] < 4:
         raise ValueError("a key light needs a light of SH order >= 1")
@@ -293,8 +293,8 @@ def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     key = KeyLight(d, rgb, math.acos(c))
     rest = _order2(L)
     # what is left must be a light: its mean >= 0 per channel, its order-2 luminance radiance and
-    # every channel's order-2 irradiance >= 0, or no lower than the light's own (a delta's order-2 radiance dips to
-    # -0.18 of its peak, its order-2 irradiance to -3.5 %)
+    # every channel's order-2 irradiance >= 0, or no lower than the light's own (a delta's order-2
+    # radiance dips to -0.20 of its peak, its order-2 irradiance to -3.5 %)
     floor = np.minimum(_order2_min(rest), 0.0) - 1e-12 * max(1.0, float(np.abs(L[0]).max()))
 
     key2 = _order2(key_coeffs(key, 2))

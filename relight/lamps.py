@@ -3,13 +3,14 @@
 A lamp seen from a point is a cone of light (relight.key_light): toward the lamp,
 of half-angle the angle its emitter subtends (a Sun's Angle / 2; asin(radius / D) for
 a point or spot lamp of Radius at distance D; atan(r / D) for an area lamp, r the
-radius of the disk of the same area), and of integral S with S g_1 the irradiance the
-lamp gives a surface facing it, in Cycles' units (measured in tests/test_addon_lamps.py):
+radius of the disk of the same area, which a disk facing the point is exactly), and of
+integral S with S g_1 the irradiance the lamp gives a surface facing it, in Cycles'
+units (measured in tests/test_addon_lamps.py):
 
     Sun of Strength E          S g_1 = E                       (W/m^2, for any Angle)
     point of Power P           S g_1 = P / (4 pi D^2)
     spot of Power P            S g_1 = P / (4 pi D^2) * smoothstep((cos t - cos(size/2)) / ((1 - cos(size/2)) blend))
-    area of Power P            S g_1 = P cos t_e / (pi D^2)   (t_e from the lamp's normal; 0 behind it)
+    area of Power P            S g_1 = P cos t_e / (pi (D^2 + r^2))   (t_e from the lamp's normal; 0 behind it)
 
 (t the angle between the spot's axis and the point, g_1 = (1 + cos a) / 2.) Each
 channel is the lamp's colour times that. A lamp at the point itself gives no light here.
@@ -102,8 +103,9 @@ def _cone(lamp: Lamp, at: np.ndarray):
     if lamp.shape in ("SQUARE", "DISK"):
         sy = sx
     area = sx * sy * (math.pi / 4.0 if lamp.shape in ("DISK", "ELLIPSE") else 1.0)
-    facing = rgb * cos_e / (math.pi * distance * distance)
-    return toward, math.atan(math.sqrt(area / math.pi) / distance), facing
+    radius2 = area / math.pi   # the disk of the same area: exact on its axis, P / (pi (D^2 + r^2))
+    facing = rgb * cos_e / (math.pi * (distance * distance + radius2))
+    return toward, math.atan(math.sqrt(radius2) / distance), facing
 
 
 def lamp_coeffs(lamp: Lamp, at, order: int) -> np.ndarray:
