@@ -28,8 +28,9 @@ __all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_ima
            "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
-# lossless, and at 24 MP 0.5x the time of ZIP on OpenEXR's threads at the same size (docs/BENCHMARKS.md)
-EXR_COMPRESSION = "piz"
+# lossless; on a relit photo's float32 values (not the 256 levels of a decoded JPEG) ZIP is smaller
+# and cheaper than PIZ, RLE and ZIPS (docs/BENCHMARKS.md, "Writing the output")
+EXR_COMPRESSION = "zip"
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 

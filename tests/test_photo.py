@@ -336,9 +336,10 @@ def test_a_nan_in_a_late_band_leaves_no_png(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_exr_output_is_lossless_piz_written_on_openexrs_threads(tmp_path):
-    """Issue 40: ZIP on one thread took 3x PIZ on OpenEXR's threads at 24 MP for the same size
-    (benchmarks/bench_write.py); PIZ is lossless."""
+def test_exr_output_is_lossless_zip_written_on_openexrs_threads(tmp_path):
+    """Issue 40: OpenEXR's thread pool was empty (its blocks compressed on one thread). ZIP stays
+    the compression: on relit float32 values PIZ took 1.4x its CPU for 1.2x its size
+    (benchmarks/bench_write.py); both are lossless."""
     import OpenEXR
 
     lin = np.random.default_rng(3).uniform(0, 4, (300, 41, 3)).astype(np.float32)
@@ -347,7 +348,7 @@ def test_exr_output_is_lossless_piz_written_on_openexrs_threads(tmp_path):
                                                   "alpha": np.ones((300, 41), np.float32)})
     for name in ("o.exr", "l.exr"):
         with OpenEXR.File(str(tmp_path / name)) as f:
-            assert f.header()["compression"] == OpenEXR.PIZ_COMPRESSION
+            assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION
     assert OpenEXR.global_thread_count() >= 1
     back, alpha = ph.read_photo(tmp_path / "o.exr")
     np.testing.assert_allclose(back, lin, rtol=1e-7, atol=0)
