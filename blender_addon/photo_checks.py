@@ -27,6 +27,7 @@ def check_photo_size(width: int, height: int) -> None:
                          f"use a photo at least {MIN_PHOTO_SIDE} pixels on each side.")
 
 
+EXR_MAGIC = b"\x76\x2f\x31\x01"  # relight.photo's: an OpenEXR file's first four bytes
 DEFAULT_MEGAPIXELS = image_limits.DEFAULT_MAX_PIXELS // 1_000_000  # the panel's Max Photo Size
 MOST_MEGAPIXELS = image_limits.MAX_PIXELS // 1_000_000
 GB_PER_MEGAPIXEL = 0.16  # Relight + Save Layers of a 24 MP photo: 3.4 GB, the whole UI flow more (docs/benchmarks/addon.md)
@@ -77,6 +78,17 @@ def check_photo_file(path: str, name: str, max_megapixels: int = DEFAULT_MEGAPIX
 
     from PIL import Image
 
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic == EXR_MAGIC:  # Pillow does not read EXR: its header says the size as cheaply
+        from relight.exr import exr_size
+
+        try:
+            width, height = exr_size(path)
+        except ValueError:
+            return  # a damaged EXR: Blender's loading says so
+        check_photo_pixels(width, height, name, max_megapixels, os.path.getsize(path), "EXR")
+        return
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: weighed here instead

@@ -206,3 +206,18 @@ def test_a_full_disk_while_saving_names_every_photo_not_saved_and_leaves_no_open
     written = sorted(os.listdir(folder))
     dev = bpy.data.images["dev.png"][bl_images.PHOTO_ID]
     assert written == [f"{dev}.npz"]  # the one with room; no temporary file left of the others
+
+
+def test_an_exr_photo_over_max_photo_size_is_refused_from_its_header(addon):
+    import numpy as np
+
+    from relight.exr import write_exr
+
+    plane = np.full((1000, 1200), 0.2, np.float32)  # 1.2 MP of float
+    write_exr(addon / "float.exr", {c: plane for c in "RGB"})
+    photo = bpy.data.images.load(str(addon / "float.exr"))
+    bpy.context.scene.relight_photo.max_megapixels = 1
+    with pytest.raises(RuntimeError):
+        _relight(photo.name)
+    assert _status().message.startswith("'float.exr' is 1200 x 1000 pixels (1.2 MP), over Max Photo Size (1 MP)")
+    assert not bpy.data.images["float.exr"].has_data  # refused from the header: Blender did not decode it
