@@ -20,7 +20,7 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, bl_ops, bl_session, engine, jobs, state, work
+from blender_addon import bl_images, bl_ops, bl_session, engine, jobs, state
 from relight.exr import read_exr
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 

@@ -18,7 +18,6 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, state
 from relight.exr import write_exr
-from relight.light import sh_light
 from test_addon_blender import make_tiny_model, pixels, write_person_png
 
 ORDER = 4
