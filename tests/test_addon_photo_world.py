@@ -157,8 +157,11 @@ def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     check_world(name)
     status = bpy.context.window_manager.relight_photo_status
+    key = split_light(_session(name).decomposition.light, photo_light.MAP_WIDTH).key
+    # the random-weight model's light may have no lobe: then no key lamp (tests/test_addon_lamps.py)
     assert not status.is_error and status.message.startswith(
-        f"The Sun '{name}.key' and the World '{name}.light' are now the light of '{name}'")
+        f"The Sun '{name}.key' and the World '{name}.light' are now the light of '{name}'" if key.strength > 0 else
+        f"The World '{name}.light' is now the light of '{name}'")
 
     # a new Relight, a new light: pressing again updates the same World and replaces its map
     world = bpy.context.scene.world
