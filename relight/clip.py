@@ -24,7 +24,7 @@ not change within a shot is held or smoothed over its frames:
   light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
   x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
   keeps the previous grid (_on_held_grid). A still shot with sensor noise relit frame by frame
-  moved 15x as much as it came; these bring it to ~1.2-1.8x (docs/video.md, "A still shot").
+  moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x (docs/video.md, "A still shot").
 
 `stability` in [0, 1] sets the windows: 0 is independent per-frame processing
 (exactly `relight image` on each frame), 1 the longest windows (most lag when the

@@ -59,7 +59,7 @@ def test_the_stabilised_clip_flickers_a_third_as_much_at_the_same_accuracy(clip)
 def test_a_noisy_still_shot_relights_still():
     """Issue 40: one still photo with sensor noise (2/255) through `relight video`'s default
     (Balanced, stability 0.5) changes from frame to frame, low-passed, at most twice as much as
-    the input does. Measured (docs/video.md, "A still shot"): 1.2x here, 5.1x before the held
+    the input does. Measured (docs/video.md, "A still shot"): 1.11x here, 5.06x before the held
     grid, the stillness hold and the held light; per frame (stability 0) 14.7x. Two is the
     issue's goal: the photo's own noise passes through the detail transfer (1x), the network's
     remaining changes must not add as much again."""
