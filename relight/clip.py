@@ -24,7 +24,8 @@ not change within a shot is held or smoothed over its frames:
   light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
   x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
   keeps the previous grid (_on_held_grid). A still shot with sensor noise relit frame by frame
-  moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x (docs/video.md, "A still shot").
+  moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
+  (docs/video.md, "A still shot").
 
 `stability` in [0, 1] sets the windows: 0 is independent per-frame processing
 (exactly `relight image` on each frame), 1 the longest windows (most lag when the
@@ -344,9 +345,10 @@ class ClipRelighter:
     def _on_held_grid(self, d: Decomposition, matte_box) -> Decomposition:
         """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
         only (finish() asks when the person is still): the person (the matte's box) inside the
-        previous crop, which lies within this frame's own crop grown by its margin. A crop box that flicks by a pixel or two resamples a textured
-        photo differently each frame, which the detail transfer and the albedo carry into the relit
-        person (docs/video.md); the network's smooth maps are resampled onto the held grid instead."""
+        previous crop, which lies within this frame's own crop grown by its margin. A crop box that
+        flicks by a pixel or two resamples a textured photo differently each frame, which the detail
+        transfer and the albedo carry into the relit person (docs/video.md); the network's smooth
+        maps are resampled onto the held grid instead."""
         from relight.runtime import CROP_MARGIN
 
         held = self.maps.state
