@@ -58,6 +58,8 @@ WIDTH_STEPS = 50         # bisection steps of that width
 WIDE_ANGLE_DEG = 90.0    # a key wider than this (full angle) becomes an area light in Blender
 SEARCH_POINTS = 2048     # Fibonacci directions of the coarse peak search (about 4.5 degrees apart)
 REFINE_STEPS = 24        # halvings of the local search: 4.5 / 2^24 degrees
+RADIANCE_RING = 0.20     # a delta's order-2 radiance dips to -0.20 of its peak ((1 - 3/5 - 5 * 0.44) / 9)
+IRRADIANCE_RING = 0.035  # and its order-2 irradiance to -0.0375 / 1.0625 of a facing surface's
 SHRINK_STEPS = 40        # bisection steps on the key's share when the rest would have negative irradiance
 CHROMA_PENALTY = 1e4     # weight of a negative chromaticity against the irradiance fit (per unit of |M|^2)
 CHROMA_STEPS = 30        # active-set steps of the chromaticity fit
@@ -293,15 +295,22 @@ def fit_key(coeffs, bands: int = DIRECTION_BANDS) -> KeyLight:
     key = KeyLight(d, rgb, math.acos(c))
     rest = _order2(L)
     # what is left must be a light: its mean >= 0 per channel, its order-2 luminance radiance and
-    # every channel's order-2 irradiance >= 0, or no lower than the light's own (a delta's order-2
-    # radiance dips to -0.20 of its peak, its order-2 irradiance to -3.5 %)
+    # every channel's order-2 irradiance >= 0, or no lower than the light's own, less `ring`
     floor = np.minimum(_order2_min(rest), 0.0) - 1e-12 * max(1.0, float(np.abs(L[0]).max()))
 
     key2 = _order2(key_coeffs(key, 2))
     tiny = 1e-12 * max(1.0, float(np.abs(L[0]).max()))
+    # what the key's own order-2 ringing may explain (a delta's order-2 radiance rings to 0.20 of its
+    # peak, its irradiance to 3.5 % of a facing surface's): the rest's minima may fall that far below
+    # the light's own (a light whose own order-2 irradiance is negative, as estimates' can be, would
+    # otherwise refuse any key: the minimum falls linearly in t)
+    g = cone_profile(key.half_angle, 2)
+    ring = np.concatenate([[RADIANCE_RING * float(key.rgb @ LUMINANCE_WEIGHTS) * float(g @ [1, 3, 5]) / (4 * math.pi)],
+                           IRRADIANCE_RING * key.rgb * g[1]])
 
     def fits(t: float) -> bool:  # and never more light than there is: the rest's mean >= 0 per channel
-        return bool(np.all(_order2_min(rest - t * key2) >= floor) and np.all(rest[0] - t * key2[0] >= -tiny))
+        return bool(np.all(_order2_min(rest - t * key2) >= floor - ring)
+                    and np.all(rest[0] - t * key2[0] >= -tiny))
 
     if fits(1.0):
         return key

@@ -151,6 +151,28 @@ def test_the_key_never_takes_more_than_the_light_has():
     assert np.all(irradiance_min >= own_min - 1e-9)
 
 
+def test_a_light_whose_own_irradiance_dips_below_zero_still_has_a_key():
+    """An estimate's order-2 irradiance can be negative somewhere (no light has that): the rest may
+    then dip below the light's own minima by what the key's own order-2 ringing explains, no more;
+    a strict 'no lower than the light's own' refused any key (its minima fall linearly in t)."""
+    d = kl.direction_from_angles(80.0, 20.0)
+    L = sun_and_ambient(d, (2.0, 1.8, 1.6), math.radians(40.0), (0.05, 0.05, 0.05))
+    L[6] -= 0.6  # band 2, zonal: the order-2 irradiance goes negative about the horizon
+    own = kl._order2_min(L[:9])
+    assert own[1:].min() < 0
+    key = kl.fit_key(L)
+    assert key.strength > 0.5 and angle_deg(key.direction, d) < 20.0
+    g = kl.cone_profile(key.half_angle, 2)
+    # the ring of the key before shrinking, at most the closed form's s_1 / g_1 per channel
+    full = (4 * math.pi / 3) * (sh.sh_basis(key.direction, 1)[1:4] @ L[1:4]) / g[1]
+    assert np.all(key.rgb <= full + 1e-9)
+    ring = np.concatenate([[kl.RADIANCE_RING * float(full @ LUMINANCE_WEIGHTS) * float(g @ [1, 3, 5]) / (4 * math.pi)],
+                           kl.IRRADIANCE_RING * full * g[1]])
+    rest = (L - kl.key_coeffs(key, ORDER))[:9]
+    assert np.all(kl._order2_min(rest) >= np.minimum(own, 0.0) - ring - 1e-9)
+    assert np.all(rest[0] >= -1e-12)
+
+
 def test_key_direction_median_on_maps_with_a_dominant_source():
     """The true maps' SH (the ceiling): the key points at the brightest region of maps with one."""
     from relight.envmap import load_equirect
