@@ -265,6 +265,7 @@ def lights(args):
         scene = dataset.read_scene(path)
         alpha = scene.alpha[..., 0] if scene.alpha.ndim == 3 else scene.alpha
         light = scene.lights[0]
+        # one network run at Balanced's size, as benchmarks/eval_photo_light.py
         L = relighter.decompose(scene.images[0], alpha).light.astype(np.float64)
         yield f"{path.stem} ({light['name']})", true_map(light, scene.meta["camera"]["world_to_camera"]), L
 
