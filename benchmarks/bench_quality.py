@@ -22,7 +22,9 @@ The rule (the table quality.py follows): Draft = the fastest front point that ke
 the baseline's gain over identity (issue 26; plain identity: the network does not beat the
 exposure-matched oracle, so no share of a gain over it exists; with the level prior the
 baseline's gain over plain identity is 1.4 dB, several standard errors) and is within 0.5 dB of
-the baseline (paired mean); Balanced = the network alone at its trained size; Best = the fastest
+the baseline (paired mean); Balanced = the network at its trained size averaged with its run on
+the mirrored crop (`BALANCED`; issue 37: the least test-time work that makes the relit person
+mirror-equivariant, docs/TRADEOFFS.md; until 2026-11-27 the network alone); Best = the fastest
 front point within 0.05 dB (a tie, well inside the pairs' standard error) of the most accurate
 front point within 3 s.
 """
@@ -81,6 +83,9 @@ class Candidate:
         if not self.level:
             parts.append("no level prior")
         return ", ".join(parts)
+
+
+BALANCED = Candidate(TRAINED_SIZE, ((1.0, True),))  # the rule's Balanced: the mirrored crop averaged in
 
 
 def candidates(ensemble: tuple = ()) -> list[Candidate]:
@@ -199,7 +204,7 @@ def propose(rows: list[dict]) -> dict[str, dict]:
     prior are references: switching it off saves no time)."""
     front = sorted((r for r in rows if r["front"] and r["candidate"].level), key=lambda r: r["ms"])
     draft = next((r for r in front if r["vs_base"] >= -DRAFT_DB and r["share"] >= DRAFT_SHARE), None)
-    balanced = next(r for r in rows if r["candidate"] == Candidate(TRAINED_SIZE))
+    balanced = next((r for r in rows if r["candidate"] == BALANCED), None)
     within = [r for r in front if r["ms"] <= BEST_SECONDS * 1e3]
     top = max((r["psnr"] for r in within), default=None)
     best = next((r for r in within if r["psnr"] >= top - BEST_TIE_DB), None) if within else None

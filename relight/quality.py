@@ -51,23 +51,32 @@ class QualityPreset:
 
 # Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set with the
 # release of issue 25 and its level prior (docs/TRADEOFFS.md, "Speed for accuracy", 2026-11-26;
-# 96 pairs, paired against the network alone at its trained size): Balanced = the network once at
+# 96 pairs, paired against the network alone at its trained size): Balanced was the network once at
 # 128 px, the size it was trained at (21.96 dB, SI 24.42); Best = the fastest front point within
 # 0.05 dB of the most accurate within 3 s: the network six times at 144 px (the crop mirrored, and
 # at 0.75x / 1.25x: 108 and 180 px) and averaged, the last four skipped when the mirrored run
 # agrees with the first (relight.tta.AGREED) (+0.66 +- 0.14 dB, SI +1.11; at 128 px +0.55; 160
 # and 176 px tie with 144, 192 px loses); light refinement (+0.03 on top at 160 px, at 1.4x the
 # time), a second network, runs at other exposures or turned in the image plane do not pay;
-# Draft = the fastest front point that keeps >= 90% of Balanced's gain over identity (issue 26):
-# the network at 128 px as Balanced, with the selfie segmenter alone (65 against 102 ms; its
+# Draft = the fastest front point that keeps >= 90% of the network alone's gain over identity (issue 26):
+# the network once at 128 px, with the selfie segmenter alone (65 against 102 ms; its
 # matte is less exact: mean IoU 0.944 against 0.97, docs/MATTE.md). 112 px was Draft before:
 # -0.28 +- 0.16 dB (80% of the gain).
+# Balanced since issue 37 (2026-11-27): the network once is far from mirror-equivariant (a side-lit
+# person differs from its mirror image by 30-80 %: the estimated light), so Balanced averages it with
+# its run on the mirrored crop, Best's first augmentation (equivariant by construction; held-out
+# +0.44 +- 0.20 dB head-and-shoulders, +0.34 +- 0.13 waist-up, +0.34 +- 0.11 full-body, +0.37 +- 0.07
+# on data/heldout256; 1.1-1.35x Balanced's time before;
+# docs/TRADEOFFS.md, "Balanced averaged with its mirrored run"). Draft stays the network once.
 PRESETS: tuple[QualityPreset, ...] = (
     QualityPreset("draft", "Draft", "geometry", 128,
-                  "Fastest: the network once at 128 px, as Balanced; a quicker, rougher person matte",
+                  "Fastest: the network once at 128 px (Balanced adds its run on the mirrored photo); a "
+                  "quicker, rougher person matte",
                   matte_method="selfie"),
     QualityPreset("balanced", "Balanced", "geometry", 128,
-                  "The network sees the person once at 128 px, the size it was trained at"),
+                  "The network at 128 px, the size it was trained at, averaged with its run on the mirrored "
+                  "photo: a light from one side relights the person as its mirror image would",
+                  augment=AUGMENTATIONS[:1]),
     QualityPreset("best", "Best", "geometry", 144,
                   "Slowest: up to six network runs at 144 px (mirrored, three sizes) averaged; two when "
                   "the mirrored run agrees with the first", augment=AUGMENTATIONS, augment_until_agreed=AGREED),
