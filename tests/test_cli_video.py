@@ -182,18 +182,18 @@ def _disk_full(*_a, **_k):
 def test_a_full_disk_fails_the_job_with_one_message_and_whole_frames_only(tmp_path, capsys, monkeypatch,
                                                                            clip_frames):
     src = write_frames(tmp_path / "in", clip_frames[:6])
-    from PIL.Image import Image as PilImage
+    from relight import png_encoder
 
-    original, calls = PilImage.save, {"n": 0}
+    original, calls = png_encoder.write_png_file, {"n": 0}
 
-    def save(self, fp, *a, **k):  # the 4th frame's PNG fails half-way, as a full disk does
+    def save(f, *a, **k):  # the 4th frame's PNG fails half-way, as a full disk does
         calls["n"] += 1
         if calls["n"] == 4:
-            open(fp, "wb").write(b"\x89PNG partial")
+            f.write(b"\x89PNG partial")
             _disk_full()
-        return original(self, fp, *a, **k)
+        return original(f, *a, **k)
 
-    monkeypatch.setattr(PilImage, "save", save)
+    monkeypatch.setattr(png_encoder, "write_png_file", save)
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out")
     assert code == cli_video.EXIT_FAILED
     assert err.count("\n") == 1 and "output disk full" in err and "--resume" in err
