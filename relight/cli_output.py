@@ -68,7 +68,7 @@ class Progress:
         self.count = initial
         self.extra: dict = {}
         self.bar = None
-        if sys.stderr.isatty():
+        if sys.stderr is not None and sys.stderr.isatty():
             from tqdm import tqdm
 
             self.bar = tqdm(total=total, initial=initial, desc="relight", unit=unit, file=sys.stderr,
@@ -83,7 +83,8 @@ class Progress:
         now = time.monotonic()
         if now - self.last >= PROGRESS_EVERY:
             self.last = now
-            print(self.line(now - self.start), file=sys.stderr, flush=True)
+            if sys.stderr is not None:
+                print(self.line(now - self.start), file=sys.stderr, flush=True)
 
     def line(self, seconds: float) -> str:
         done = f"{self.count} of {self.total} {self.unit}s ({100 * self.count / max(1, self.total):.0f}%)" \
