@@ -1,6 +1,6 @@
 # The two commands of the README. Both create .venv and install the project
 # with every extra on first use (re-installs when pyproject.toml changes).
-# `make test` also makes .venv-b42 (bpy 4.2 LTS, Python 3.11) and .venv-b52 (bpy 5.2 LTS,
+# `make test` lints with ruff (pyproject.toml [tool.ruff]), then also makes .venv-b42 (bpy 4.2 LTS, Python 3.11) and .venv-b52 (bpy 5.2 LTS,
 # Python 3.13: Blender 5.1+ embeds it) and runs the add-on's tests under each.
 PYTHON ?= python3
 VENV   := .venv
@@ -37,6 +37,7 @@ demo: $(STAMP)
 	$(PY) tools/demo.py
 
 test: $(STAMP) .venv-b42/.installed .venv-b52/.installed
+	$(PY) -m ruff check .
 	$(PY) -m pytest
 	@echo "== the add-on under Blender 4.2 LTS (bpy 4.2.23, Python 3.11) =="
 	RELIGHT_TORCH_PYTHON=$(abspath $(PY)) .venv-b42/bin/python -m pytest $(ADDON_TESTS)

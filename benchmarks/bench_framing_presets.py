@@ -67,7 +67,7 @@ def table(results: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         s = r["scores"]
-        get = lambda name, rows: np.array([x[name] for x in rows])  # noqa: E731
+        get = lambda name, rows: np.array([x[name] for x in rows])
         diff = get("psnr", s) - get("psnr", base)
         face_diff = get("face_psnr", s) - get("face_psnr", base)
         face_ok = np.isfinite(face_diff)

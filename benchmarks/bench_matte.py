@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     H, W = (int(v) for v in args.size.lower().split("x"))
     small, _ = read_photo(ROOT / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg")
     photo = resize_linear(small, H, W)
-    run = lambda: matte.person_matte(photo, threads=args.threads)  # noqa: E731
+    run = lambda: matte.person_matte(photo, threads=args.threads)
     run()
     copy_wall, _ = _median(lambda: photo.copy(), args.repeats)
     wall, cpu = _median(run, args.repeats)

@@ -3,7 +3,7 @@ a screen-sized preview while a dial moves, the full-size image on a worker once 
 
 import bpy
 
-from . import bl_images, bl_session, bl_world, engine, jobs, output_names, pixel_buffers, state, work
+from . import bl_images, bl_session, bl_world, engine, jobs, output_names, pixel_buffers, state
 from .bl_light import current_dials
 from .bl_session import POLL_SECONDS, current_session, release_job, set_status, write_output
 

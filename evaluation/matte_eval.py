@@ -28,7 +28,6 @@ tolerance of the DAVIS benchmark).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path

@@ -158,7 +158,7 @@ class TrainingScenes(torch.utils.data.Dataset):
 
     def _prt(self, scene: CroppedScene, light: np.ndarray) -> np.ndarray:
         """albedo * (T . L), channels first (relight.prt.render)."""
-        chw = lambda a: np.moveaxis(a, 0, -1)  # noqa: E731
+        chw = lambda a: np.moveaxis(a, 0, -1)
         return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
 
     def __getitem__(self, i: int) -> dict:

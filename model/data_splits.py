@@ -92,5 +92,5 @@ def first_maps(names, count: int, seed: int = 0) -> frozenset[str]:
     names = sorted({str(n).lower() for n in names})
     if not 1 <= count <= len(names):
         raise ValueError(f"{count} maps asked for; the training data has {len(names)}")
-    rank = lambda n: hashlib.sha256(f"{seed}:{n}".encode()).digest()  # noqa: E731
+    rank = lambda n: hashlib.sha256(f"{seed}:{n}".encode()).digest()
     return frozenset(sorted(names, key=rank)[:count])

@@ -360,7 +360,7 @@ class ClipRelighter:
             return d
         pad = int(np.ceil(CROP_MARGIN * max(person.height, person.width)))
         outer = d.box.grown(pad, *d.size)
-        inside = lambda a, b: a[0] >= b[0] and a[1] <= b[1] and a[2] >= b[2] and a[3] <= b[3]  # noqa: E731
+        inside = lambda a, b: a[0] >= b[0] and a[1] <= b[1] and a[2] >= b[2] and a[3] <= b[3]
         if not (inside(person, box) and inside(box, outer)):
             return d
         return _regridded(d, box, held["size"])

@@ -110,7 +110,7 @@ def dis_flow(current: np.ndarray, previous: np.ndarray) -> np.ndarray:
     except ImportError:
         raise ValueError("flow-guided filtering needs OpenCV: pip install opencv-python-headless") from None
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    to_u8 = lambda g: np.clip(np.rint(g * 255.0), 0, 255).astype(np.uint8)  # noqa: E731
+    to_u8 = lambda g: np.clip(np.rint(g * 255.0), 0, 255).astype(np.uint8)
     h, w = current.shape
     if min(h, w) < 8:  # DIS needs a few patches
         return np.zeros((h, w, 2), np.float32)

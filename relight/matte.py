@@ -176,8 +176,8 @@ def _detect(session, grid: np.ndarray) -> list[np.ndarray]:
     r = raw[0, keep].astype(np.float64)
     anchor = _ANCHORS[keep]
     # canvas pixels -> grid pixels: offsets relative to the anchor centre, in canvas pixels
-    to_x = lambda v: (v - ox) / scale  # noqa: E731
-    to_y = lambda v: (v - oy) / scale  # noqa: E731
+    to_x = lambda v: (v - ox) / scale
+    to_y = lambda v: (v - oy) / scale
     cx, cy = r[:, 0] + anchor[:, 0] * DETECT_SIDE, r[:, 1] + anchor[:, 1] * DETECT_SIDE
     boxes = np.stack([to_x(cx - r[:, 2] / 2), to_y(cy - r[:, 3] / 2), to_x(cx + r[:, 2] / 2),
                       to_y(cy + r[:, 3] / 2)], axis=1)

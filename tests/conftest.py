@@ -3,6 +3,14 @@
 import pytest
 
 
+@pytest.fixture(scope="session")
+def model(tmp_path_factory):
+    """The add-on tests' tiny exported model (tests/addon_support.py), made once per session;
+    a module that needs another model defines its own `model`."""
+    from addon_support import make_tiny_model
+    return make_tiny_model(tmp_path_factory)
+
+
 @pytest.fixture
 def one_thread():
     """One torch thread for tiny tensors: faster, and 2 threads crawl when other jobs share the cores."""

@@ -5,10 +5,6 @@ layers, and every error the user can meet (asserted on the report text)."""
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -22,70 +18,11 @@ from relight import presets, sh_projection, sh_rotation
 from relight.exr import read_exr, write_exr
 from relight.light import sh_light
 
-REPO = Path(__file__).resolve().parents[1]
-ORDER = 4
-H, W = 72, 48
+from addon_support import ORDER, H, W, draw_panel, new_node_world, pixels, write_person_png
+
 # float32 arithmetic on values <= ~4 through a few dozen operations (SH dot
 # products of 25 terms, bilinear taps, blend): far below 1e-5
 TIGHT = 1e-5
-
-
-def make_tiny_model(tmp_path_factory) -> Path:
-    """A seeded random-weight RelightNet exported by the project's export code, in a
-    child process so torch never loads into the bpy process; made once per session."""
-    out = tmp_path_factory.getbasetemp() / "addon_tiny_model" / "tiny.onnx"
-    if out.is_file():
-        return out
-    out.parent.mkdir(exist_ok=True)
-    code = textwrap.dedent(f"""
-        from export.random_model import export_random_model
-        export_random_model({str(out)!r}, seed=3, sh_order={ORDER}, width=4, depth=2)
-    """)
-    # Blender 5.1+ bundles Python 3.13, for which no CPU torch is at hand: the make test
-    # run under bpy 5.2 names the 3.11 interpreter that has torch (RELIGHT_TORCH_PYTHON)
-    python = os.environ.get("RELIGHT_TORCH_PYTHON", sys.executable)
-    subprocess.run([python, "-c", code], cwd=REPO, check=True, capture_output=True, timeout=300)
-    return out
-
-
-def write_person_png(path: Path, with_alpha: bool = False) -> None:
-    """A bright figure (ellipse) on a darker textured background, sRGB PNG."""
-    from PIL import Image
-
-    y, x = np.mgrid[0:H, 0:W]
-    inside = ((x - W / 2) / (W / 4)) ** 2 + ((y - H / 2) / (H / 2.6)) ** 2 <= 1
-    rgb = np.empty((H, W, 3), np.uint8)
-    rgb[..., 0] = 40 + (x * 3) % 50
-    rgb[..., 1] = 60 + (y * 2) % 40
-    rgb[..., 2] = 90
-    rgb[inside] = (220, 170, 140)
-    if with_alpha:
-        rgba = np.dstack([rgb, np.where(inside, 255, 0).astype(np.uint8)])
-        Image.fromarray(rgba, "RGBA").save(path)
-    else:
-        Image.fromarray(rgb, "RGB").save(path)
-
-
-def new_node_world(name: str):
-    """A World with a node tree on every Blender: 5.0+ always has one, 4.2 - 4.5 only with use_nodes."""
-    world = bpy.data.worlds.new(name)
-    if bpy.app.version < (5, 0, 0):
-        world.use_nodes = True
-    return world
-
-
-def pixels(name: str) -> np.ndarray:
-    """Float RGBA [H, W, 4] of an image datablock, top row first."""
-    image = bpy.data.images[name]
-    w, h = image.size
-    flat = np.empty(w * h * 4, np.float32)
-    image.pixels.foreach_get(flat)
-    return flat.reshape(h, w, 4)[::-1]
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -656,55 +593,11 @@ def test_modal_run_polls_the_worker_then_finishes(addon, settings):
     assert context.window_manager.relight_photo_status.running is False
 
 
-class _CheckingLayout:
-    """Stands in for bpy's UILayout: records what the panel shows and fails on
-    a property name the settings do not have."""
-
-    def __init__(self, log):
-        self.log = log
-        self.enabled = True
-        self.scale_y = 1.0
-
-    def _child(self, *args, **kw):
-        return _CheckingLayout(self.log)
-
-    column = row = box = _child
-
-    def prop(self, data, name, **kw):
-        assert hasattr(data, name), name
-        self.log.append(("prop", name))
-
-    def template_ID(self, data, name, **kw):
-        assert hasattr(data, name), name
-        self.log.append(("template_ID", name))
-
-    def label(self, text="", icon="NONE"):
-        self.log.append(("label", text))
-
-    def operator(self, idname, **kw):
-        module, name = idname.split(".")
-        assert hasattr(getattr(bpy.ops, module), name), idname
-        self.log.append(("operator", idname))
-
-
-def _draw_panel(photo_name: str) -> list:
-    """Draw the N-panel for the image `photo_name` into a _CheckingLayout; returns its log."""
-    import types
-
-    log = []
-    panel = types.SimpleNamespace(layout=_CheckingLayout(log))
-    space = types.SimpleNamespace(image=bpy.data.images[photo_name])
-    context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=bpy.context.window_manager,
-                                    space_data=space)
-    bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
-    return log
-
-
 @pytest.mark.parametrize("kind, shown", [("WORLD", "label"), ("HDR", "hdr_path"), ("PRESET", "preset"),
                                          ("IMAGE", "light_image")])
 def test_panel_draws_every_light_kind(addon, settings, kind, shown):
     settings.light_kind = kind
-    log = _draw_panel(addon["photo"])
+    log = draw_panel(addon["photo"])
     names = [entry[1] for entry in log]
     assert ("operator", "relight_photo.relight") in log and ("operator", "relight_photo.save_layers") in log
     assert {"rotation", "exposure", "strength", "quality", "mask_mode"} <= set(names)
@@ -835,7 +728,7 @@ def test_a_renamed_photo_keeps_its_outputs_and_dials(addon, settings):
         assert not any(bl_images.owner_of(i) and i.name.startswith(f"{name}.") for i in bpy.data.images)
         impostor = bpy.data.images.new(name, 8, 8)  # a new image takes the old name: it is not the photo
         settings.rotation = math.radians(60.0)
-        assert f"renamed.png.relit" in bpy.data.images and f"{name}.relit" not in bpy.data.images
+        assert "renamed.png.relit" in bpy.data.images and f"{name}.relit" not in bpy.data.images
         assert bpy.data.images["renamed.png.relit"].as_pointer() == pointer  # the same datablock, renamed
         expected = session("renamed.png").decomposition.relight(sh_light("studio", ORDER, rotation_deg=60.0))
         np.testing.assert_allclose(pixels("renamed.png.relit")[..., :3], expected, atol=TIGHT)
@@ -1021,7 +914,7 @@ def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, s
     status = bpy.context.window_manager.relight_photo_status
     status.running, status.stage, status.progress, status.elapsed = True, "Running the network", 0.42, 3.25
     try:
-        log = _draw_panel(addon["photo"])
+        log = draw_panel(addon["photo"])
         labels = [text for kind, text in log if kind == "label"]
         assert ("prop", "person") in log
         from blender_addon import bl_props

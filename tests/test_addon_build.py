@@ -25,7 +25,7 @@ import pytest
 
 from blender_addon import build, manifest
 
-from test_addon_blender import make_tiny_model, write_person_png
+from addon_support import make_tiny_model, write_person_png
 
 REPO = Path(__file__).resolve().parents[1]
 PLATFORM_FILE_TAGS = {  # what PyPI names the real files, in manifest.PLATFORMS order

@@ -18,14 +18,8 @@ import bpy
 import blender_addon
 from relight import exr
 from relight.resample import resize_linear
-from test_addon_blender import make_tiny_model, write_person_png
+from addon_support import H, W, write_person_png
 
-H, W = 72, 48  # test_addon_blender's photo
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture

@@ -21,12 +21,12 @@ from blender_addon import bl_dials, bl_world, light_sources, photo_light
 from cycles_support import SPHERE_CENTRE, lambert_sphere, photo_camera, render_with_normals, sphere_pixels
 from relight import key_light as kl
 from relight import lamps as rl
-from relight import prt, sh, sh_projection
+from relight import prt, sh_projection
 from relight.exr import write_exr
 from relight.light import SHLight
 from relight.light_map import light_map
-from test_addon_blender import new_node_world, pixels
-from test_addon_photo_world import _relit, _session, _world_map, addon, model  # noqa: F401 (fixtures)
+from addon_support import new_node_world, pixels
+from test_addon_photo_world import _relit, _session, _world_map, addon  # noqa: F401 (a fixture)
 
 ORDER = 4
 TIGHT = 1e-5   # float32 relighting of values <= ~4 (as test_addon_blender)

@@ -23,7 +23,7 @@ from relight import sh
 from relight.decomposition import Decomposition
 from relight.light import sh_light
 from relight.resample import resize_linear
-from test_addon_blender import make_tiny_model, pixels, write_person_png
+from addon_support import pixels, write_person_png
 
 ORDER = 4
 # the in-place paths do the same float32 operations on the same values as the
@@ -92,11 +92,6 @@ def test_save_layers_maps_are_the_decompositions_layers_made_on_demand():
 # ------------------------------------------------------------------ under bpy
 
 LAYERS = ("alpha", "albedo", "shading", "residual")
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture

@@ -25,12 +25,7 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, state
 from fuzz_support import jpeg_bytes
-from test_addon_blender import make_tiny_model, write_person_png
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
+from addon_support import write_person_png
 
 
 @pytest.fixture
@@ -201,7 +196,8 @@ def test_a_full_disk_while_saving_names_every_photo_not_saved_and_leaves_no_open
     assert _status().is_error
     assert said == ("The relights of 3 photos, 'ana.png', 'ben.png' and 'cleo.png', could not be saved next to "
                     "the .blend (No space left on device): they will need Relight after reopening.")
-    print("UNRAISABLE", unraisable, gc.garbage); assert [str(u.exc_value) for u in unraisable] == []  # no "Exception ignored in ZipFile.__del__"
+    # no "Exception ignored in ZipFile.__del__"
+    assert [str(u.exc_value) for u in unraisable] == [], gc.garbage
     folder = os.path.dirname(output_names.saved_relight_path(str(blend), "x"))
     written = sorted(os.listdir(folder))
     dev = bpy.data.images["dev.png"][bl_images.PHOTO_ID]

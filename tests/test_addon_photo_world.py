@@ -17,18 +17,12 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, bl_photo_world, photo_light, state
+from blender_addon import bl_images, photo_light, state
 from relight import exr, sh
 from relight.light import directional_light
 from relight.key_light import split_light
-from test_addon_blender import make_tiny_model, pixels, write_person_png
+from addon_support import H, W, pixels, write_person_png
 
-H, W = 72, 48  # test_addon_blender's photo
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture

@@ -22,17 +22,12 @@ import bpy
 import blender_addon
 from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, output_names, state
 from relight.light import sh_light
-from test_addon_blender import _draw_panel, make_tiny_model, pixels, write_person_png
+from addon_support import draw_panel, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
 # the saved decomposition holds the network's maps in float16 (11-bit mantissa):
 # relative error <= 2^-11 per value, a few of them multiplied and summed
 HALF = 4e-3
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture
@@ -91,7 +86,7 @@ def test_save_and_reopen_restores_the_result_and_the_dials_work_at_once(addon, m
 def _panel_text(photo_name: str) -> str:
     """The panel's labels for the photo, without white space: a sentence wrapped over several
     labels (a long path may be cut anywhere) is found in it as `_words(sentence)`."""
-    return _words(" ".join(text for kind, text in _draw_panel(photo_name) if kind == "label"))
+    return _words(" ".join(text for kind, text in draw_panel(photo_name) if kind == "label"))
 
 
 def _words(text: str) -> str:

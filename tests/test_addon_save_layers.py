@@ -22,12 +22,7 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, bl_ops, bl_session, engine, jobs, state
 from relight.exr import read_exr
-from test_addon_blender import make_tiny_model, pixels, write_person_png
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
+from addon_support import pixels, write_person_png
 
 
 @pytest.fixture

@@ -18,12 +18,7 @@ import pytest
 import bpy
 
 import blender_addon
-from test_addon_blender import make_tiny_model, new_node_world, write_person_png
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
+from addon_support import new_node_world, write_person_png
 
 
 @pytest.fixture

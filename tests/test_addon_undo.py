@@ -18,15 +18,10 @@ import bpy
 import blender_addon
 from blender_addon import bl_images, state
 from relight.exr import write_exr
-from test_addon_blender import make_tiny_model, pixels, write_person_png
+from addon_support import pixels, write_person_png
 
 ORDER = 4
 CLOSE = 1e-5  # float32 relighting of the same decomposition twice: equal to rounding
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    return make_tiny_model(tmp_path_factory)
 
 
 @pytest.fixture

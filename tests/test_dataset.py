@@ -15,7 +15,7 @@ N = (ORDER + 1) ** 2
 
 
 def make_scene(k_lights=2, transport=True, images=True):
-    f32 = lambda *s: RNG.random(s).astype(np.float32)  # noqa: E731
+    f32 = lambda *s: RNG.random(s).astype(np.float32)
     channels = {
         "alpha": f32(H, W),
         "albedo": f32(H, W, 3),

@@ -14,7 +14,7 @@ from relight import key_light as kl
 from relight import lamps, sh, sh_projection
 from relight.colour import LUMINANCE_WEIGHTS
 from relight.light import directional_light, sh_light
-from relight.light_map import irradiance_error, light_map
+from relight.light_map import light_map
 
 ORDER = 4
 A = sh.clamped_cosine_coeffs(ORDER)

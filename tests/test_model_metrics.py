@@ -79,8 +79,10 @@ def test_spatial_change_ignores_colour_and_exposure_but_sees_moving_light():
     # the same image recoloured and re-exposed: no spatial change, to rounding
     assert metrics.spatial_change(a, a * np.array([0.5, 2.0, 1.3])) < 1e-12
     # light that moves from the left half to the right half: a large change
-    left = np.zeros((16, 16, 3)); left[:, :8] = 1.0
-    right = np.zeros((16, 16, 3)); right[:, 8:] = 1.0
+    left = np.zeros((16, 16, 3))
+    left[:, :8] = 1.0
+    right = np.zeros((16, 16, 3))
+    right[:, 8:] = 1.0
     assert metrics.spatial_change(left, right) == pytest.approx(1.0)
 
 
