@@ -3,6 +3,7 @@ World with nodes on every Blender, and the N-panel drawn into a layout that chec
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -13,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 import bpy
+
+import blender_addon
 
 REPO = Path(__file__).resolve().parents[1]
 ORDER = 4
@@ -112,3 +115,23 @@ def draw_panel(photo_name: str) -> list:
                                     space_data=space)
     bpy.types.RELIGHT_PHOTO_PT_panel.draw(panel, context)
     return log
+
+
+@contextlib.contextmanager
+def addon_in_empty_scene(folder: Path, model: Path | None = None, **settings):
+    """The add-on registered in an empty scene, with the person photo written to `folder`/person.png;
+    given `model`, the panel set to it at Draft with the network's matte and the studio preset,
+    then to `settings`. Yields the panel's settings; afterwards the default scene (with its World)
+    for the tests that follow, and the add-on unregistered."""
+    write_person_png(folder / "person.png")
+    blender_addon.register()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    s = bpy.context.scene.relight_photo
+    if model is not None:
+        s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
+        s.light_kind, s.preset = "PRESET", "studio"
+    for name, value in settings.items():
+        setattr(s, name, value)
+    yield s
+    bpy.ops.wm.read_homefile()
+    blender_addon.unregister()

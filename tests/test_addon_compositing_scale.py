@@ -15,24 +15,16 @@ import pytest
 
 import bpy
 
-import blender_addon
 from relight import exr
 from relight.resample import resize_linear
-from addon_support import H, W, write_person_png
+from addon_support import addon_in_empty_scene, H, W
 
 
 
 @pytest.fixture
 def addon(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    yield tmp_path
-    bpy.ops.wm.read_homefile()
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path, model):
+        yield tmp_path
 
 
 def _render(folder, percentage: int) -> np.ndarray:

@@ -17,13 +17,12 @@ import pytest
 
 import bpy
 
-import blender_addon
 from blender_addon import bl_images, bl_layers, engine, pixel_buffers, state, work
 from relight import sh
 from relight.decomposition import Decomposition
 from relight.light import sh_light
 from relight.resample import resize_linear
-from addon_support import pixels, write_person_png
+from addon_support import addon_in_empty_scene, pixels
 
 ORDER = 4
 # the in-place paths do the same float32 operations on the same values as the
@@ -96,16 +95,8 @@ LAYERS = ("alpha", "albedo", "shading", "residual")
 
 @pytest.fixture
 def addon(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
-    yield tmp_path
-    bpy.ops.wm.read_homefile()
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path, model, rotation=0.0, exposure=0.0, strength=1.0):
+        yield tmp_path
 
 
 def _relight(name):

@@ -22,23 +22,15 @@ import pytest
 
 import bpy
 
-import blender_addon
 from blender_addon import bl_images, state
 from fuzz_support import jpeg_bytes
-from addon_support import write_person_png
+from addon_support import addon_in_empty_scene
 
 
 @pytest.fixture
 def addon(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    yield tmp_path
-    bpy.ops.wm.read_homefile()
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path, model):
+        yield tmp_path
 
 
 def _relight(name):

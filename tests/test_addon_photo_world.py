@@ -16,23 +16,18 @@ import pytest
 
 import bpy
 
-import blender_addon
 from blender_addon import bl_images, photo_light, state
 from relight import exr, sh
 from relight.light import directional_light
 from relight.key_light import split_light
-from addon_support import H, W, pixels, write_person_png
+from addon_support import addon_in_empty_scene, H, W, pixels
 
 
 
 @pytest.fixture
 def addon(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    yield tmp_path
-    bpy.ops.wm.read_homefile()  # the default scene (with its World) for the tests that follow
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path):
+        yield tmp_path
 
 
 def _photo(model, folder) -> str:

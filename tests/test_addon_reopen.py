@@ -19,10 +19,9 @@ import pytest
 
 import bpy
 
-import blender_addon
 from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, output_names, state
 from relight.light import sh_light
-from addon_support import draw_panel, pixels, write_person_png
+from addon_support import addon_in_empty_scene, draw_panel, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
 # the saved decomposition holds the network's maps in float16 (11-bit mantissa):
@@ -32,12 +31,8 @@ HALF = 4e-3
 
 @pytest.fixture
 def addon(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    yield tmp_path
-    bpy.ops.wm.read_homefile()  # the default scene (with its World) for the tests that follow
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path):
+        yield tmp_path
 
 
 def _setup(model, folder):

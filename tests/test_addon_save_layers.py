@@ -19,27 +19,18 @@ import pytest
 
 import bpy
 
-import blender_addon
 from blender_addon import bl_images, bl_ops, bl_session, engine, jobs, state
 from relight.exr import read_exr
-from addon_support import pixels, write_person_png
+from addon_support import addon_in_empty_scene, pixels
 
 
 @pytest.fixture
 def relit(model, tmp_path):
-    write_person_png(tmp_path / "person.png")
-    blender_addon.register()
-    bpy.ops.wm.read_homefile(use_empty=True)
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    s.rotation, s.exposure, s.strength = 0.4, 0.5, 0.8
-    name = bpy.data.images.load(str(tmp_path / "person.png")).name
-    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
-    yield name, tmp_path
-    state.RUNNING.pop(bl_ops.RELIGHT_PHOTO_OT_save_layers.SLOT, None)
-    bpy.ops.wm.read_homefile()
-    blender_addon.unregister()
+    with addon_in_empty_scene(tmp_path, model, rotation=0.4, exposure=0.5, strength=0.8):
+        name = bpy.data.images.load(str(tmp_path / "person.png")).name
+        assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+        yield name, tmp_path
+        state.RUNNING.pop(bl_ops.RELIGHT_PHOTO_OT_save_layers.SLOT, None)
 
 
 class _WindowManager:
