@@ -73,14 +73,25 @@ def _output(out: str) -> Path:
 
 def run_light(args) -> int:
     """Entry point of `relight light` (argparse namespace from register())."""
-    from relight.cli_image import decompose_options, open_relighter, read_photo_and_mask
-    from relight.exr import write_exr
-    from relight.light_map import irradiance_error, light_map
+    from relight.cli_output import check_not_an_input, claim_output
 
     photo = Path(args.photo)
     if not photo.is_file():
         raise ValueError(f"{photo}: no such file")
     out = _output(args.out)
+    # as relight image and video: an EXR photo (or mask) named as --out would be replaced, and
+    # two runs writing one map hold one lock
+    check_not_an_input(out, {"photo": photo, "--mask": args.mask})
+    with claim_output(out, "relight light"):
+        return _write_light(args, photo, out)
+
+
+def _write_light(args, photo: Path, out: Path) -> int:
+    """run_light's work once the output is claimed: decompose, split or map the light, write, report."""
+    from relight.cli_image import decompose_options, open_relighter, read_photo_and_mask
+    from relight.exr import write_exr
+    from relight.light_map import irradiance_error, light_map
+
     relighter = open_relighter(args)
     image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
     decomposition = relighter.decompose(image, mask, **decompose_options(args))

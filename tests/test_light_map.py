@@ -10,7 +10,7 @@ import pytest
 
 from relight import sh, sh_projection
 from relight.light import directional_light, sh_light
-from relight.exr import read_exr
+from relight.exr import read_exr, write_exr
 from relight.light_map import (FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error,
                                light_map)
 from relight.quality import preset
@@ -226,6 +226,25 @@ def test_relight_light_prints_the_key_light_and_writes_the_smooth_world(model, t
     code, stdout, _ = _run(capsys, photo, "--out", out, "--width", 64, "--model", model, "--quality", "draft",
                            "--matte", "network")
     assert code == 0 and "key light from azimuth" in stdout
+
+
+def test_relight_light_refuses_an_output_that_is_its_photo_and_a_second_writer(model, tmp_path, capsys):
+    from fuzz_support import writer_holding
+
+    photo = tmp_path / "p.exr"  # an EXR photo is a valid input and a valid --out
+    write_exr(photo, {c: np.full((40, 30), 0.3, np.float32) for c in "RGB"})
+    before = photo.read_bytes()
+    code, _, err = _run(capsys, photo, "--out", photo, "--model", model, "--quality", "draft", "--matte", "network")
+    assert code == 2 and err.count("\n") == 1 and "is the photo" in err, err
+    assert photo.read_bytes() == before
+    out = tmp_path / "light.exr"
+    with writer_holding(out) as other:
+        code, _, err = _run(capsys, photo, "--out", out, "--model", model, "--quality", "draft", "--matte", "network")
+        assert code == 2 and f"(process {other.pid}) is writing {out}" in err, err
+        assert not out.exists()
+    code, _, err = _run(capsys, photo, "--out", out, "--model", model, "--quality", "draft", "--matte", "network")
+    assert code == 0 and out.is_file(), err
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no lock file left
 
 
 def test_relight_image_takes_a_sun(model, tmp_path, capsys):
