@@ -105,44 +105,30 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     light when it says so.
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
-    CancelToken.cancel() terminates, so Esc stops even a running network pass.
-    Relighter.decompose calls its `run` without run options, so `run` is
-    shadowed on the instance (and on the ensemble's networks) for this call (one network
-    job runs at a time).
+    CancelToken.cancel() terminates (relight.session.cancellable, on this network and the
+    ensemble's), so Esc stops even a running network pass.
     """
     start = time.monotonic()
+    from relight.session import cancellable
+
     networks = [relighter] + [relighter.member(name) for name in ensemble]
     if cancel is not None:
         cancel.check()
-        for net in networks:
-            net.run = _cancellable_run(net, cancel)
     try:
         # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
         # NETWORK (and another photo's light) passes None for the network's own alpha
-        decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
-                                            augment=augment, refine=refine,
-                                            augment_until_agreed=augment_until_agreed, ensemble=ensemble)
+        with cancellable(networks if cancel is not None else (), cancel.run_options() if cancel else None):
+            decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
+                                                augment=augment, refine=refine,
+                                                augment_until_agreed=augment_until_agreed, ensemble=ensemble)
     except Exception:
         if cancel is not None and cancel.cancelled:
             cancel.stopped_inference = True  # onnxruntime gave up the run it was in
             raise Cancelled() from None
         raise
-    finally:
-        if cancel is not None:
-            for net in networks:
-                del net.run  # the class's own method again
     _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine, tuple(ensemble))] = \
         time.monotonic() - start
     return decomposition
-
-
-def _cancellable_run(relighter, cancel: CancelToken):
-    from relight.session import ModelSession
-
-    def run(net_input: np.ndarray) -> dict[str, np.ndarray]:
-        cancel.check()
-        return ModelSession.run(relighter, net_input, cancel.run_options())
-    return run
 
 
 NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image Alpha or Other Image, "
@@ -152,20 +138,15 @@ NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image
 def person_matte(photo: np.ndarray, person: int, method: str = "ensemble") -> tuple[np.ndarray, int]:
     """(soft alpha [H, W], how many people the photo shows) for person `person`
     (1 = the largest), from relight.matte (`method`: its segmenter); errors in the artist's words."""
-    import re
-
-    from relight.matte import NoPersonError
+    from relight.matte import NoPersonError, PersonIndexError
     from relight.matte import person_matte as find
 
     try:
         found = find(photo, person, method=method)
     except NoPersonError:
         raise ValueError(NO_PERSON) from None
-    except ValueError as exc:
-        shown = re.search(r"the photo shows (\d+)", str(exc))
-        if shown is None:
-            raise
-        count = int(shown.group(1))
+    except PersonIndexError as exc:
+        count = exc.count
         raise ValueError(f"Person {person} is chosen, but the photo shows only {count} "
                          f"{'person' if count == 1 else 'people'}: choose another in the Person list.") from None
     return found.alpha, found.count

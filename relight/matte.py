@@ -74,6 +74,15 @@ class NoPersonError(ValueError):
     """The segmenters found nobody in the photo."""
 
 
+class PersonIndexError(ValueError):
+    """A person was asked for by index, but the photo shows fewer people (`count`)."""
+
+    def __init__(self, index: int, count: int):
+        super().__init__(f"person {index} asked for, but the photo shows {count} "
+                         f"{'person' if count == 1 else 'people'} (1 = the largest)")
+        self.index, self.count = index, count
+
+
 @dataclass
 class PersonMatte:
     alpha: np.ndarray                   # [H, W] float32 in [0, 1]; 0 = untouched background
@@ -279,8 +288,7 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
         raise NoPersonError(_NOBODY)
     index = 1 if person is None else int(person)
     if index > len(people):
-        raise ValueError(f"person {index} asked for, but the photo shows {len(people)} "
-                         f"{'person' if len(people) == 1 else 'people'} (1 = the largest)")
+        raise PersonIndexError(index, len(people))
     alpha_small = _edge(small, grid, people[index - 1], refine)
     # snapped at the small size: bilinear interpolation between equal values is exact, so the
     # full-resolution matte is exactly 0 (photo untouched) and exactly 1 where its taps are

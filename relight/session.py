@@ -10,6 +10,8 @@ Relighter and model.predictor.Predictor both use it.
 
 from __future__ import annotations
 
+import contextlib
+
 import hashlib
 import os
 from pathlib import Path
@@ -105,8 +107,26 @@ class ModelSession:
                 return o.shape[1] if isinstance(o.shape[1], int) else None
         raise KeyError(name)
 
+    run_options = None  # onnxruntime RunOptions every run uses (cancellable: relight.session.cancellable)
+
     def run(self, net_input: np.ndarray, run_options=None) -> dict[str, np.ndarray]:
-        """Run the graph on [B, 3, H, W] float32 (H, W multiples of size_multiple)."""
+        """Run the graph on [B, 3, H, W] float32 (H, W multiples of size_multiple), with
+        `run_options` or else the session's own (`cancellable`)."""
         feed = {INPUT_NAME: np.ascontiguousarray(net_input, np.float32)}
-        values = self.session.run(list(OUTPUT_NAMES), feed, run_options)
+        values = self.session.run(list(OUTPUT_NAMES), feed, run_options or self.run_options)
         return dict(zip(OUTPUT_NAMES, values))
+
+
+@contextlib.contextmanager
+def cancellable(sessions, run_options):
+    """Within the block, every run of `sessions` (ModelSession objects) uses onnxruntime's
+    `run_options`, so that `run_options.terminate = True` from another thread stops the run
+    in progress (it raises); one job uses a session at a time."""
+    sessions = list(sessions)
+    for s in sessions:
+        s.run_options = run_options
+    try:
+        yield
+    finally:
+        for s in sessions:
+            s.run_options = None
