@@ -10,7 +10,7 @@ it is told about (farm.outputs); the run book (farm.runbook) records it all.
 Why not concurrent.futures.ProcessPoolExecutor (max_tasks_per_child would give
 the recycling): it cannot stop one hung task. future.result(timeout) only stops
 waiting, the pool does not say which process runs which task, and killing that
-process breaks the whole pool. benchmarks/process_pool_timeout.py shows it
+process breaks the whole pool. benchmarks/studies/process_pool_timeout.py shows it
 (Python 3.11, 2 workers, one task hung and SIGKILLed, the other 2.5 s from
 done): the hung future, the healthy one and the next submit all raise
 BrokenProcessPool, so one timeout would lose every in-flight scene and need a

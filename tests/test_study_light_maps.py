@@ -1,4 +1,4 @@
-"""benchmarks/study_light_maps.py: the light gap split by seen and unseen maps, and the line over
+"""benchmarks/studies/study_light_maps.py: the light gap split by seen and unseen maps, and the line over
 log2 K that says how many maps would close the gap."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("study_light_maps", ROOT / "benchmarks" / "study_light_maps.py")
+_spec = importlib.util.spec_from_file_location("study_light_maps", ROOT / "benchmarks" / "studies" / "study_light_maps.py")
 study = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(study)
 

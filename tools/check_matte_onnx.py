@@ -22,7 +22,7 @@ printed per photo and over all.
 
     # the face landmark network of relight/face_mesh.py (issue 37), the same way, on the
     # bundled photos' face crops as relight.face_mesh makes them (3.1e-05 input pixels; the
-    # whole photos resized: 4.6e-05); `benchmarks/study_face_mesh.py --crops /tmp/crops`
+    # whole photos resized: 4.6e-05); `benchmarks/studies/study_face_mesh.py --crops /tmp/crops`
     # writes them (project environment)
     /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/face_landmark/face_landmark.tflite \\
         relight/models/face_landmark.onnx /tmp/crops/*.png

@@ -27,7 +27,7 @@ from the person matte's head):
 and its triangles (relight/models/face_mesh_triangles.json) from the wheel's
 mediapipe/python/solutions/face_mesh_connections.py: tools/face_mesh_triangles.py.
 
-The same network with its 33 body landmarks too (not shipped; benchmarks/study_skin_probe.py
+The same network with its 33 body landmarks too (not shipped; benchmarks/studies/study_skin_probe.py
 measured a face probe with it): --output Identity_2:mask --output Identity:landmarks
 --sigmoid-output mask (within 1.4e-3 of the TFLite reference kernels, landmarks in pixels of
 the 256 x 256 input; 29% more time than the mask alone).

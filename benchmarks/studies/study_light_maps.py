@@ -1,6 +1,6 @@
 """How the photo's light estimate grows with the number of HDR maps it was trained on.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_light_maps.py --runs runs/maps --counts 2 4 8 16 23 \
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_light_maps.py --runs runs/maps --counts 2 4 8 16 23 \
         --heldout data/heldout256 --seen data/trainmaps256 [--train --jobs 2]
 
 Each run is the release's recipe at the comparison budget (model.train: geo-default, 800 steps of

@@ -1,6 +1,6 @@
 """Issue 25, part 3, ceiling first: is the person's skin a light probe for the light's colour?
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_skin_probe.py --data data/heldout256 \\
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_skin_probe.py --data data/heldout256 \\
         [--model relight/models/geometry.onnx] [--pairs-per-scene 4]
 
 Skin albedo varies a lot in level between people but little in colour (the farm's skin
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])

@@ -1,6 +1,6 @@
 """Issue 26: does Best gain from runs on the crop turned in the image plane?
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_rotation_tta.py --data data/heldout256 [--degrees 10] [--pairs 96]
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_rotation_tta.py --data data/heldout256 [--degrees 10] [--pairs 96]
 
 Turning the photo by an angle in the image plane is turning the world about the camera's view
 axis (+Y; image right is +X, up +Z): the network's answer on the turned crop, its transport
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "benchmarks" / "studies"))
 
 from study_gain_tta import paired_table  # noqa: E402
 

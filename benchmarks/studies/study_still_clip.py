@@ -1,6 +1,6 @@
 """What moves from frame to frame when a still shot with sensor noise is relit (issue 40, "Clips").
 
-    .venv/bin/python benchmarks/study_still_clip.py [--photos astronaut grace_hopper obama_standing]
+    .venv/bin/python benchmarks/studies/study_still_clip.py [--photos astronaut grace_hopper obama_standing]
         [--height 512] [--frames 12] [--revision REV] [--cli]
 
 A still shot: one bundled photo (evaluation/data/matte_eval/NAME.jpg, resized to --height) repeated
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 EVAL = REPO / "evaluation" / "data" / "matte_eval"

@@ -5,7 +5,7 @@ the person alone? Same data, same budget, one small light estimator per input:
   photo       the whole photo + the matte
   background  the photo with the person cut out + the matte
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_light_context.py --train data/light_train128 \\
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_light_context.py --train data/light_train128 \\
         --heldout data/heldout256 [--steps 1500] [--batch 16] [--seed 0]
 
 Each estimator (on 64 px inputs: five stride-2 convolutions, width 32, global pooling, a linear layer to the
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 INPUTS = ("person", "photo", "background")

@@ -1,7 +1,7 @@
 """Issue 26: does Best gain from running the network on the photo at other exposures and white
 balances (per-channel gains g: the photo times g is the same person under the light times g)?
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_gain_tta.py --data data/heldout256 [--pairs 96]
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_gain_tta.py --data data/heldout256 [--pairs 96]
 
 Each held-out pair (the runtime protocol of benchmarks/bench_quality.py: 256 px crop, true
 alpha as the mask, 128 px working size) is decomposed once; the network runs again on the
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 EXPOSURE_1 = [(0.5,) * 3, (2.0,) * 3]

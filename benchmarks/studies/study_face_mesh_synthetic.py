@@ -3,7 +3,7 @@ against the path-traced truth, the network alone, with the face mesh's layer (re
 and with the truth's normals in the same layer (the ceiling of any face geometry there).
 Not run by the tests.
 
-    .venv/bin/python benchmarks/study_face_mesh_synthetic.py data/heldout37_hs [--quality best]
+    .venv/bin/python benchmarks/studies/study_face_mesh_synthetic.py data/heldout37_hs [--quality best]
 
 Each scene's light a relights to each other light b (the truth: the scene's render under b; the
 light: its SH). Over the face (head mask > 0.5, alpha > 0.99, inside the layer's box): PSNR of
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 
 def psnr(a, b, w, gains=False) -> float:

@@ -1,7 +1,7 @@
 """Issue 37, the face mesh: how much the face's own mesh (relight.face_mesh, relight.face_relight)
 changes the relit faces of the bundled real photos. Not run by the tests.
 
-    .venv/bin/python benchmarks/study_face_mesh.py [--quality best] [--out out/face_mesh]
+    .venv/bin/python benchmarks/studies/study_face_mesh.py [--quality best] [--out out/face_mesh]
 
 Per photo: the decomposition at the preset, the face layer, and
 * recon: PSNR (dB) over the face (the layer's weight > 0.5) of the photo re-rendered under its own
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 PHOTOS = ("relight/data/examples/astronaut.jpg", "evaluation/data/matte_eval/grace_hopper.jpg",
           "evaluation/data/matte_eval/obama_standing.jpg", "evaluation/data/matte_eval/obama.jpg",

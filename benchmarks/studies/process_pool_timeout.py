@@ -1,6 +1,6 @@
 """Why the farm's local pool is not concurrent.futures.ProcessPoolExecutor (farm/executors.py).
 
-    .venv/bin/python benchmarks/process_pool_timeout.py
+    .venv/bin/python benchmarks/studies/process_pool_timeout.py
 
 Two workers: one task hangs, the other is 2.5 s from done. The per-scene
 timeout would SIGKILL the hung task's process; this prints what becomes of

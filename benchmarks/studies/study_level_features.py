@@ -1,6 +1,6 @@
 """Issue 25/26: which of the network's own numbers predict the relit level error?
 
-    PYTHONPATH=. .venv/bin/python benchmarks/study_level_features.py \\
+    PYTHONPATH=. .venv/bin/python benchmarks/studies/study_level_features.py \\
         --calib data/calib128 --heldout data/heldout256 [--model relight/models/geometry.onnx] \\
         [--quality balanced|best] [--cache /tmp/level_rows.npz]
 
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
