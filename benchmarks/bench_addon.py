@@ -117,17 +117,23 @@ class _Workspace:
         pass
 
 
-def modal_operator(bpy, bl_ops, image_name: str):
-    """The Relight operator as Blender's window manager drives it (headless bpy has no window)."""
-    cls = bl_ops.RELIGHT_PHOTO_OT_relight
-    op = types.SimpleNamespace(image_name=image_name, synchronous=False, _job=None, _timer=None, _plan=None,
-                               _pending=None, _result=None, _started=0.0, _dial_values=cls._dial_values,
-                               report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
-    # every method of the operator's own classes (not bpy's Operator), bound to the stand-in
+def operator_stand_in(cls, **fields) -> types.SimpleNamespace:
+    """An instance of the add-on's operator class `cls` without bpy's Operator (headless bpy has no
+    window to run one): `fields` as its properties and state, a report() that prints, and every
+    method of the operator's own classes bound to it."""
+    op = types.SimpleNamespace(**fields, report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
     for klass in reversed([k for k in cls.__mro__ if k.__module__.startswith("blender_addon")]):
         for name, value in vars(klass).items():
             if isinstance(value, types.FunctionType) and not name.startswith("__"):
                 setattr(op, name, value.__get__(op))
+    return op
+
+
+def modal_operator(bpy, bl_ops, image_name: str):
+    """The Relight operator as Blender's window manager drives it (headless bpy has no window)."""
+    cls = bl_ops.RELIGHT_PHOTO_OT_relight
+    op = operator_stand_in(cls, image_name=image_name, synchronous=False, _job=None, _timer=None, _plan=None,
+                           _pending=None, _result=None, _started=0.0, _dial_values=cls._dial_values)
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=_WindowManager(bpy),
                                     workspace=_Workspace(), space_data=None, window=None)
     return op, context

@@ -188,7 +188,7 @@ def _modal_save_layers(bpy, bl_ops, bl_session, image_name: str, path: Path) -> 
     longest main-thread stretch in seconds."""
     import types
 
-    from benchmarks.bench_addon import Probe
+    from benchmarks.bench_addon import Probe, operator_stand_in
 
     class WindowManager:
         relight_photo_status = bpy.context.window_manager.relight_photo_status
@@ -198,13 +198,8 @@ def _modal_save_layers(bpy, bl_ops, bl_session, image_name: str, path: Path) -> 
 
     bl_session.updates_immediately = lambda: False
     cls = bl_ops.RELIGHT_PHOTO_OT_save_layers
-    op = types.SimpleNamespace(filepath=str(path), image_name=image_name, synchronous=False, _job=None,
-                               _timer=None, _plan=None, _started=0.0, SLOT=cls.SLOT,
-                               report=lambda kind, text: print(f"  [{'/'.join(kind)}] {text}"))
-    for klass in reversed([k for k in cls.__mro__ if k.__module__.startswith("blender_addon")]):
-        for name, value in vars(klass).items():
-            if isinstance(value, types.FunctionType) and not name.startswith("__"):
-                setattr(op, name, value.__get__(op))
+    op = operator_stand_in(cls, filepath=str(path), image_name=image_name, synchronous=False, _job=None,
+                           _timer=None, _plan=None, _started=0.0, SLOT=cls.SLOT)
     context = types.SimpleNamespace(scene=bpy.context.scene, window_manager=WindowManager(), workspace=None,
                                     space_data=None, window=object())
     probe, tick = Probe(), types.SimpleNamespace(type="TIMER")

@@ -105,20 +105,20 @@ def _material(bpy, name, glossy):
     return material
 
 
-def _object(bpy, mesh_maker, location, material):
-    import bmesh
+def _cycles_support():
+    """tests/cycles_support.py: the Cycles scenes the tests build (imports bpy)."""
+    import sys
 
-    mesh = bpy.data.meshes.new("m")
-    bm = bmesh.new()
-    mesh_maker(bmesh, bm)
-    for face in bm.faces:
-        face.smooth = True
-    bm.to_mesh(mesh)
-    bm.free()
-    obj = bpy.data.objects.new("o", mesh)
-    obj.location = location
-    mesh.materials.append(material)
-    bpy.context.scene.collection.objects.link(obj)
+    if str(REPO / "tests") not in sys.path:
+        sys.path.insert(0, str(REPO / "tests"))
+    import cycles_support
+
+    return cycles_support
+
+
+def _object(bpy, mesh_maker, location, material):
+    obj = _cycles_support().smooth_object(bpy.context.scene, "o", mesh_maker, location)
+    obj.data.materials.append(material)
     return obj
 
 
@@ -196,12 +196,7 @@ def light_scene(bpy, scene, world_pixels, folder, lamp_setup=None, constant=None
 def render(bpy, scene, folder, width, height, samples, seed=0) -> np.ndarray:
     from relight.exr import read_exr
 
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = samples
-    scene.cycles.use_adaptive_sampling = False
-    scene.cycles.use_denoising = False
-    scene.cycles.seed = seed
+    _cycles_support().cycles_on_cpu(scene, samples, seed)
     scene.cycles.max_bounces = 2
     scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.render.resolution_percentage = 100

@@ -15,41 +15,30 @@ compare rows of one run.
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import statistics
-import tempfile
 import time
 import types
-from pathlib import Path
 
 import numpy as np
-
-REPO = Path(__file__).resolve().parents[1]
+from photos import megapixels_parser, photo_in_temporary_folder  # benchmarks/photos.py
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--megapixels", type=float, default=2.0)
+    parser = megapixels_parser(__doc__, 2.0)
     parser.add_argument("--moves", type=int, default=5)
     args = parser.parse_args(argv)
 
     import bpy
-    from PIL import Image
 
     import blender_addon
     from blender_addon import bl_dials, bl_world
     from relight.exr import write_exr
     from relight.lamps import lamps_coeffs
 
-    with tempfile.TemporaryDirectory(prefix="bench_lamps_dial_") as folder:
-        source = Image.open(REPO / "relight/data/examples/astronaut.jpg").convert("RGB")
-        scale = (args.megapixels * 1e6 / (source.width * source.height)) ** 0.5
-        size = (round(source.width * scale), round(source.height * scale))
-        path = Path(folder) / "photo.jpg"
-        source.resize(size, Image.LANCZOS).save(path, quality=92)
-        flat = Path(folder) / "flat.exr"
+    with photo_in_temporary_folder("bench_lamps_dial_", args.megapixels) as (folder, path, size):
+        flat = folder / "flat.exr"
         write_exr(flat, {c: np.full((32, 64), 0.3, np.float32) for c in "RGB"})
         blender_addon.register()
         try:

@@ -14,23 +14,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from timing import median_wall_cpu  # benchmarks/timing.py
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-
-def _median(fn, repeats: int) -> tuple[float, float]:
-    walls, cpus = [], []
-    for _ in range(repeats):
-        w, c = time.perf_counter(), time.process_time()
-        fn()
-        walls.append(time.perf_counter() - w)
-        cpus.append(time.process_time() - c)
-    return float(np.median(walls)), float(np.median(cpus))
 
 
 def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
@@ -41,28 +32,28 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
     H, W = photo.shape[:2]
     out = {}
     small = resample.area_shrink(photo, matte.GUIDE_SIZE)
-    out["shrink to 512-1023 px"] = _median(lambda: resample.area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
+    out["shrink to 512-1023 px"] = median_wall_cpu(lambda: resample.area_shrink(photo, matte.GUIDE_SIZE), repeats)[0]
     small_srgb = srgb_encode(small).astype(np.float32)
     grid = resample.area_shrink(small_srgb, matte.NET_SIDE)
-    out["sRGB + grid"] = _median(lambda: resample.area_shrink(srgb_encode(small).astype(np.float32),
+    out["sRGB + grid"] = median_wall_cpu(lambda: resample.area_shrink(srgb_encode(small).astype(np.float32),
                                                             matte.NET_SIDE), repeats)[0]
     selfie = matte._session("selfie", threads)
-    out["selfie network"] = _median(lambda: matte._selfie(selfie, grid), repeats)[0]
+    out["selfie network"] = median_wall_cpu(lambda: matte._selfie(selfie, grid), repeats)[0]
     detector = matte._session("detector", threads)
     keypoints = matte._detect(detector, small_srgb)
-    out["pose detector + NMS"] = _median(lambda: matte._detect(detector, small_srgb), repeats)[0]
+    out["pose detector + NMS"] = median_wall_cpu(lambda: matte._detect(detector, small_srgb), repeats)[0]
     pose = matte._session("pose", threads)
     k = max(1, max(small.shape[:2]) // matte.NET_SIDE)
-    out["pose segmentation (1 person)"] = _median(
+    out["pose segmentation (1 person)"] = median_wall_cpu(
         lambda: matte._pose_mask(pose, small_srgb, keypoints[0], grid.shape[:2], k), repeats)[0]
     people = matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH)
-    out["people (all networks + combination)"] = _median(
+    out["people (all networks + combination)"] = median_wall_cpu(
         lambda: matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH), repeats)[0]
     edge = matte._edge(small, grid, people[0], True)
-    out["guided edge"] = _median(lambda: matte._edge(small, grid, people[0], True), repeats)[0]
-    out["full-resolution upsample"] = _median(lambda: resample.upsample_support(edge, H, W), repeats)[0]
+    out["guided edge"] = median_wall_cpu(lambda: matte._edge(small, grid, people[0], True), repeats)[0]
+    out["full-resolution upsample"] = median_wall_cpu(lambda: resample.upsample_support(edge, H, W), repeats)[0]
     alpha = resample.upsample_support(edge, H, W)
-    out["box"] = _median(lambda: matte._box(alpha), repeats)[0]
+    out["box"] = median_wall_cpu(lambda: matte._box(alpha), repeats)[0]
     return out
 
 
@@ -81,8 +72,8 @@ def main(argv=None) -> int:
     photo = resize_linear(small, H, W)
     run = lambda: matte.person_matte(photo, threads=args.threads)
     run()
-    copy_wall, _ = _median(lambda: photo.copy(), args.repeats)
-    wall, cpu = _median(run, args.repeats)
+    copy_wall, _ = median_wall_cpu(lambda: photo.copy(), args.repeats)
+    wall, cpu = median_wall_cpu(run, args.repeats)
     stages = stage_times(photo, args.threads, args.repeats)
     print(f"person_matte on {W}x{H} ({H * W / 1e6:.1f} MP), {args.threads} onnxruntime threads, "
           f"median of {args.repeats}:")

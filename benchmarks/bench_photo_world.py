@@ -14,33 +14,23 @@ on a shared machine compare rows of one run.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
-import tempfile
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from photos import megapixels_parser, photo_in_temporary_folder  # benchmarks/photos.py
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--megapixels", type=float, default=24.0)
+    parser = megapixels_parser(__doc__, 24.0)
     parser.add_argument("--presses", type=int, default=3)
     args = parser.parse_args(argv)
 
     import bpy
-    from PIL import Image
 
     import blender_addon
 
-    with tempfile.TemporaryDirectory(prefix="bench_photo_world_") as folder:
-        source = Image.open(REPO / "relight/data/examples/astronaut.jpg").convert("RGB")
-        scale = (args.megapixels * 1e6 / (source.width * source.height)) ** 0.5
-        size = (round(source.width * scale), round(source.height * scale))
-        path = Path(folder) / "photo.jpg"
-        source.resize(size, Image.LANCZOS).save(path, quality=92)
+    with photo_in_temporary_folder("bench_photo_world_", args.megapixels) as (_, path, size):
         blender_addon.register()
         try:
             bpy.ops.wm.read_homefile(use_empty=True)

@@ -29,6 +29,8 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+from photos import enlarged_photo  # benchmarks/photos.py
+from timing import median_wall_cpu  # benchmarks/timing.py
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -37,23 +39,9 @@ SIZE = (3842, 6247)  # width, height: 24 MP
 
 
 def make_photo(folder: Path) -> Path:
-    from PIL import Image
-
     path = folder / "BIG.jpg"
-    with Image.open(PHOTO) as im:
-        im.convert("RGB").resize(SIZE, Image.LANCZOS).save(path, quality=92)
+    enlarged_photo(path, size=SIZE, source=PHOTO)
     return path
-
-
-def median_time(call, repeats: int) -> tuple[float, float]:
-    """(median wall s, median CPU s of the process, its threads included) of `repeats` calls."""
-    walls, cpus = [], []
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        call()
-        walls.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-    return statistics.median(walls), statistics.median(cpus)
 
 
 def table(title: str, rows: list[tuple[str, tuple[float, float], float | None]]) -> None:
@@ -91,15 +79,15 @@ def bench_png(linear: np.ndarray, repeats: int) -> None:
     def run(name, write):
         buf = io.BytesIO()
         write(buf)
-        rows.append((name, median_time(lambda: write(io.BytesIO()), repeats), len(buf.getvalue()) / 1e6))
+        rows.append((name, median_wall_cpu(lambda: write(io.BytesIO()), repeats), len(buf.getvalue()) / 1e6))
 
     run("before: sRGB curve + Pillow level 4", lambda f: png_before(linear, f))
     rows.append(("sRGB encode alone: the curve (rint(255 srgb_encode))",
-                 median_time(lambda: [np.rint(srgb_encode(linear[r:r + 256]) * 255.0)
+                 median_wall_cpu(lambda: [np.rint(srgb_encode(linear[r:r + 256]) * 255.0)
                                       for r in range(0, linear.shape[0], 256)], repeats), None))
     codes = png_encoder.encode_srgb8(linear)
     rows.append(("sRGB encode alone: the table (encode_srgb8)",
-                 median_time(lambda: png_encoder.encode_srgb8(linear), repeats), None))
+                 median_wall_cpu(lambda: png_encoder.encode_srgb8(linear), repeats), None))
     for level in (1, 4):
         run(f"table + Pillow level {level}",
             lambda f, level=level: Image.fromarray(png_encoder.encode_srgb8(linear), "RGB").save(
@@ -148,7 +136,7 @@ def bench_exr(linear: np.ndarray, repeats: int, folder: Path) -> None:
             OpenEXR.set_global_thread_count(threads)
             for compression in ("zip", "piz", "none"):  # (zips and rle lost to both: time or size)
                 path = folder / f"o_{compression}.exr"
-                seconds = median_time(lambda: write_exr(path, channels, compression=compression), repeats)
+                seconds = median_wall_cpu(lambda: write_exr(path, channels, compression=compression), repeats)
                 rows.append((f"float32 {compression}, OpenEXR threads {threads}", seconds, path.stat().st_size / 1e6))
                 path.unlink()
     finally:

@@ -17,20 +17,28 @@ SPHERE_CENTRE = (0.0, 5.0, 0.0)  # a unit sphere 5 m along the camera's view
 ORTHO_SCALE = 2.2  # the orthographic view's width: the sphere and a margin
 
 
-def lambert_sphere(scene: bpy.types.Scene, albedo: float) -> bpy.types.Object:
-    """A smooth unit sphere (128 x 64 segments) at SPHERE_CENTRE, pure Lambert of grey `albedo`."""
+def smooth_object(scene: bpy.types.Scene, name: str, build, location) -> bpy.types.Object:
+    """A mesh object `name` at `location`, linked to `scene`: build(bmesh, bm) fills an empty bmesh,
+    whose faces are then shaded smooth."""
     import bmesh
 
-    mesh = bpy.data.meshes.new("sphere")
+    mesh = bpy.data.meshes.new(name)
     bm = bmesh.new()
-    bmesh.ops.create_uvsphere(bm, u_segments=128, v_segments=64, radius=1.0)
+    build(bmesh, bm)
     for face in bm.faces:
         face.smooth = True
     bm.to_mesh(mesh)
     bm.free()
-    sphere = bpy.data.objects.new("sphere", mesh)
-    sphere.location = SPHERE_CENTRE
-    scene.collection.objects.link(sphere)
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = location
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def lambert_sphere(scene: bpy.types.Scene, albedo: float) -> bpy.types.Object:
+    """A smooth unit sphere (128 x 64 segments) at SPHERE_CENTRE, pure Lambert of grey `albedo`."""
+    sphere = smooth_object(scene, "sphere", lambda bmesh, bm: bmesh.ops.create_uvsphere(
+        bm, u_segments=128, v_segments=64, radius=1.0), SPHERE_CENTRE)
     material = bpy.data.materials.new("lambert")
     if bpy.app.version < (5, 0, 0):
         material.use_nodes = True  # always on from 5.0 (deprecated there)
@@ -42,7 +50,7 @@ def lambert_sphere(scene: bpy.types.Scene, albedo: float) -> bpy.types.Object:
     diffuse.inputs["Color"].default_value = (albedo, albedo, albedo, 1.0)
     diffuse.inputs["Roughness"].default_value = 0.0  # pure Lambert
     material.node_tree.links.new(diffuse.outputs[0], nodes["Material Output"].inputs["Surface"])
-    mesh.materials.append(material)
+    sphere.data.materials.append(material)
     return sphere
 
 
@@ -57,16 +65,21 @@ def photo_camera(scene: bpy.types.Scene) -> bpy.types.Object:
     return camera
 
 
-def render_with_normals(scene: bpy.types.Scene, out_path: Path, size: int, samples: int, seed: int) -> dict:
-    """Cycles on the CPU, `samples` per pixel without adaptive sampling or denoising, a box
-    filter one pixel wide, `size` x `size`; the render's passes (Combined, Normal) as read
-    back from its multilayer EXR."""
+def cycles_on_cpu(scene: bpy.types.Scene, samples: int, seed: int) -> None:
+    """Cycles on the CPU, `samples` per pixel without adaptive sampling or denoising, noise seed `seed`."""
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.samples = samples
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_denoising = False
     scene.cycles.seed = seed
+
+
+def render_with_normals(scene: bpy.types.Scene, out_path: Path, size: int, samples: int, seed: int) -> dict:
+    """Cycles on the CPU, `samples` per pixel without adaptive sampling or denoising, a box
+    filter one pixel wide, `size` x `size`; the render's passes (Combined, Normal) as read
+    back from its multilayer EXR."""
+    cycles_on_cpu(scene, samples, seed)
     scene.cycles.pixel_filter_type = "BOX"
     scene.render.filter_size = 1.0
     scene.render.resolution_x = scene.render.resolution_y = size
