@@ -14,7 +14,8 @@ runtime stays `albedo * (T . L') + E . L'`.
   albedo prior, solved by Gauss-Jordan elimination without pivoting (the
   ridge makes the normal equations symmetric positive definite).
 * `photo_consistent_albedo`: photo / (T . L_a), the shading floored in deep
-  shadow.
+  shadow: relight.prt.photo_consistent_albedo on torch tensors, the one rule (and
+  constants) the runtime shares, so the albedo follows from the light the same way there.
 """
 
 from __future__ import annotations
@@ -24,8 +25,10 @@ import math
 import numpy as np
 import torch
 
+from relight import prt
 from relight import sh as sh_np
 from relight.colour import SRGB_ENCODED_KNEE, SRGB_GAMMA, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
+from relight.prt import ALBEDO_MIN_MEAN, ALBEDO_RELIABLE
 
 
 def sh_basis(dirs: torch.Tensor, order: int, dim: int = 1, scale=None) -> torch.Tensor:
@@ -160,18 +163,8 @@ def fit_light(transport: torch.Tensor, albedo: torch.Tensor, photo: torch.Tensor
 
 
 def photo_consistent_albedo(photo: torch.Tensor, shading: torch.Tensor, weight: torch.Tensor,
-                            reliable: float = 0.25, min_mean: float = 0.08) -> torch.Tensor:
-    """photo / max(shading, reliable * mean shading), in [0, 1].
-
-    Where the photo and the fitted shading agree this makes the relit image the
-    photo times shading' / shading (quotient relighting). In deep shadow the
-    shading is floored at `reliable` of its weighted mean over the person (the
-    mean taken as at least `min_mean`), so a small shading error cannot blow up
-    and neighbouring pixels keep one albedo source: switching to another
-    albedo there left visible patches on dark clothing in real photos.
-    """
-    lum = shading.mean(dim=1, keepdim=True)
-    w = weight
-    mean = (lum * w).sum(dim=(2, 3), keepdim=True) / (w.sum(dim=(2, 3), keepdim=True) + 1e-4)
-    mean = mean.clamp(min=min_mean)  # a near-black fit must not floor every pixel at ~0
-    return (photo / torch.maximum(shading, reliable * mean)).clamp(0.0, 1.0)
+                            reliable: float = ALBEDO_RELIABLE, min_mean: float = ALBEDO_MIN_MEAN) -> torch.Tensor:
+    """photo / max(shading, reliable * mean shading), in [0, 1], for [B, 3, H, W] tensors
+    (weight [B, 1, H, W]): relight.prt.photo_consistent_albedo, the one rule and constants
+    the runtime uses too, run on torch (what it means and why: there)."""
+    return prt.photo_consistent_albedo(photo, shading, weight, reliable, min_mean, xp=torch, channels=1, pixels=(2, 3))

@@ -10,6 +10,7 @@ photo's resolution over the untouched original. The light is SH coefficients
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -69,6 +70,9 @@ class Decomposition:
     albedo [h, w, 3], transport [h, w, n], residual [h, w, n], alpha [h, w]
     and light [n, 3] belong to the crop `box` (relight.box.Box: y0, y1, x0, x1) of the
     photo resized to `working_size` = (h, w). `photo` is the original (not copied).
+    residual=None: the model has no residual E (its metadata says so): the field then
+    reads as zeros without holding any, and E . L' is never evaluated. Built once per
+    photo; `with_light` gives it another estimate of the photo's light.
     """
 
     albedo: np.ndarray
@@ -90,14 +94,33 @@ class Decomposition:
         self.box = Box(*self.box)
         h, w = self.working_size
         n = sh.num_coeffs(self.sh_order)
+        zero_residual = self.residual is None
+        if zero_residual:  # the model has no E (relight.session.ModelSession.residual_is_zero): no array
+            self.residual = np.broadcast_to(np.zeros((), np.float32), (h, w, n))  # zeros, no memory
         # matte pixels grown by one: the bilinear taps of every full-resolution
         # pixel inside the matte then read relit values, never the zeros around
         self._matte = np.flatnonzero(dilate(self.alpha > 0, 1).reshape(-1))
+        inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
+        if zero_residual:
+            self._residual_m, self._has_residual = None, False
+        else:
+            self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
+            self._has_residual = bool(np.any(self._residual_m))
+        self._inside = inside.astype(np.float32)
+        self._inside_count = int(np.count_nonzero(inside))
+        self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
+        y0, y1, x0, x1 = self.box
+        self._up = Bilinear(y1 - y0, x1 - x0, h, w)
+        self._alpha_prepared = None
+        self._smooth_prepared = None  # relight.foreground's smooth colours, prepared on demand
+        self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
+        self._gather()
+
+    def _gather(self) -> None:
+        """The albedo and transport over the matte's pixels, and what each light band can add."""
+        n = sh.num_coeffs(self.sh_order)
         self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
         self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
-        self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
-        inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
-        self._has_residual = bool(np.any(self._residual_m))
         # per band l, the largest |T_l(x)| (and |E_l(x)|) over the matte: bounds what the light's
         # band l can add to any pixel (Cauchy-Schwarz), so a request evaluates only the bands it needs
         bands = [slice(l * l, (l + 1) * (l + 1)) for l in range(self.sh_order + 1)]
@@ -108,14 +131,26 @@ class Decomposition:
                 reach += albedo_max * np.array([np.sqrt((part[:, b].astype(np.float64) ** 2).sum(axis=1)).max()
                                                 for b in bands])
         self._band_reach = reach
-        self._inside = inside.astype(np.float32)
-        self._inside_count = int(np.count_nonzero(inside))
-        self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
-        y0, y1, x0, x1 = self.box
-        self._up = Bilinear(y1 - y0, x1 - x0, h, w)
-        self._alpha_prepared = None
-        self._smooth_prepared = None  # relight.foreground's smooth colours, prepared on demand
-        self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
+
+    def with_light(self, light: np.ndarray, transport: np.ndarray | None = None,
+                   reliable: float | None = None) -> "Decomposition":
+        """This photo's decomposition under another estimate of its light [n, 3] (and, from
+        relight.tta, its transport [h, w, n]): the one step that changes the photo's light. The
+        albedo follows from them by the model's photo-consistent rule
+        (relight.refine.consistent_albedo -> relight.prt.photo_consistent_albedo, the rule the
+        graph runs; `reliable`: its shading floor, None: relight.prt.ALBEDO_RELIABLE). The
+        matte, crop and resamplers are kept, not rebuilt; this object is unchanged."""
+        from relight.refine import consistent_albedo
+
+        transport = self.transport if transport is None else transport
+        light = np.asarray(light, np.float32)
+        new = copy.copy(self)
+        new.transport, new.light = transport, light
+        new.albedo = consistent_albedo(self, transport, light, *(() if reliable is None else (reliable,)))
+        new.choices = dict(self.choices)
+        new.last_stats = None
+        new._gather()
+        return new
 
     @property
     def size(self) -> tuple[int, int]:

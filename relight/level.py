@@ -13,15 +13,14 @@ fitted shading (T . L)_c, l = log2 of its luminance and x_c = log2 m_c - l its c
 
     gain of channel c    y_c = a_c + b_c * l + k_c * x_c
 
-The light is divided by 2^y_c per channel and the albedo re-derived by the model's
-own photo-consistent rule, so the photo is reproduced as before and only how bright and
+The light is divided by 2^y_c per channel (`leveled`) and the albedo follows from it by the
+model's own photo-consistent rule (relight.decomposition.Decomposition.with_light), so the photo is reproduced as before and only how bright and
 what colour the person comes out under a new light changes. The gains are bounded
 (MAX_STOPS) and the features clamped, so black, white or saturated photos stay finite.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -30,7 +29,7 @@ import numpy as np
 
 from relight.colour import LUMINANCE_WEIGHTS
 
-__all__ = ["LevelPrior", "METADATA_KEY", "features", "fit_prior", "apply"]
+__all__ = ["LevelPrior", "METADATA_KEY", "features", "fit_prior", "apply", "leveled"]
 
 METADATA_KEY = "relight.level_prior"  # the ONNX metadata entry that carries a model's prior
 MAX_STOPS = 2.0        # the largest change of level or colour one photo gets, either way
@@ -129,15 +128,20 @@ def fit_prior(lums, colours, log_gains) -> LevelPrior:
     return LevelPrior(tuple(rows), pairs=int(lums.size))
 
 
+def leveled(prior: LevelPrior, transport: np.ndarray, light: np.ndarray, weight: np.ndarray):
+    """(light [n, 3] float32 divided by the prior's gains, the gains [3]) for one photo's
+    transport [h, w, n], light [n, 3] and person weight [h, w]: the runtime's change of the
+    photo's light level and colour (the albedo follows from it: Decomposition.with_light)."""
+    gains = prior.gains(transport, light, weight)
+    return (light / gains[None, :]).astype(np.float32), gains
+
+
 def apply(decomposition, prior: LevelPrior | None):
-    """(decomposition with its light divided by the prior's gains and its albedo re-derived,
-    the gains [3] or None). Models without a photo-consistent albedo (a residual E) and
-    models without a prior are returned as they are."""
+    """(decomposition with its light divided by the prior's gains (`leveled`) and the albedo
+    following from it, the gains [3] or None). Models without a photo-consistent albedo (a
+    residual E) and models without a prior are returned as they are."""
     d = decomposition
     if prior is None or d.has_residual:
         return d, None
-    from relight.refine import consistent_albedo
-
-    gains = prior.gains(d.transport, d.light, d.alpha)
-    light = (d.light / gains[None, :]).astype(np.float32)
-    return dataclasses.replace(d, light=light, albedo=consistent_albedo(d, d.transport, light)), gains
+    light, gains = leveled(prior, d.transport, d.light, d.alpha)
+    return d.with_light(light), gains

@@ -1,4 +1,6 @@
-"""PRT rendering layer: R = albedo * (T . L) + E . L, and the network's input encoding."""
+"""PRT rendering layer: R = albedo * (T . L) + E . L, the network's input encoding, and the
+photo-consistent albedo rule (the one function the exported graph, model.physics, and the
+runtime, relight.refine.consistent_albedo, both use: the albedo follows from the light)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,13 @@ import numpy as np
 from relight.colour import srgb_encode
 from relight.sh import order_from_num_coeffs
 
-__all__ = ["shading", "render", "to_network_input", "lambert_transport"]
+__all__ = ["shading", "render", "to_network_input", "lambert_transport", "photo_consistent_albedo",
+           "ALBEDO_RELIABLE", "ALBEDO_MIN_MEAN"]
+
+# The photo-consistent albedo rule's constants (photo_consistent_albedo), the one set: the
+# geometry network's graph (model.physics, model.geometry's `reliable` default) and the runtime
+ALBEDO_RELIABLE = 0.25  # the shading floor, a fraction of the person's weighted mean shading
+ALBEDO_MIN_MEAN = 0.08  # the least that mean is taken as: a near-black fit does not floor every pixel at ~0
 
 
 def _check_light(L) -> np.ndarray:
@@ -101,3 +109,25 @@ def to_network_input(image, mask=None) -> np.ndarray:
             raise ValueError("mask values must be finite and in [0, 1]")
         out = out * m
     return out.astype(np.float32, copy=False)
+
+
+def photo_consistent_albedo(photo, shading, weight, reliable: float = ALBEDO_RELIABLE,
+                            min_mean: float = ALBEDO_MIN_MEAN, *, xp=np, channels: int = -1,
+                            pixels: tuple = (-3, -2)):
+    """photo / max(shading, reliable * mean shading), in [0, 1]: the albedo that follows
+    from a light (shading = T . L), the one rule of the graph and the runtime.
+
+    Where the photo and the fitted shading agree this makes the relit image the photo times
+    shading' / shading (quotient relighting). In deep shadow the shading is floored at
+    `reliable` of its mean luminance over the person weighted by `weight` (the mean taken as
+    at least `min_mean`), so a small shading error cannot blow up and neighbouring pixels
+    keep one albedo source (switching to another albedo there left patches on dark clothing).
+
+    Written once for both array libraries: numpy by default (photo, shading [h, w, 3],
+    weight [h, w, 1]); model.physics passes xp=torch, channels=1, pixels=(2, 3) for its
+    [B, 3, H, W] tensors (the same ops trace into the exported graph).
+    """
+    lum = xp.mean(shading, axis=channels, keepdims=True)
+    mean = xp.sum(lum * weight, axis=pixels, keepdims=True) / (xp.sum(weight, axis=pixels, keepdims=True) + 1e-4)
+    mean = xp.clip(mean, min_mean, None)
+    return xp.clip(photo / xp.maximum(shading, reliable * mean), 0.0, 1.0)

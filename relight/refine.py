@@ -11,9 +11,9 @@ This module refits L_c to those gradients, robustly (albedo edges are outliers: 
 Cauchy loss), with a ridge toward the network's light, by Gauss-Newton iterations
 with a backtracking step so that the objective never rises; it stops early when the
 objective stops falling. Log-gradients do not see a channel's overall gain, so the
-DC term (the light's colour and level) stays the network's. The albedo is then made
-photo-consistent again with the model's own rule (photo / max(shading, reliable *
-mean shading), in [0, 1]), so relighting stays photo x shading' / shading.
+DC term (the light's colour and level) stays the network's. The albedo then follows from
+the light by the model's own rule (`consistent_albedo`: relight.prt.photo_consistent_albedo,
+the one function the exported graph runs too), so relighting stays photo x shading' / shading.
 
 numpy only; cost ~ iterations x pixels x n^2 at working resolution (a few ms per
 iteration at 128 px). Measured on held-out scenes in docs/TRADEOFFS.md.
@@ -21,22 +21,22 @@ iteration at 128 px). Measured on held-out scenes in docs/TRADEOFFS.md.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from relight.colour import srgb_decode, srgb_encode
+from relight.prt import ALBEDO_MIN_MEAN, ALBEDO_RELIABLE, photo_consistent_albedo
 
-__all__ = ["RefineReport", "albedo_from_input", "consistent_albedo", "refine", "refine_light", "photo_consistent_albedo"]
+__all__ = ["RefineReport", "albedo_from_input", "consistent_albedo", "refine", "refine_light"]
 
 LOG_EPS = 1e-6        # added before the log: finite everywhere, negligible where pixels are fitted
 DARK = 0.02           # pixels darker than this x the person's median are noise, not shading: not fitted
 SHADING_FLOOR = 1e-3  # shading below this is "no light": its gradient is not fitted
 SCALE = 0.05          # log-gradient residual beyond which a pair counts more and more as an albedo edge
 RIDGE = 0.3           # pull toward the network's light, relative to the data's own scale
-RELIABLE = 0.25       # the model's photo-consistent albedo rule (model.physics)
-MIN_MEAN = 0.08
+RELIABLE = ALBEDO_RELIABLE  # the photo-consistent albedo rule's constants (relight.prt: the one set)
+MIN_MEAN = ALBEDO_MIN_MEAN
 CLIPPED = 0.99        # sRGB-encoded value above which a pixel is saturated (not fitted)
 SATURATED = float(srgb_decode(np.float64(CLIPPED)))  # the same in linear photo units
 INTERIOR = 0.999      # alpha from which a pixel is inside the person (edges mix background)
@@ -176,15 +176,6 @@ def refine_light(transport: np.ndarray, photo: np.ndarray, alpha: np.ndarray, li
     return out, RefineReport(tuple(float(v) for v in total_residuals[:taken + 1]), taken, stopped)
 
 
-def photo_consistent_albedo(photo: np.ndarray, shading: np.ndarray, weight: np.ndarray,
-                            reliable: float = RELIABLE, min_mean: float = MIN_MEAN) -> np.ndarray:
-    """photo / max(shading, reliable * weighted mean shading), in [0, 1]: the network's own
-    albedo rule (model.physics.photo_consistent_albedo), numpy."""
-    lum = shading.mean(axis=-1)
-    mean = max(float((lum * weight).sum() / (weight.sum() + 1e-4)), min_mean)
-    return np.clip(photo / np.maximum(shading, reliable * mean), 0.0, 1.0).astype(np.float32)
-
-
 def consistent_albedo(d, transport: np.ndarray, light: np.ndarray, reliable: float = RELIABLE) -> np.ndarray:
     """The albedo [h, w, 3] the geometry-first network would derive for decomposition `d`
     with this transport [h, w, n] and light [n, 3] (`reliable`: the model's shading floor, a
@@ -199,7 +190,12 @@ def consistent_albedo(d, transport: np.ndarray, light: np.ndarray, reliable: flo
     photo = np.clip(d.photo_working, 0.0, 1.0)
     alpha = d.network_alpha if d.network_alpha is not None else d.alpha
     weight = alpha * (photo.max(axis=-1) < SATURATED)
-    return photo_consistent_albedo(photo, transport @ light, weight, reliable)
+    return _albedo(photo, transport @ light, weight, reliable)
+
+
+def _albedo(photo: np.ndarray, shading: np.ndarray, weight: np.ndarray, reliable: float = RELIABLE) -> np.ndarray:
+    """relight.prt.photo_consistent_albedo of [h, w, 3] arrays with a weight [h, w], float32."""
+    return photo_consistent_albedo(photo, shading, weight[..., None], reliable).astype(np.float32, copy=False)
 
 
 def albedo_from_input(encoded: np.ndarray, alpha: np.ndarray, transport: np.ndarray,
@@ -209,7 +205,7 @@ def albedo_from_input(encoded: np.ndarray, alpha: np.ndarray, transport: np.ndar
     photo-consistent rule weighted by alpha where the input is not saturated."""
     seen = srgb_decode((encoded + 1.0) * 0.5)
     weight = alpha * np.clip((2.0 * CLIPPED - 1.0 - encoded.max(axis=-1)) * 1e6, 0.0, 1.0)
-    return photo_consistent_albedo(seen, transport @ light, weight)
+    return _albedo(seen, transport @ light, weight)
 
 
 def refine(decomposition, iterations: int = 8, ridge: float = RIDGE):
@@ -223,5 +219,4 @@ def refine(decomposition, iterations: int = 8, ridge: float = RIDGE):
     light, report = refine_light(d.transport, d.photo_working, d.alpha, d.light, iterations, ridge)
     if report.iterations == 0:
         return d, report
-    albedo = consistent_albedo(d, d.transport, light.astype(np.float32))
-    return dataclasses.replace(d, albedo=albedo, light=light.astype(np.float32)), report
+    return d.with_light(light), report

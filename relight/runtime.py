@@ -17,7 +17,6 @@ explains the choices. Nothing here imports torch or bpy.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from pathlib import Path
@@ -28,12 +27,10 @@ from relight import quality
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR
 from relight.decomposition import Decomposition, RelightStats  # noqa: F401 (the runtime's result types)
-from relight.level import METADATA_KEY, LevelPrior
-from relight.level import apply as apply_level
+from relight.level import METADATA_KEY, LevelPrior, leveled
 from relight.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path
 from relight.prt import to_network_input
-from relight.refine import consistent_albedo
 from relight.resample import resize_linear
 from relight.session import ModelSession
 
@@ -138,6 +135,8 @@ class Relighter(ModelSession):
         res = {k: v[0, :, :h, :w].transpose(1, 2, 0) for k, v in out.items() if k != "light"}
         res["light"] = out["light"][0]
         for k, v in res.items():
+            if k == "residual" and self.residual_is_zero:
+                continue  # transport * 0 by construction: not used, not scanned
             if not np.all(np.isfinite(v)):
                 raise ValueError(f"the network produced NaN/Inf in {k!r}: model weights are broken")
         return res
@@ -194,7 +193,9 @@ class Relighter(ModelSession):
         if mask is None and matte == "person":
             from relight import matte as segmenter
 
-            photo = check_photo(photo, segmenter.MIN_SIDE, purpose="a person matte")
+            # finite=False: the matte checks its block average, which a NaN or Inf survives (one
+            # cheap check of every pixel, not a second full-photo scan)
+            photo = check_photo(photo, segmenter.MIN_SIDE, finite=False, purpose="a person matte")
             found = segmenter.matte_of_checked_photo(photo, person, method=matte_method)
             mask = found.alpha
             box = _with_margin(found.box, *photo.shape[:2])
@@ -214,16 +215,23 @@ class Relighter(ModelSession):
             alpha = small_mask
         else:
             alpha = np.where(out["alpha"][..., 0] < ALPHA_FLOOR, 0.0, out["alpha"][..., 0]).astype(np.float32)
+        # the one Decomposition of this photo: the graph's answer (light, albedo, transport; no
+        # residual when the model has none: residual_is_zero, its output neither copied nor scanned)
         d = Decomposition(
             albedo=np.ascontiguousarray(out["albedo"]), transport=np.ascontiguousarray(out["transport"]),
-            residual=np.ascontiguousarray(out["residual"]), light=np.asarray(out["light"], np.float32),
+            residual=None if self.residual_is_zero else np.ascontiguousarray(out["residual"]),
+            light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
             photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found,
             network_alpha=np.ascontiguousarray(out["alpha"][..., 0]))
         choices = {"working_size": size, "network_input": [h, w], "person_px": max(y1 - y0, x1 - x0),
                    "matte": "mask" if found is None and mask is not None else
                    (f"person ({matte_method})" if found is not None else "network")}
-        ran = list(augment)
+        # The photo's light, changed in this one place (docs/ARCHITECTURE.md, "Where the photo's
+        # light is estimated"): the graph's fit -> test-time average -> level prior -> refinement;
+        # the albedo then follows from it once (Decomposition.with_light)
+        transport, light = d.transport, d.light
+        ran, done = list(augment), []
         if augment or ensemble:
             from relight import tta
 
@@ -231,26 +239,32 @@ class Relighter(ModelSession):
             ran = ran[:len(done)]
             for name in ensemble:  # each other network: the plain crop and the runs made
                 done += tta.runs(self.member(name), d, ((1.0, False), *ran))
-            d = tta.average(d, done)
+            transport, light = tta.averaged(d, done)
         choices["augment"] = [[float(s), bool(m)] for s, m in ran]
         if ensemble:
             choices["ensemble"] = [str(name) for name in ensemble]
         if augment_until_agreed is not None and len(ran) < len(augment):
             choices["augment_stopped"] = f"the first run agreed within {augment_until_agreed:g}"
         if level and self.level_prior is not None:
-            d, gains = apply_level(d, self.level_prior)
+            gains = None
+            if not d.has_residual:
+                light, gains = leveled(self.level_prior, transport, light, d.alpha)
             choices["level"] = "off (the network's E is not zero)" if gains is None else \
                 {"gains": [round(float(g), 4) for g in gains]}
         else:
             choices["level"] = "off" if self.level_prior is not None else "off (the model has no level prior)"
-            if not d.has_residual:  # the graph's albedo saw the masked input: re-derived from the crop
-                d = dataclasses.replace(d, albedo=consistent_albedo(d, d.transport, d.light))
         if refine:
-            from relight.refine import refine as refine_light
+            from relight.refine import RefineReport, refine_light
 
-            d, report = refine_light(d, refine)
+            report = RefineReport((), 0, "off")  # a network with E: its albedo is not photo-consistent
+            if not d.has_residual:
+                light, report = refine_light(transport, crop, d.alpha, light, refine)
             choices["refine"] = report.as_dict()
         else:
             choices["refine"] = {"iterations": 0, "stopped": "off"}
+        # the graph's albedo saw the masked input: it follows from the light on the unmasked crop
+        # (a network with E keeps its own unless test-time averaging changed the light)
+        if not d.has_residual or done:
+            d = d.with_light(light, transport)
         d.choices = choices
         return d

@@ -11,8 +11,8 @@ Relighter and model.predictor.Predictor both use it.
 from __future__ import annotations
 
 import contextlib
-
 import hashlib
+import json
 import os
 from pathlib import Path
 
@@ -32,6 +32,9 @@ def cores_available() -> int:
 
 
 SPINNING_KEY = "session.intra_op.allow_spinning"  # onnxruntime's session option
+# network_config "arch"s whose graph sends the residual output as transport * 0 (model.geometry:
+# the geometry-first network has no E): the runtime then neither copies nor scans it
+ZERO_RESIDUAL_ARCHS = ("geometry",)
 
 
 def open_session(path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
@@ -72,7 +75,9 @@ class ModelSession:
 
     path: the .onnx file; threads: intra-op threads (None: onnxruntime's default,
     all cores); providers: execution providers (default CPU only). Attributes:
-    session, sha256, metadata, sh_order, size_multiple, model_path.
+    session, sha256, metadata, sh_order, size_multiple, model_path, network_config (the
+    metadata's relight.network_config, {} when absent), residual_is_zero (the graph's residual
+    output is zero by construction: ZERO_RESIDUAL_ARCHS).
     """
 
     def __init__(self, path: str | os.PathLike, threads: int | None = None, providers: list | None = None,
@@ -95,6 +100,12 @@ class ModelSession:
             self.size_multiple = int(md["relight.size_multiple"])
         except (KeyError, ValueError):
             raise ValueError(f"{where}: metadata lacks a valid relight.sh_order / relight.size_multiple") from None
+        try:
+            config = json.loads(md.get("relight.network_config") or "{}")
+        except ValueError:
+            raise ValueError(f"{where}: metadata relight.network_config is not JSON") from None
+        self.network_config = config if isinstance(config, dict) else {}
+        self.residual_is_zero = self.network_config.get("arch") in ZERO_RESIDUAL_ARCHS
         names = [o.name for o in self.session.get_outputs()]
         if sorted(names) != sorted(OUTPUT_NAMES) or [i.name for i in self.session.get_inputs()] != [INPUT_NAME]:
             raise ValueError(f"{where}: graph must map {INPUT_NAME!r} to {list(OUTPUT_NAMES)}, "
@@ -107,6 +118,7 @@ class ModelSession:
                 return o.shape[1] if isinstance(o.shape[1], int) else None
         raise KeyError(name)
 
+    residual_is_zero = False  # set from the metadata (_read_metadata)
     run_options = None  # onnxruntime RunOptions every run uses (cancellable: relight.session.cancellable)
 
     def run(self, net_input: np.ndarray, run_options=None) -> dict[str, np.ndarray]:

@@ -5,24 +5,22 @@ A mirrored photo (x -> -x in the photo-camera frame, docs/conventions.md) has mi
 transport and light: each SH coefficient keeps or flips its sign (`mirror_x`), so the
 mirrored run's transport is flipped back along the rows' x and its coefficients
 mirrored, and its light mirrored. Other working sizes are resampled to the first run's
-grid. Transport and light are averaged there (linear quantities: a mean of estimates),
-and the albedo is made photo-consistent again with the model's own rule
-(relight.refine.consistent_albedo), so the result is one Decomposition that relights,
-makes layers and follows dials like any other.
+grid. Transport and light are averaged there (linear quantities: a mean of estimates,
+`averaged`); the albedo follows from them by the model's own rule
+(relight.decomposition.Decomposition.with_light), so the result is one Decomposition that
+relights, makes layers and follows dials like any other.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 
 import numpy as np
 
 from relight import sh
-from relight.refine import consistent_albedo
 from relight.resample import resize_linear
 
-__all__ = ["mirror_x", "average", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
+__all__ = ["mirror_x", "average", "averaged", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
 
 # (scale of the working size, mirrored) for each run after the first: the augmentations
 # measured in docs/TRADEOFFS.md ("Best")
@@ -127,17 +125,24 @@ def disagreement(base, transport: np.ndarray, light: np.ndarray) -> float:
     return float(np.sqrt((w * (other - own) ** 2).sum() / ref)) if ref > 0 else 0.0
 
 
-def average(base, runs) -> object:
-    """One Decomposition from `base` (the first run) and `runs` [(decomposition, mirrored)]:
-    transport and light averaged in base's frame, albedo photo-consistent again."""
+def averaged(base, runs) -> tuple[np.ndarray, np.ndarray]:
+    """(transport [h, w, n], light [n, 3]), float32: `base`'s (the first run's) and `runs`'
+    [(run, mirrored)] averaged in base's frame: the runtime's first change of the photo's light."""
     if not runs:
-        return base
+        return base.transport, base.light
     transports, lights = [base.transport.astype(np.float64)], [base.light.astype(np.float64)]
     for other, mirrored in runs:
         t, light = _in_frame(base, other, mirrored)
         transports.append(t)
         lights.append(light)
-    transport = np.mean(transports, axis=0).astype(np.float32)
-    light = np.mean(lights, axis=0).astype(np.float32)
-    albedo = consistent_albedo(base, transport, light)
-    return dataclasses.replace(base, transport=transport, light=light, albedo=albedo)
+    return np.mean(transports, axis=0).astype(np.float32), np.mean(lights, axis=0).astype(np.float32)
+
+
+def average(base, runs) -> object:
+    """One Decomposition from `base` (the first run) and `runs` [(decomposition, mirrored)]:
+    transport and light averaged in base's frame (`averaged`), the albedo following from them
+    (Decomposition.with_light)."""
+    if not runs:
+        return base
+    transport, light = averaged(base, runs)
+    return base.with_light(light, transport)
