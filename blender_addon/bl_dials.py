@@ -25,7 +25,7 @@ def compute_relit(context, session: state.PhotoSession, dials=None):
 def render_relit(context, session: state.PhotoSession, dials=None):
     """Relight the cached decomposition with the current dials and write '<photo>.relit' (this thread)."""
     dials = dials or current_dials(context, session)
-    rgba = engine.relit_rgba(session.decomposition, *dials)
+    rgba = engine.relit_rgba(session.decomposition, *dials, orientation=session.orientation)
     return write_output(session, "relit", rgba, session.photo.shape[:2])
 
 
@@ -43,7 +43,7 @@ def refresh_relit(context, preview: bool = False) -> None:
     try:
         dials = current_dials(context, session)
         if preview and session.preview is not None and not session.photo_missing:
-            rgba = engine.relit_rgba(session.preview, *dials)
+            rgba = engine.relit_rgba(session.preview, *dials, orientation=session.orientation)
             write_output(session, "preview", rgba, session.preview.size)
             show_in_editors(session, "preview")
             set_status(context, "Preview: the full-size image follows when the dial rests.")
@@ -83,7 +83,8 @@ def _arm_full_size() -> None:
 def start_full_size(session: state.PhotoSession, dials):
     """Relight the full-size photo on a worker; poll_full_size writes it if no dial moved since."""
     generation = session.dial_generation
-    job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials)},
+    job = jobs.BackgroundJob(lambda: {"relit": engine.relit_rgba(session.decomposition, *dials,
+                                                                 orientation=session.orientation)},
                              label="full-size")
     job.session, job.generation = session, generation
     state.RUNNING["dial"] = job

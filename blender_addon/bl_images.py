@@ -31,8 +31,10 @@ _SRGB_NAMES = {"sRGB", "sRGB 2.2"}  # Blender names for the sRGB transfer
 PHOTO_ID = "relight_photo_id"        # on a photo: its stable identity
 OUTPUT_OF = "relight_photo_of"       # on an output: the photo id it belongs to
 OUTPUT_LAYER = "relight_photo_layer"  # on an output: which layer it is
-# file types Pillow decodes exactly as Blender does (8-bit, no colour management of their own)
+# file types the core's reader (relight.photo.read_photo) reads as `relight image` does: sRGB-encoded
+# (8 or 16 bits), or linear EXR
 _PILLOW_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp"}
+_LINEAR_NAMES = {LINEAR, "Linear"}  # Blender names for scene-linear Rec.709 (an EXR's own)
 
 
 # ------------------------------------------------------------------ identity
@@ -172,12 +174,12 @@ def _wants_alpha(image) -> bool:
 
 def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None,
                  max_megapixels: int = photo_checks.DEFAULT_MEGAPIXELS):
-    """A function for the worker thread returning photo_pixels.PhotoPixels of `image`.
+    """A function for the worker thread returning photo_pixels.PhotoPixels of `image`, upright.
 
-    An unmodified 8-bit sRGB file on disk is decoded from the file by the
-    worker (Pillow; same codes as Blender reads); anything else (packed,
-    painted, float, other colour spaces) is copied out of Blender here, in one
-    foreach_get, and converted by the worker. `reuse`: the photo as its last
+    An unmodified sRGB or linear EXR file on disk is read from the file by the worker through
+    the core's reader, as `relight image` reads it (EXIF orientation, 16 bits); anything else
+    (packed, painted, other colour spaces) is copied out of Blender here, in one foreach_get,
+    and converted by the worker, turned upright by its file's EXIF orientation. `reuse`: the photo as its last
     Relight decoded it, shared instead of decoded again when the pixels are the same.
     `max_megapixels`: the largest photo decoded (the panel's Max Photo Size); a larger one is
     refused from its file's header, before Blender or the worker decodes it.
@@ -192,7 +194,7 @@ def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None,
         path = _plain_file(image, loaded=False)
         if path is not None:
             with_alpha = image.alpha_mode != "NONE"
-            return lambda: photo_pixels.read_8bit_file(path, None, with_alpha, name, reuse, max_megapixels)
+            return lambda: photo_pixels.read_file(path, None, with_alpha, name, reuse, max_megapixels)
     if not has_pixels(image):
         raise ValueError(no_pixels_reason(image))
     width, height = image.size
@@ -203,18 +205,35 @@ def photo_reader(image, reuse: photo_pixels.PhotoPixels | None = None,
         with_alpha = has_alpha(image)
 
         def read_file():
-            return photo_pixels.read_8bit_file(path, (height, width), with_alpha, name, reuse, max_megapixels)
+            return photo_pixels.read_file(path, (height, width), with_alpha, name, reuse, max_megapixels)
         return read_file
     with_alpha = _wants_alpha(image)
     channels = image.channels
     flat = np.empty(width * height * channels, dtype=np.float32)
     image.pixels.foreach_get(flat)
     srgb = _is_srgb_bytes(image)
+    orientation = file_orientation(image)
 
     def convert():
         return photo_pixels.photo_from_blender(flat, (height, width, channels), srgb=srgb,
-                                           with_alpha=with_alpha, name=name, reuse=reuse)
+                                           with_alpha=with_alpha, name=name, reuse=reuse,
+                                           orientation=orientation)
     return convert
+
+
+def file_orientation(image) -> int:
+    """The EXIF orientation of the file behind `image` (relight.photo.exif_orientation): how its
+    stored pixels, which Blender shows, stand upright; 1 for a packed or generated image, or an
+    unreadable file."""
+    from relight.photo import exif_orientation
+
+    path = _file_on_disk(image)
+    if path is None:
+        return 1
+    try:
+        return exif_orientation(path)
+    except (ValueError, OSError):
+        return 1
 
 
 def has_alpha(image) -> bool:
@@ -231,17 +250,18 @@ def _file_on_disk(image) -> str | None:
 
 
 def _plain_file(image, loaded: bool = True) -> str | None:
-    """The image's file when Pillow can read exactly what Blender shows, else None."""
+    """The image's file when the core's reader reads what Blender shows (upright), else None:
+    an sRGB file of a type Pillow reads, or an EXR taken as scene-linear, not painted since loaded."""
     if image.source != "FILE" or image.packed_file is not None or image.library is not None:
         return None
-    if image.colorspace_settings.name not in _SRGB_NAMES:
-        return None
-    if loaded and (image.is_dirty or image.is_float or image.depth not in (24, 32)):
+    if loaded and image.is_dirty:
         return None
     path = bpy.path.abspath(image.filepath)
-    if os.path.splitext(path)[1].lower() not in _PILLOW_EXTENSIONS or not os.path.isfile(path):
+    suffix = os.path.splitext(path)[1].lower()
+    colour = image.colorspace_settings.name
+    if not (suffix in _PILLOW_EXTENSIONS and colour in _SRGB_NAMES or suffix == ".exr" and colour in _LINEAR_NAMES):
         return None
-    return path
+    return path if os.path.isfile(path) else None
 
 
 def linear_rgb_and_alpha(image: bpy.types.Image) -> tuple[np.ndarray, np.ndarray | None]:

@@ -64,7 +64,8 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         previous = state.SESSIONS.get(bl_images.photo_id(image))
         if previous is not None and previous.provisional:  # a reopened file's preview: not the full photo
             previous = None
-        reuse = None if previous is None else photo_pixels.PhotoPixels(previous.photo, None, previous.digest)
+        reuse = None if previous is None else photo_pixels.PhotoPixels(previous.photo, None, previous.digest,
+                                                                      previous.orientation)
         # checks the photo has pixels and a usable size (from its file's header when Blender has not read it)
         read_photo = bl_images.photo_reader(image, reuse, settings.max_megapixels)
         mask = mask_inputs(settings, image)

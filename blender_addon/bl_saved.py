@@ -229,9 +229,11 @@ def _show_saved_preview(context, plan: dict):
     session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=preview.photo, decomposition=preview,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
-        digest=meta["digest"], preview=preview, saved_to=plan["path"], provisional=True)
+        digest=meta["digest"], preview=preview, saved_to=plan["path"], provisional=True,
+        orientation=int(meta.get("orientation", 1)))
     state.SESSIONS[session.photo_id] = session
-    write_output(session, "preview", engine.relit_rgba(preview, *plan["dials"]), preview.size)
+    write_output(session, "preview", engine.relit_rgba(preview, *plan["dials"], orientation=session.orientation),
+                 preview.size)
     show_in_editors(session, "preview")
     settings = addon_settings(context)
     if settings.last_photo_id not in state.SESSIONS:

@@ -95,9 +95,11 @@ def session_of(image):
 
 
 def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size: tuple[int, int]):
-    """Hand a prepared buffer to Blender; the buffer goes back to the pool (nobody reads it after)."""
+    """Hand a prepared buffer to Blender; the buffer goes back to the pool (nobody reads it after).
+    `size`: (H, W) of the upright image (the decomposition's); Blender's image is the photo as
+    its file stores it, turned by the session's orientation (pixel_buffers.stored_size)."""
     colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
-    height, width = size
+    height, width = pixel_buffers.stored_size(size, session.orientation)
     try:
         image = bl_images.write_rgba(output_names.output_name(session.source, layer), rgba, width, height,
                                      colorspace=colorspace, owner=session.photo_id, layer=layer)

@@ -99,10 +99,16 @@ def known_sh_order(model_path: str) -> int | None:
 
 def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
               cancel: CancelToken | None = None, augment=(), refine: int = 0,
-              augment_until_agreed: float | None = None, ensemble=()):
+              augment_until_agreed: float | None = None, ensemble=(), matte: str = "network",
+              matte_method: str = "ensemble"):
     """Run the network (the slow step; called on the worker thread): once, or once per
     augmentation of the quality preset (and per network of its ensemble), and refine the
     light when it says so.
+
+    Without `mask`, `matte` says where the matte comes from (Relighter.decompose): "network", the
+    relighting network's own alpha (the panel's Network Matte), or "person", the person matte
+    (`matte_method`: its segmenter), as `relight image --light-from` finds the person in the
+    photo whose light it takes.
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
     CancelToken.cancel() terminates (relight.session.cancellable, on this network and the
@@ -116,10 +122,10 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
         cancel.check()
     try:
         # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
-        # NETWORK (and another photo's light) passes None for the network's own alpha
+        # NETWORK passes None for the network's own alpha; another photo's light, matte="person"
         with cancellable(networks if cancel is not None else (), cancel.run_options() if cancel else None):
-            decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte="network",
-                                                augment=augment, refine=refine,
+            decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte=matte,
+                                                matte_method=matte_method, augment=augment, refine=refine,
                                                 augment_until_agreed=augment_until_agreed, ensemble=ensemble)
     except Exception:
         if cancel is not None and cancel.cancelled:
@@ -192,14 +198,15 @@ def coefficients(decomposition, light, rotation_deg: float) -> np.ndarray:
 
 
 def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, strength: float,
-               out: np.ndarray | None = None) -> np.ndarray:
+               out: np.ndarray | None = None, orientation: int = 1) -> np.ndarray:
     """The relit photo blended by `strength`, as a buffer in Blender's layout (worker-safe).
 
     Composited straight into the buffer (RGB of RGBA, bottom row first): no full-size
-    RGB image besides it (288 MB at 24 MP)."""
+    RGB image besides it (288 MB at 24 MP). `orientation`: the photo file's EXIF orientation;
+    the decomposition is upright, the buffer holds it as the file stores it (as Blender shows it)."""
     h, w = decomposition.size
     rgba = pixel_buffers.BUFFERS.take(h * w * 4) if out is None else out
-    view = rgba.reshape(h, w, 4)[::-1]
+    view = pixel_buffers.blender_view(rgba, (h, w), orientation)
     decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev,
                           out=view[..., :3])
     view[..., 3] = 1.0

@@ -58,10 +58,48 @@ class BufferPool:
 BUFFERS = BufferPool()
 
 
+# ------------------------------------------------------------------ orientation
+# Blender shows a photo file as it is stored (it ignores the EXIF orientation); the core reads it
+# upright (relight.photo.read_photo) and the network sees it so. `orientation` is the file's EXIF
+# orientation (relight.photo.exif_orientation, 1 - 8): the turn from the stored pixels to the
+# upright ones, as PIL.ImageOps.exif_transpose makes it. Every turn is a numpy view (flips and a
+# transpose of the first two axes), so writing upright values into upright(stored) writes the
+# stored image.
+
+_UPRIGHT = {1: lambda s: s, 2: lambda s: s[:, ::-1], 3: lambda s: s[::-1, ::-1], 4: lambda s: s[::-1],
+            5: lambda s: s.swapaxes(0, 1), 6: lambda s: s.swapaxes(0, 1)[:, ::-1],
+            7: lambda s: s[::-1, ::-1].swapaxes(0, 1), 8: lambda s: s.swapaxes(0, 1)[::-1]}
+_INVERSE = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}  # 6 and 8 turn opposite ways
+
+
+def upright(stored: np.ndarray, orientation: int) -> np.ndarray:
+    """The stored image [H, W, ...] (top row first) turned upright by its EXIF orientation (a view)."""
+    return _UPRIGHT[orientation](stored)
+
+
+def as_stored(upright_image: np.ndarray, orientation: int) -> np.ndarray:
+    """The upright image [H, W, ...] turned back to how its file stores it (a view): upright's inverse."""
+    return _UPRIGHT[_INVERSE[orientation]](upright_image)
+
+
+def stored_size(size: tuple[int, int], orientation: int) -> tuple[int, int]:
+    """(H, W) of the stored image whose upright image is `size` (H, W): sides swapped for 5 - 8."""
+    h, w = size
+    return (w, h) if orientation >= 5 else (h, w)
+
+
+def blender_view(rgba: np.ndarray, size: tuple[int, int], orientation: int = 1) -> np.ndarray:
+    """A view [H, W, 4] of the upright image `size` (H, W) into a flat RGBA buffer in Blender's layout
+    (the stored image, bottom row first): what is written into it lands where Blender shows it."""
+    hs, ws = stored_size(size, orientation)
+    return upright(rgba.reshape(hs, ws, 4)[::-1], orientation)
+
+
 def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None,
-                    alpha: np.ndarray | None = None) -> np.ndarray:
+                    alpha: np.ndarray | None = None, orientation: int = 1) -> np.ndarray:
     """[H, W] or [H, W, 1|3|4] top row first -> flat float32 RGBA, bottom row first (Blender's layout);
-    `alpha` [H, W], when given, is the alpha channel.
+    `alpha` [H, W], when given, is the alpha channel. `orientation`: `pixels` is the upright image of
+    a file with this EXIF orientation; the buffer holds it as the file stores it (Blender shows that).
 
     `out` (H * W * 4 float32) is filled when given, else a buffer from BUFFERS:
     the worker prepares it and the main thread only hands it to foreach_set.
@@ -71,6 +109,15 @@ def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None,
         px = px[..., None]
     h, w, c = px.shape
     rgba = BUFFERS.take(h * w * 4) if out is None else out
+    if orientation != 1:  # a turned view: rows of the upright image, one channel at a time
+        view = blender_view(rgba, (h, w), orientation)
+        step = max(1, (1 << 16) // max(1, w))
+        for r0 in range(0, h, step):
+            src = px[r0:r0 + step]
+            for k in range(3):
+                view[r0:r0 + step, :, k] = src[..., min(k, c - 1) if c < 3 else k]
+            view[r0:r0 + step, :, 3] = alpha[r0:r0 + step] if alpha is not None else src[..., 3] if c == 4 else 1.0
+        return rgba
     view = rgba.reshape(h, w, 4)
     # blocks of rows that stay in cache, one channel at a time: a single
     # view[..., :3] = px[::-1] loops 3 values at a time over 24 MP, 10x slower

@@ -22,7 +22,7 @@ class PhotoSession:
 
     photo_id: str               # the photo's stable id (bl_images.PHOTO_ID)
     source: str                 # the photo's name when last seen (for messages)
-    photo: np.ndarray           # linear RGB [H, W, 3] at the photo's size
+    photo: np.ndarray           # linear RGB [H, W, 3] at the photo's size, upright (as the network saw it)
     decomposition: Any          # relight.runtime.Decomposition
     model_path: str
     quality: str
@@ -32,6 +32,7 @@ class PhotoSession:
     saved_to: str = ""          # the file this decomposition was last saved to
     dial_generation: int = 0    # bumped on every dial change: a late full-size result is dropped
     people: int = 0             # people the person matte found (AUTO mask), else 0
+    orientation: int = 1        # the photo file's EXIF orientation: outputs are turned back by it (pixel_buffers)
     provisional: bool = False   # reopening: only the saved preview so far (photo and decomposition at preview size)
     photo_missing: str = ""     # reopened without its photo (why): the saved preview stays, the dials work on it
     advice: str = ""            # with photo_missing: what brings the full-size photo back, in the artist's words

@@ -25,7 +25,10 @@ def make_mask(inputs: dict, pixels: photo_pixels.PhotoPixels, quality_key: str) 
     if inputs["mode"] == "AUTO":
         return engine.person_matte(pixels.rgb, inputs["person"], quality.preset(quality_key).matte_method)
     alpha = pixels.alpha if inputs["use_photo_alpha"] else None
-    return mask_choice.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, inputs["rgb"], inputs["alpha"],
+    # a mask image lies over the photo as Blender shows both (stored): upright, as the photo is read
+    rgb, mask_alpha = (None if a is None else pixel_buffers.upright(a, pixels.orientation)
+                       for a in (inputs["rgb"], inputs["alpha"]))
+    return mask_choice.choose_mask(inputs["mode"], pixels.rgb.shape[:2], alpha, rgb, mask_alpha,
                                 inputs["name"]), 0
 
 
@@ -65,15 +68,18 @@ def layer_buffer(session: state.PhotoSession, layer: str, dials) -> np.ndarray:
     light, rotation, exposure, strength = dials
     decomposition = layer_source(session, layer)
     if layer == "relit":
-        return engine.relit_rgba(decomposition, light, rotation, exposure, strength)
+        return engine.relit_rgba(decomposition, light, rotation, exposure, strength, orientation=session.orientation)
     if layer == "matte":  # the photo cut out by the person matte, so the user can check what was found
-        return pixel_buffers.to_blender_rgba(decomposition.photo, alpha=decomposition.mask)
+        return pixel_buffers.to_blender_rgba(decomposition.photo, alpha=decomposition.mask,
+                                             orientation=session.orientation)
     coeffs = engine.coefficients(decomposition, light, rotation)
     h, w = decomposition.size
     rgba = pixel_buffers.BUFFERS.take(h * w * 4)
-    view = rgba.reshape(h, w, 4)[::-1]  # Blender's layout: bottom row first
+    # Blender's layout: bottom row first, the photo as its file stores it
+    view = pixel_buffers.blender_view(rgba, (h, w), session.orientation)
     if layer == "alpha":  # one channel (96 MB at 24 MP), grey in Blender: packed as it is
-        return pixel_buffers.to_blender_rgba(decomposition.layer(layer, coeffs, exposure), rgba)
+        return pixel_buffers.to_blender_rgba(decomposition.layer(layer, coeffs, exposure), rgba,
+                                             orientation=session.orientation)
     # made in the buffer itself: no full-size map besides it (288 MB at 24 MP)
     decomposition.layer(layer, coeffs, exposure, out=view[..., :3])
     view[..., 3] = 1.0
@@ -118,7 +124,7 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
         progress.enter("Estimating the light of the other photo", 0.45)
         other = plan["light_reader"]()
         photo_checks.check_photo_content(other.rgb)
-        light_decomposition = engine.decompose(relighter, other.rgb, None, plan["long_side"], token, **options)
+        light_decomposition = light_photo_decomposition(relighter, other, plan, token, options)
         light = light_decomposition
     elif light is None:
         light = plan["light_cached"]
@@ -126,18 +132,35 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     session = state.PhotoSession(
         photo_id=plan["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=plan["model_path"], quality=plan["quality"], mask_key=mask_key(plan["mask"]),
-        digest=pixels.digest, people=people)
+        digest=pixels.digest, people=people, orientation=pixels.orientation)
     progress.enter("Relighting at full size", 0.60)
     dials = (light, plan["rotation"], plan["exposure"], plan["strength"])
     token.check()
     # the relit image only: the other layers follow one at a time (bl_layers), so that no more
     # than one full-size buffer waits for Blender
-    buffers = {"relit": engine.relit_rgba(decomposition, *dials)}
+    buffers = {"relit": engine.relit_rgba(decomposition, *dials, orientation=session.orientation)}
     progress.enter("Preparing the preview", 0.90)
     session.preview = engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE)
     progress.enter("Writing the images", 0.95)
     return dict(session=session, buffers=buffers, light_decomposition=light_decomposition,
                 network_seconds=network_seconds, dials=dials)
+
+
+def light_photo_decomposition(relighter, other: photo_pixels.PhotoPixels, plan: dict, token, options: dict):
+    """The decomposition whose light the Other Photo light takes, as `relight image --light-from`
+    makes it: the other photo's alpha when it marks a person (it varies), else its person matte
+    (the preset's segmenter; the largest person), not the relighting network's own alpha (mean IoU
+    0.49 against 0.97, docs/MATTE.md)."""
+    from relight.matte import NoPersonError
+
+    alpha = other.alpha
+    mask = alpha if alpha is not None and alpha.min() < 1.0 and alpha.max() > 0.0 else None
+    try:
+        return engine.decompose(relighter, other.rgb, mask, plan["long_side"], token, matte="person",
+                                matte_method=quality.preset(plan["quality"]).matte_method, **options)
+    except NoPersonError:
+        raise ValueError("No person was found in the photo to take the light from: choose a photo "
+                         "where a person is clearly visible.") from None
 
 
 def restore_work(plan: dict) -> tuple:
@@ -155,11 +178,11 @@ def restore_work(plan: dict) -> tuple:
         photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
         digest=pixels.digest, preview=engine.preview_decomposition(decomposition, PREVIEW_LONG_SIDE),
-        saved_to=plan["path"], people=people)
+        saved_to=plan["path"], people=people, orientation=pixels.orientation)
     if not plan["preview_first"]:
-        return session, {"relit": engine.relit_rgba(decomposition, *plan["dials"])}
+        return session, {"relit": engine.relit_rgba(decomposition, *plan["dials"], orientation=session.orientation)}
     if session.preview is not None:
-        return session, {"preview": engine.relit_rgba(session.preview, *plan["dials"])}
+        return session, {"preview": engine.relit_rgba(session.preview, *plan["dials"], orientation=session.orientation)}
     return session, {}
 
 
@@ -198,7 +221,7 @@ def save_meta(session: state.PhotoSession) -> dict:
     """What is stored beside a saved decomposition to bring the session back."""
     return dict(photo_id=session.photo_id, digest=session.digest, model_path=session.model_path,
                 quality=session.quality, mask_key=list(session.mask_key), source=session.source,
-                lights=lights_to_save())
+                lights=lights_to_save(), orientation=session.orientation)
 
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:

@@ -24,7 +24,7 @@ from relight.fileio import atomic_path
 from relight.image_limits import check_declared_size, check_max_pixels
 from relight.png_decoder import check_png_chunks, read_png16
 
-__all__ = ["read_photo", "read_mask", "write_image", "write_png", "write_exr_image",
+__all__ = ["read_photo", "read_mask", "exif_orientation", "write_image", "write_png", "write_exr_image",
            "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
@@ -134,6 +134,24 @@ def _upright(im):
     from PIL import ImageOps
 
     return ImageOps.exif_transpose(im) if im.getexif().get(0x0112, 1) not in (0, 1) else im
+
+
+def exif_orientation(path: str | os.PathLike) -> int:
+    """The EXIF orientation (1 - 8) of a photo file, the turn read_photo gives its pixels to stand
+    them upright: 1 when it says none (and for EXR). For a caller that shows the file as stored
+    (Blender) and must turn read_photo's upright pixels back."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        if f.read(4) == EXR_MAGIC:
+            return 1
+    im = _open_pillow(path)
+    try:
+        with _decoder_errors(path, "corrupt EXIF"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            value = im.getexif().get(0x0112, 1)
+    finally:
+        im.close()
+    return value if value in range(1, 9) else 1
 
 
 def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:

@@ -174,7 +174,7 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
     # the float64 curve rounded once to float32: within half a float32 step (2^-24 relative)
     np.testing.assert_allclose(px.rgb, srgb_decode(codes[..., :3] / 255.0), rtol=2.0 ** -24, atol=0)
     np.testing.assert_allclose(px.alpha, codes[..., 3] / 255.0, rtol=2.0 ** -24, atol=0)
-    # the digest is of the stored codes: equal for equal pixels, different otherwise
+    # the digest is of the decoded values: equal for equal pixels, different otherwise
     again = photo_pixels.photo_from_blender(flat.copy(), (5, 7, 4), srgb=True, with_alpha=True, name="p")
     assert again.digest == px.digest
     flat[0] = 0.5
@@ -208,7 +208,7 @@ def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
     path = tmp_path / "p.png"
     Image.fromarray(codes, "RGBA").save(path)
     cli_rgb, cli_alpha = read_photo(path)
-    from_file = photo_pixels.read_8bit_file(str(path), (16, 64), True, "p.png")
+    from_file = photo_pixels.read_file(str(path), (16, 64), True, "p.png")
     flat = (codes[::-1].astype(np.float32) / np.float32(255.0)).reshape(-1)  # as Blender stores bytes
     from_blender = photo_pixels.photo_from_blender(flat, (16, 64, 4), srgb=True, with_alpha=True, name="p.png")
     for px in (from_file, from_blender):
@@ -251,13 +251,13 @@ def test_an_8bit_file_read_by_the_worker_equals_blenders_codes(tmp_path):
     rng = np.random.default_rng(2)
     codes = rng.integers(0, 256, (6, 9, 3)).astype(np.uint8)
     Image.fromarray(codes, "RGB").save(tmp_path / "p.png")
-    from_file = photo_pixels.read_8bit_file(str(tmp_path / "p.png"), (6, 9), False, "p.png")
+    from_file = photo_pixels.read_file(str(tmp_path / "p.png"), (6, 9), False, "p.png")
     flat = (codes[::-1].astype(np.float32) / 255.0).reshape(-1)
     from_blender = photo_pixels.photo_from_blender(flat, (6, 9, 3), srgb=True, with_alpha=False, name="p.png")
     np.testing.assert_array_equal(from_file.rgb, from_blender.rgb)
     assert from_file.digest == from_blender.digest
     with pytest.raises(ValueError, match="changed on disk since Blender loaded it"):
-        photo_pixels.read_8bit_file(str(tmp_path / "p.png"), (7, 9), False, "p.png")
+        photo_pixels.read_file(str(tmp_path / "p.png"), (7, 9), False, "p.png")
 
 
 def test_saved_relight_sits_next_to_the_blend():
