@@ -64,6 +64,7 @@ def add_light_options(p) -> None:
     --light-from, --rotate, --exposure, --no-normalize."""
     from relight.cli_args import ROTATE_LIMIT, finite_float
     from relight.decomposition import EXPOSURE_LIMIT
+    from relight.sh import REFERENCE_LUMINANCE
 
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--light", help="equirect HDR map (.exr/.hdr), preset name (see `relight presets`) or "
@@ -73,11 +74,26 @@ def add_light_options(p) -> None:
     p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"), default=0.0,
                    metavar="DEG",
                    help="turn the light about world Z")
-    # bounded where it is used (relight.decomposition.exposure_scale), before any photo is read
-    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
+    p.add_argument("--exposure", type=exposure_ev, default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
-                   help="use the map's radiance as is (default: scale to mean luminance 0.8)")
+                   help=f"use the map's radiance as is (default: scale to mean luminance {REFERENCE_LUMINANCE:g})")
+
+
+def exposure_ev(text: str) -> float:
+    """argparse type of --exposure: the one check of the exposure on the command's path
+    (relight.decomposition.exposure_scale's bound and message); trusted after it."""
+    from relight.decomposition import exposure_scale
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+    try:
+        exposure_scale(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
 
 
 def add_photo_options(p) -> None:
@@ -202,14 +218,13 @@ NEGATIVE_WARN_FRACTION = 0.01
 def _light(source, args, relighter) -> np.ndarray:
     """The light of every photo, as SH coefficients of the model's order: resolved once,
     before any photo is read (a bad map fails first)."""
-    from relight.decomposition import EXPOSURE_LIMIT, exposure_scale
+    from relight.decomposition import EXPOSURE_LIMIT
     from relight.light import sh_light
 
-    scale = exposure_scale(args.exposure)  # refused here, before any photo is read
-    # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is)
+    scale = 2.0 ** args.exposure  # checked by its argparse type (exposure_ev)
+    # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is);
+    # sh_light checks the light (finite SH of the order) once
     L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=None if args.normalize else False)
-    if not np.all(np.isfinite(L)):
-        raise ValueError("the light gives non-finite SH coefficients")
     level = float(np.abs(L).max(initial=0.0))
     peak = level * scale
     if peak > LIGHT_LIMIT:

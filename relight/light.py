@@ -35,11 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from relight import sh, sh_projection, sh_rotation
+from relight.sh import REFERENCE_LUMINANCE
 
 __all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "directional_light", "fit_order", "map_file", "sh_light"]
-
-REFERENCE_LUMINANCE = 0.8  # mean luminance a map is scaled to (docs/conventions.md, exposure)
-
 
 class LightCache:
     """A small LRU of projected maps (per file state and order) and Z-rotation matrices,
@@ -95,11 +93,10 @@ def _check_rotation(rotation_deg) -> float:
     return rotation_deg
 
 
-def _rotate_z(coeffs, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
-    """SH light [n, 3] (float64) turned by `rotation_deg` about world Z; a whole number
-    of turns returns an unrotated copy."""
-    c = sh.validate_coeffs(coeffs)
-    rotation_deg = _check_rotation(rotation_deg)
+def _rotate_z(c: np.ndarray, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
+    """SH light [n, 3] (float64, as sh.validate_coeffs returns it) turned by `rotation_deg`
+    (finite, as _check_rotation returns it) about world Z; a whole number of turns returns an
+    unrotated copy."""
     if rotation_deg % 360.0 == 0.0:
         return np.array(c, dtype=np.float64)
     order = sh.order_from_num_coeffs(c.shape[0])
@@ -120,7 +117,11 @@ def _pixels(source) -> np.ndarray:
 
 def fit_order(coeffs, n: int) -> np.ndarray:
     """SH coefficients [m, 3] (float64) cut or zero-padded to n rows."""
-    c = sh.validate_coeffs(coeffs)
+    return _fit(sh.validate_coeffs(coeffs), n)
+
+
+def _fit(c: np.ndarray, n: int) -> np.ndarray:
+    """fit_order of coefficients sh.validate_coeffs returned."""
     if c.shape[0] >= n:
         return c[:n]
     return np.concatenate([c, np.zeros((n - c.shape[0], 3), c.dtype)], axis=0)
@@ -135,10 +136,17 @@ def _file_key(path: Path) -> tuple:
 class SHLight:
     """The runtime's light, resolved once: its SH [n, 3] before any rotation and scaling, and
     the mean luminance it is scaled to after rotation (None: used as is). `at(rotation_deg)`
-    gives the coefficients a relight takes."""
+    gives the coefficients a relight takes. Both are checked here, once (a black light with a
+    target is refused now, not at the first relight); a rotation about Z keeps the mean
+    luminance, so the scale to the target is found once too."""
 
     base: np.ndarray
     target: float | None = None
+
+    def __post_init__(self):
+        base = sh.validate_coeffs(self.base, "light")
+        object.__setattr__(self, "base", base)
+        object.__setattr__(self, "_scale", 1.0 if self.target is None else sh.reference_scale(base, self.target))
 
     @property
     def order(self) -> int:
@@ -147,11 +155,10 @@ class SHLight:
     def turned(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> tuple[np.ndarray, float]:
         """(SH light [n, 3], float64, turned by `rotation_deg` about world Z then scaled to
         the target mean luminance, the scale: 1.0 without a target)."""
-        rotated = _rotate_z(self.base, rotation_deg, cache)
+        rotated = _rotate_z(self.base, _check_rotation(rotation_deg), cache)
         if self.target is None:
             return rotated, 1.0
-        scaled, scale = sh.normalize_reference(rotated, self.target)
-        return scaled, float(scale)
+        return rotated * self._scale, float(self._scale)
 
     def at(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> np.ndarray:
         """SH light [n, 3], float64: turned by `rotation_deg` about world Z, then scaled."""
@@ -176,7 +183,7 @@ class SHLight:
         n = sh.num_coeffs(order)
         goal = float(target) if normalize is not False else None
         if isinstance(source, SHLight):
-            return cls._light(fit_order(source.base, n), normalize, goal, source.target)
+            return cls._light(_fit(source.base, n), normalize, goal, source.target)
         if isinstance(source, str) and source.startswith("sun:"):  # a directional light (relight.lamps)
             from relight.lamps import parse_sun, sun_light
 
@@ -197,20 +204,14 @@ class SHLight:
             if arr.ndim != 3:  # SH coefficients
                 return cls._light(fit_order(arr.astype(np.float64), n), normalize, goal)
             base = sh_projection.project_equirect(_pixels(arr), order)
-        if goal is not None:
-            sh.normalize_reference(base, goal)  # a black map is refused now, not at the first relight
         return cls(base, goal)
 
     @classmethod
     def _light(cls, coeffs: np.ndarray, normalize: bool | None, goal: float | None,
                own: float | None = None) -> "SHLight":
         """A light given as SH: as it is (its `own` target), or scaled to `goal` when
-        normalize=True was asked for (checked now: a black light cannot be)."""
-        if normalize is None:
-            return cls(coeffs, own)
-        if normalize:
-            sh.normalize_reference(coeffs, goal)
-        return cls(coeffs, goal)
+        normalize=True was asked for."""
+        return cls(coeffs, own if normalize is None else goal)
 
 
 def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool | None = None,
@@ -219,7 +220,6 @@ def sh_light(source, order: int, *, rotation_deg: float = 0.0, normalize: bool |
     about world Z: SHLight.resolve(source, ...).at(rotation_deg). Maps follow the map
     recipe (project, rotate, scale to `target` unless normalize=False); a light given as
     SH is scaled only when normalize=True is asked for (see SHLight.resolve)."""
-    rotation_deg = _check_rotation(rotation_deg)
     return SHLight.resolve(source, order, normalize=normalize, target=target, cache=cache).at(rotation_deg, cache)
 
 

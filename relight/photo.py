@@ -35,11 +35,6 @@ PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".e
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 
 
-def _check_size(width: int, height: int, path, max_pixels: int | None = None, file_bytes: int | None = None,
-                fmt: str | None = None) -> None:
-    check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=file_bytes, fmt=fmt)
-
-
 def _exists(path: Path) -> None:
     if not path.exists():
         raise ValueError(f"{path}: file not found")
@@ -107,7 +102,7 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
     try:
         with _decoder_errors(path, "corrupt or truncated image"):
             width, height = im.size
-            _check_size(width, height, path, max_pixels, path.stat().st_size, im.format)
+            check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt=im.format)
             if im.format == "PNG":
                 check_png_chunks(path)
             if getattr(im, "n_frames", 1) > 1:
@@ -203,7 +198,7 @@ def _read_exr_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarr
 
     width, height = exr_size(path)
     # an EXR's header can declare what its (zip-compressed) data cannot hold: same weighing as PNG
-    _check_size(width, height, path, max_pixels, path.stat().st_size, "EXR")
+    check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt="EXR")
     with _decoder_errors(path, "corrupt EXR"):
         try:
             channels = read_exr(path)
@@ -214,7 +209,7 @@ def _read_exr_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarr
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"{path}: EXR colour channels have different sizes {sorted(shapes)}")
     h, w = rgb[0].shape
-    _check_size(w, h, path, max_pixels)
+    check_declared_size(w, h, path, max_pixels=max_pixels)
     img = np.empty((h, w, 3), np.float32)
     for i, c in enumerate(rgb):
         if c.dtype == np.uint32:
@@ -266,7 +261,7 @@ def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
     im = _open_pillow(path)
     try:
         with _decoder_errors(path, "corrupt or truncated mask image"):
-            _check_size(*im.size, path, max_pixels, path.stat().st_size, im.format)
+            check_declared_size(*im.size, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt=im.format)
             if im.format == "PNG":
                 check_png_chunks(path)
             with warnings.catch_warnings():
@@ -296,9 +291,17 @@ def _check_image(image: np.ndarray, name: str = "image") -> np.ndarray:
     return a
 
 
-def _out_dir(path: Path) -> None:
-    if not path.parent.is_dir():
-        raise ValueError(f"output folder does not exist: {path.parent}")
+@contextmanager
+def _output_folder(path: Path):
+    """A write into `path`'s folder: when the folder is missing (the command has refused that
+    already, at its arguments; a library caller learns it here), the write's FileNotFoundError
+    becomes ValueError("output folder does not exist: ..."). No check before the write."""
+    try:
+        yield
+    except FileNotFoundError:
+        if path.parent.is_dir():
+            raise
+        raise ValueError(f"output folder does not exist: {path.parent}") from None
 
 
 def write_png(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
@@ -308,9 +311,8 @@ def write_png(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, s
     from relight.png_encoder import write_png_file
 
     path = Path(path)
-    _out_dir(path)
     a = _check_image(linear)
-    with atomic_path(path, ".png") as tmp:
+    with _output_folder(path), atomic_path(path, ".png") as tmp:
         with open(tmp, "wb") as f:
             write_png_file(f, a, metadata)
     return path
@@ -340,13 +342,13 @@ def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarr
     from relight.exr import write_exr
 
     path = Path(path)
-    _out_dir(path)
     a = _check_image(linear)
     channels = _rgb_channels("", a)
     if alpha is not None:
         channels["A"] = np.ascontiguousarray(alpha, dtype=np.float32)
     exr_threads()
-    return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
+    with _output_folder(path):
+        return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
 
 
 def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray],
@@ -362,7 +364,6 @@ def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[st
     from relight.exr import write_exr
 
     path = Path(path)
-    _out_dir(path)
     relit = _check_image(relit, "relit")
     alpha = np.asarray(layers["alpha"], dtype=np.float32)
     if alpha.shape != relit.shape[:2]:
@@ -377,7 +378,8 @@ def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[st
         channels.update(_rgb_channels(f"{LAYER_NAME}.{pass_name}.", img))
     channels[f"{LAYER_NAME}.Alpha.A"] = np.ascontiguousarray(alpha)
     exr_threads()
-    return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
+    with _output_folder(path):
+        return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
 
 
 def write_image(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:

@@ -17,6 +17,7 @@ import numpy as np
 from relight.colour import LUMINANCE_WEIGHTS
 
 MAX_ORDER = 64  # recurrences are stable far beyond this; the cap catches typos
+REFERENCE_LUMINANCE = 0.8  # the mean luminance a map is scaled to (docs/conventions.md, exposure): the one definition
 
 __all__ = [
     "MAX_ORDER",
@@ -29,7 +30,9 @@ __all__ = [
     "clamped_cosine_coeffs",
     "window",
     "apply_window",
+    "REFERENCE_LUMINANCE",
     "mean_luminance",
+    "reference_scale",
     "normalize_reference",
 ]
 
@@ -210,26 +213,37 @@ def mean_luminance(coeffs) -> float:
 
     The mean of L over the sphere is L_00 * Y_00 = L_00 / (2 sqrt(pi)).
     """
-    c = validate_coeffs(coeffs)
-    mean_rgb = c[0] / (2.0 * math.sqrt(math.pi))
-    return float(np.dot(LUMINANCE_WEIGHTS, mean_rgb))
+    return _mean_luminance(validate_coeffs(coeffs))
 
 
-def normalize_reference(coeffs, target: float = 0.8):
-    """Scale coeffs so mean_luminance == target; returns (scaled coeffs, scale)."""
-    c = validate_coeffs(coeffs)
+def _mean_luminance(c: np.ndarray) -> float:
+    """mean_luminance of coefficients validate_coeffs returned (the one formula)."""
+    return float(np.dot(LUMINANCE_WEIGHTS, c[0] / (2.0 * math.sqrt(math.pi))))
+
+
+def reference_scale(c: np.ndarray, target: float = REFERENCE_LUMINANCE) -> float:
+    """The factor that scales the light `c` (coefficients as validate_coeffs returns them: not
+    checked again) to mean luminance `target`; ValueError for a target that is not finite and
+    > 0, a light that is not bright (mean luminance <= 0), or one that the factor would
+    overflow. A rotation about any axis keeps band 0, and with it this factor."""
     try:
         target = float(target)
     except (TypeError, ValueError):
         raise ValueError(f"target luminance must be a number, got {target!r}") from None
     if not (math.isfinite(target) and target > 0):
         raise ValueError(f"target luminance must be finite and > 0, got {target}")
-    current = mean_luminance(c)
+    current = _mean_luminance(c)
     if not current > 0:
         raise ValueError(f"light has mean luminance {current:g} <= 0; cannot normalize it")
     scale = target / current
-    scaled = c * scale
-    if not (math.isfinite(scale) and np.all(np.isfinite(scaled))):
+    if not (math.isfinite(scale) and np.all(np.isfinite(c * scale))):
         raise ValueError(f"light has mean luminance {current:g}, too dim beside its other coefficients to be "
                          f"scaled to {target:g} in float64")
-    return scaled, scale
+    return scale
+
+
+def normalize_reference(coeffs, target: float = REFERENCE_LUMINANCE):
+    """Scale coeffs so mean_luminance == target; returns (scaled coeffs, scale)."""
+    c = validate_coeffs(coeffs)
+    scale = reference_scale(c, target)
+    return c * scale, scale
