@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 
 import numpy as np
@@ -44,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="relight", description="Single-image full-body human relighting.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
-    from relight.sh import MAX_ORDER
+    from relight.sh import MAX_ORDER, REFERENCE_LUMINANCE
 
     p = sub.add_parser("sh", help="SH coefficients of an equirect HDR map or preset")
     p.add_argument("map", help="EXR/.hdr path or preset name (see `relight presets`)")
@@ -54,8 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
                    default=0.0, metavar="DEG",
                    help="rotate the light about world Z")
     p.add_argument("--normalize", action="store_true", help="scale to the reference mean luminance")
-    p.add_argument("--target", type=finite_float(0.0, 1e6, low_open=True, what="target luminance"), default=0.8,
-                   help="reference mean luminance (default 0.8)")
+    p.add_argument("--target", type=finite_float(0.0, 1e6, low_open=True, what="target luminance"),
+                   default=REFERENCE_LUMINANCE, help=f"reference mean luminance (default {REFERENCE_LUMINANCE:g})")
     p.add_argument("--window", choices=("none", "hanning", "lanczos"), default="none",
                    help="ringing window applied per band after projection (default none)")
     p.add_argument("--json", action="store_true", help='print {"order": N, "coeffs": [[r, g, b], ...]}')
@@ -73,12 +74,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _LogFormatter(logging.Formatter):
+    """`relight image: warning: message`, as the command's own lines read."""
+
+    def format(self, record):
+        record.level = record.levelname.lower()
+        return super().format(record)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # usage error (exit 2, one line already printed) or --help (0)
         return int(exc.code or 0)
+    # the command's logging, configured once per process: warnings and worse on stderr in the
+    # command's one-line format (relight's modules log through logging.getLogger(__name__)); a
+    # process that configured logging already (an embedding program, pytest) keeps its own
+    if not logging.getLogger().handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(_LogFormatter(f"relight {args.command}: %(level)s: %(message)s"))
+        logging.basicConfig(level=logging.WARNING, handlers=[handler])
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:  # e.g. `relight presets | head -1`

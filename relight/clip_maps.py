@@ -42,9 +42,9 @@ STILL_BLOCKS = 256  # blocks along the frame's longer side: the stillness test's
 def grid_grey(photo_working: np.ndarray) -> np.ndarray:
     """sRGB grey [h, w] float32 of a working-resolution linear crop (what flow and the
     agreement test compare)."""
-    from relight.colour import LUMINANCE_WEIGHTS, srgb_encode
+    from relight.colour import luminance, srgb_encode
 
-    grey = photo_working @ LUMINANCE_WEIGHTS.astype(np.float32)
+    grey = luminance(photo_working)
     return srgb_encode(grey.astype(np.float32)).astype(np.float32)
 
 
@@ -236,7 +236,7 @@ class Stillness:
 
     def update(self, frame: np.ndarray, box) -> None:
         """Judge `frame` (linear [H, W, 3]) around `box` (y0, y1, x0, x1) against the reference."""
-        from relight.colour import LUMINANCE_WEIGHTS, srgb_encode
+        from relight.colour import luminance, srgb_encode
 
         H, W = frame.shape[:2]
         q = max(1, int(round(max(H, W) / STILL_BLOCKS)))
@@ -253,7 +253,7 @@ class Stillness:
         sums = rows[:, 0::q].copy()
         for i in range(1, q):
             sums += rows[:, i::q]
-        grey = srgb_encode((sums @ LUMINANCE_WEIGHTS.astype(np.float32)) * np.float32(1.0 / (q * q)))
+        grey = srgb_encode(luminance(sums) * np.float32(1.0 / (q * q)))
         grey = grey.astype(np.float32)
         ref = self.reference[b0:b1, c0:c1]
         seen = np.isfinite(ref)

@@ -372,13 +372,12 @@ def _edge(small: np.ndarray, grid: np.ndarray, p: np.ndarray, refine: bool) -> n
     same = grid.shape[:2] == (h, w)
     if not refine:
         return p.copy() if same else bilinear_rows(p, h, w)
-    from relight.colour import LUMINANCE_WEIGHTS
+    from relight.colour import luminance
 
-    weights = LUMINANCE_WEIGHTS.astype(np.float32)
     # grey guides, roughly perceptual: the grid is sRGB already; at the small size the
     # sqrt of linear luminance stands in for the sRGB curve (cheaper)
-    coarse = grid @ weights
-    guide = coarse if same else np.sqrt(np.clip(small @ weights, 0.0, 1.0)).astype(np.float32)
+    coarse = luminance(grid)
+    guide = coarse if same else np.sqrt(np.clip(luminance(small), 0.0, 1.0)).astype(np.float32)
     ch, cw = coarse.shape
     r = max(1, round(GUIDE_RADIUS * max(ch, cw) / NET_SIDE))
     mean_i, mean_p = box_mean(coarse, r), box_mean(p, r)
