@@ -252,6 +252,14 @@ def _rewrite_platforms(manifest_text: str, platforms: tuple[str, ...]) -> str:
     return text
 
 
+def _rewrite_version(manifest_text: str, version: str) -> str:
+    """The manifest's `version = "..."`: the project's one version string (relight.__version__)."""
+    text, count = re.subn(r'^version\s*=\s*"[^"]*".*$', f'version = "{version}"', manifest_text, count=1, flags=re.M)
+    if count != 1:
+        raise BuildError("blender_manifest.toml has no one-line 'version = \"...\"' to rewrite")
+    return text
+
+
 def _rewrite_version_range(manifest_text: str, low: str, high: str) -> str:
     """blender_version_min = low and blender_version_max = high (added after min if absent)."""
     text, count = re.subn(r'^blender_version_min\s*=\s*".*?"\s*$', f'blender_version_min = "{low}"',
@@ -328,7 +336,7 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
         for w in platform_wheels:
             (stage / "wheels" / w.name).write_bytes(w.read_bytes())
         manifest_text = _rewrite_wheels(manifest_text, listed)
-        manifest_text = _rewrite_version_range(manifest_text, low, high)
+        manifest_text = _rewrite_version_range(_rewrite_version(manifest_text, core_version), low, high)
         if platforms != tuple(manifest_rules.PLATFORMS):
             manifest_text = _rewrite_platforms(manifest_text, platforms)
         (stage / "blender_manifest.toml").write_text(manifest_text, encoding="utf-8")
@@ -341,7 +349,7 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
             "-" + "-".join(p.replace("-", "_") for p in platforms)
         if pythons != tuple(PYTHON_BLENDERS):
             suffix += "-" + "-".join(python_tag(p).replace("cp", "py") for p in pythons)
-        zip_path = out_dir / f"{manifest['id']}-{manifest['version']}{suffix}.zip"
+        zip_path = out_dir / f"{manifest['id']}-{final_manifest['version']}{suffix}.zip"
         with atomic_path(zip_path) as tmp_zip, zipfile.ZipFile(tmp_zip, "w") as zf:
             _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
             for f in addon_files():
