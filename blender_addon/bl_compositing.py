@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import bl_photo_world, photo_light
+from . import bl_photo_world, photo_light, pixel_buffers
 from .bl_photo_world import RelitPhotoOperator, tag, tagged
 
 CAMERA, FLOOR, COMPOSITE = "camera", "shadow_catcher", "composite"
@@ -37,7 +37,9 @@ def make_camera(scene, photo, session):
     obj = tagged(bpy.data.objects, pid, CAMERA)
     if obj is None or obj.type != "CAMERA":
         path = _photo_file(photo)
-        setup = photo_light.camera_setup(session.photo.shape[:2], photo_light.focal_35mm(path) if path else None)
+        # the photo as Blender shows it (stored), the camera rolled to see the upright world so
+        setup = photo_light.camera_setup(pixel_buffers.stored_size(session.photo.shape[:2], session.orientation),
+                                         photo_light.focal_35mm(path) if path else None, session.orientation)
         data = bpy.data.cameras.new(photo_light.datablock_name(photo.name, CAMERA))
         data.lens, data.sensor_width, data.sensor_fit = setup.lens_mm, setup.sensor_width_mm, "AUTO"
         obj = bpy.data.objects.new(data.name, data)
@@ -53,7 +55,7 @@ def make_camera(scene, photo, session):
     background.frame_method = "FIT"  # the render has the photo's aspect: FIT and CROP agree
     background.alpha = 1.0
     scene.camera = obj
-    height, width = session.photo.shape[:2]
+    height, width = pixel_buffers.stored_size(session.photo.shape[:2], session.orientation)
     render = scene.render
     render.resolution_x, render.resolution_y, render.resolution_percentage = width, height, 100
     render.pixel_aspect_x = render.pixel_aspect_y = 1.0

@@ -22,7 +22,7 @@ import time
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_images, photo_light, state
+from . import bl_images, photo_light, pixel_buffers, state
 from .bl_session import set_status, source_image, tell
 
 WORLD = "light"   # the World's and its map image's tag (bl_images.OUTPUT_LAYER)
@@ -43,7 +43,7 @@ def photo_and_session(context, image_name: str = ""):
     now = bl_images.photo_stamp(photo)
     # a session restored from a saved file had its pixels checked by the restore: its stamp starts now
     relit = session.extras.setdefault("stamp", now)
-    height, width = session.photo.shape[:2]
+    height, width = pixel_buffers.stored_size(session.photo.shape[:2], session.orientation)  # as Blender shows it
     if now != relit or (photo.has_data and tuple(photo.size) != (width, height)):
         raise ValueError(f"The photo '{photo.name}' changed since it was relit: press Relight.")
     return photo, session

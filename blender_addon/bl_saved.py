@@ -6,7 +6,7 @@ import threading
 
 import bpy
 
-from . import bl_dials, bl_images, bl_layers, bl_session, engine, jobs, mask_choice, output_names, state, work
+from . import bl_dials, bl_images, bl_layers, bl_session, engine, jobs, mask_choice, output_names, pixel_buffers, state, work
 from .bl_dials import show_in_editors
 from .bl_light import current_dials, dials_for
 from .bl_session import POLL_SECONDS, addon_settings, set_notice, set_status, write_output
@@ -202,7 +202,7 @@ def _restore_from_saved(context, plan: dict, reason: str, changed: bool = False)
     buffers = work.layer_buffers(session, dials)  # screen-sized: all at once is small
     for layer in output_names.layers_in_order(buffers):
         write_output(session, layer, buffers[layer], work.layer_size(session, layer))
-    height, width = session.photo.shape[:2]
+    height, width = pixel_buffers.stored_size(session.photo.shape[:2], session.orientation)
     if changed:
         set_notice(context, pid, f"{reason} The saved relight of the photo as it was is shown at {width} x "
                                  f"{height} and the dials work; {session.advice}")

@@ -47,16 +47,26 @@ class CameraSetup:
     rotation_euler: tuple[float, float, float]
 
 
-def camera_setup(photo_size: tuple[int, int], lens_mm: float | None = None) -> CameraSetup:
-    """The photo camera for a photo of (height, width) pixels: at CAMERA_HEIGHT, looking along +Y
-    (Blender's rotation (90, 0, 0) degrees), the photo's resolution, `lens_mm` (35 mm-equivalent)
-    or DEFAULT_LENS_MM on a SENSOR_WIDTH_MM sensor fitted to the longer side."""
+# the camera's roll about its view axis (Blender's Euler Y after X = 90 degrees) that renders the
+# scene as a photo file of this EXIF orientation stores it: 6 stores the upright image turned 90
+# degrees counter-clockwise, which a camera rolled 90 degrees clockwise (seen from behind) sees.
+# The mirrored orientations (2, 4, 5, 7) no camera takes: unrolled
+CAMERA_ROLL = {3: math.pi, 6: math.pi / 2, 8: -math.pi / 2}
+
+
+def camera_setup(photo_size: tuple[int, int], lens_mm: float | None = None, orientation: int = 1) -> CameraSetup:
+    """The photo camera for a photo of (height, width) pixels as Blender shows it (as stored): at
+    CAMERA_HEIGHT, looking along +Y (Blender's rotation (90, 0, 0) degrees), rolled as the file's
+    EXIF `orientation` says (CAMERA_ROLL: the world stays upright, as the network saw the photo),
+    the photo's resolution, `lens_mm` (35 mm-equivalent) or DEFAULT_LENS_MM on a SENSOR_WIDTH_MM
+    sensor fitted to the longer side."""
     height, width = (int(v) for v in photo_size)
     if height < 1 or width < 1:
         raise ValueError(f"a photo of {width} x {height} pixels has no camera")
     lens = DEFAULT_LENS_MM if lens_mm is None else float(lens_mm)
     return CameraSetup(resolution=(width, height), lens_mm=lens, sensor_width_mm=SENSOR_WIDTH_MM,
-                       location=(0.0, 0.0, CAMERA_HEIGHT), rotation_euler=(math.pi / 2, 0.0, 0.0))
+                       location=(0.0, 0.0, CAMERA_HEIGHT),
+                       rotation_euler=(math.pi / 2, CAMERA_ROLL.get(orientation, 0.0), 0.0))
 
 
 def floor_corners() -> list[tuple[float, float, float]]:

@@ -212,3 +212,53 @@ def test_light_from_another_photo_is_estimated_as_the_command_does(addon, model)
     # which the network's own alpha would not give: the test tells the two mattes apart
     network = relighter.decompose(donor, None, **dict(draft.decompose_options(), matte="network")).light
     assert np.abs(network - want).max() > 100 * np.abs(got - want).max() + 1e-4
+
+
+def test_a_mask_image_over_a_sideways_photo_masks_it_as_the_commands_mask_file(addon, model):
+    """Other Image mask over a sideways photo: Blender shows both as stored; the add-on turns the
+    mask upright with the photo, as the command reads the mask file upright (relight.photo.read_mask)."""
+    from PIL import Image
+
+    folder, settings = addon
+    _write_photos(folder)
+    h, w = _upright_codes(PERSON).shape[:2]
+    y, x = np.mgrid[0:h, 0:w]
+    upright_mask = ((((x - 0.5 * w) / (0.3 * w)) ** 2 + ((y - 0.45 * h) / (0.4 * h)) ** 2) <= 1) * 255
+    exif = Image.Exif()
+    exif[EXIF_ORIENTATION] = 6
+    stored = np.ascontiguousarray(STORED_FROM_UPRIGHT[6](upright_mask.astype(np.uint8)))
+    Image.fromarray(stored, "L").save(folder / "mask_6.png", exif=exif)
+    command = _command(folder / "phone_6.jpg", folder / "masked.exr", model, "--light", "studio",
+                       "--mask", str(folder / "mask_6.png"))
+    photo = bpy.data.images.load(str(folder / "phone_6.jpg"))
+    settings.mask_mode, settings.mask_image = "IMAGE", bpy.data.images.load(str(folder / "mask_6.png"))
+    assert _relight(photo.name) == {"FINISHED"}
+    largest, mean = _agreement(pixels(f"{photo.name}.relit")[..., :3], STORED_FROM_UPRIGHT[6](command))
+    print(f"mask image over a sideways photo: max {largest:.3g}, mean {mean:.3g}")
+    assert largest <= SAME
+
+
+def test_photo_light_and_compositing_setup_take_a_sideways_photo_as_blender_shows_it(addon):
+    """Photo Light -> World does not take the turned session for a changed photo, and Compositing
+    Setup renders at the size Blender shows with the camera rolled so the world stays upright
+    (a point above the person lands on the left of the stored image of orientation 6, where
+    np.rot90 puts the upright image's top)."""
+    import math
+
+    from mathutils import Vector
+    from bpy_extras.object_utils import world_to_camera_view
+
+    folder, settings = addon
+    _write_photos(folder)
+    photo = bpy.data.images.load(str(folder / "phone_6.jpg"))
+    assert _relight(photo.name) == {"FINISHED"}
+    assert bpy.ops.relight_photo.light_to_world(image_name=photo.name) == {"FINISHED"}
+    assert bpy.ops.relight_photo.compositing_setup(image_name=photo.name) == {"FINISHED"}
+    scene = bpy.context.scene
+    assert (scene.render.resolution_x, scene.render.resolution_y) == tuple(photo.size)
+    camera = scene.camera
+    assert camera.rotation_euler[1] == pytest.approx(math.pi / 2)
+    bpy.context.view_layer.update()
+    ahead = camera.matrix_world.to_translation() + Vector((0.0, 5.0, 0.0))
+    above = world_to_camera_view(scene, camera, ahead + Vector((0.0, 0.0, 1.0)))
+    assert above.x < 0.5 and above.y == pytest.approx(0.5, abs=1e-3)
