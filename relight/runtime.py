@@ -188,7 +188,10 @@ class Relighter(ModelSession):
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
-        size = self.working_size if working_size is None else check_working_size(working_size)
+        # the Relighter's own working size was checked when it was made (and is passed again by
+        # callers that take it from a quality preset): only another one is checked here
+        same = working_size is None or (type(working_size) is int and working_size == self.working_size)
+        size = self.working_size if same else check_working_size(working_size)
         found = None
         if mask is None and matte == "person":
             from relight import matte as segmenter

@@ -63,17 +63,33 @@ def read_sidecar(model_path: str | os.PathLike) -> str | None:
     return fields[0].lower()
 
 
+# parsed registries by resolved path: ((mtime_ns, size, inode), data); a file replaced or
+# rewritten (atomic_write_text makes a new inode) is parsed again
+_PARSED: dict[Path, tuple[tuple[int, int, int], dict]] = {}
+
+
 def load_registry(path: str | os.PathLike = REGISTRY_PATH) -> dict:
-    """The parsed registry; an absent file is an empty registry."""
+    """The parsed registry; an absent file is an empty registry. Parsed once per file version
+    (path, modification time, size): the caller gets the shared dict and must not change it
+    (register_model changes a copy)."""
     path = Path(path)
-    if not path.is_file():
+    try:
+        st = path.stat()
+    except OSError:
+        st = None
+    if st is None or not path.is_file():
         return {"format": REGISTRY_FORMAT, "default": None, "models": {}}
+    key, where = (st.st_mtime_ns, st.st_size, st.st_ino), path.resolve()
+    cached = _PARSED.get(where)
+    if cached is not None and cached[0] == key:
+        return cached[1]
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: unreadable model registry ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != REGISTRY_FORMAT or not isinstance(data.get("models"), dict):
         raise ValueError(f"{path}: not a {REGISTRY_FORMAT} registry")
+    _PARSED[where] = (key, data)
     return data
 
 
@@ -85,7 +101,7 @@ def register_model(name: str, model_path: str | os.PathLike, digest: str, metada
     if model_path.parent != registry_path.resolve().parent:
         raise ValueError(f"a registered model must live beside {registry_path.name} "
                          f"(in {registry_path.parent}), got {model_path}")
-    data = load_registry(registry_path)
+    data = json.loads(json.dumps(load_registry(registry_path)))  # a copy: the parsed one is shared
     data["models"][name] = {"file": model_path.name, "sha256": digest, "metadata": metadata}
     if make_default or not data.get("default"):
         data["default"] = name
