@@ -205,14 +205,10 @@ class ClipRelighter:
                  person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
                  threads: int | None = None, light_window: int | None = None, working_size=None,
                  matte_method: str = "ensemble", augment=()):
-        from relight.decomposition import exposure_scale
-        from relight.runtime import MATTE_SOURCES
-
-        if matte not in MATTE_SOURCES:
-            raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
+        # matte and exposure_ev are checked where they are used, by Relighter.decompose and
+        # Decomposition.relight (the command's parser has checked them before)
         if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability <= 1.0:
             raise ValueError(f"stability must be a number in [0, 1], got {stability!r}")
-        exposure_scale(exposure_ev)  # validates
         self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
         self.matte, self.person, self.threads, self.working_size = matte, person, threads, working_size
         self.matte_method, self.augment = matte_method, tuple(augment)

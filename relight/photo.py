@@ -21,7 +21,7 @@ import numpy as np
 
 from relight.colour import decode_alpha_codes, decode_srgb_codes
 from relight.fileio import atomic_path
-from relight.image_limits import check_declared_size, check_max_pixels
+from relight.image_limits import check_declared_size
 from relight.png_decoder import check_png_chunks, read_png16
 
 __all__ = ["read_photo", "read_mask", "exif_orientation", "write_image", "write_png", "write_exr_image",
@@ -52,7 +52,6 @@ def read_photo(path: str | os.PathLike, max_pixels: int | None = None) -> tuple[
     see check_declared_size.
     """
     path = Path(path)
-    check_max_pixels(max_pixels)
     _exists(path)
     with open(path, "rb") as f:
         magic = f.read(4)
@@ -238,7 +237,6 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
     a size mismatch and an all-zero mask.
     """
     path = Path(path)
-    check_max_pixels(max_pixels)
     _exists(path)
     with open(path, "rb") as f:
         is_exr = f.read(4) == EXR_MAGIC
