@@ -111,11 +111,14 @@ class VideoWriter:
         suffix = self.path.suffix.lower()
         if suffix not in OUTPUT_VIDEO_SUFFIXES:
             raise ValueError(f"video output must end in {', '.join(OUTPUT_VIDEO_SUFFIXES)}, got {self.path.name}")
-        if not self.path.parent.is_dir():
-            raise ValueError(f"output folder does not exist: {self.path.parent}")
         self.info = info
         self.count = 0
-        self.tmp = temp_path_beside(self.path, suffix)
+        try:  # no check first: `relight video` has refused a missing folder at its arguments
+            self.tmp = temp_path_beside(self.path, suffix)
+        except FileNotFoundError:
+            if self.path.parent.is_dir():
+                raise
+            raise ValueError(f"output folder does not exist: {self.path.parent}") from None
         self._audio = None
         try:
             self.container = av.open(str(self.tmp), mode="w")
