@@ -254,6 +254,8 @@ def _plain_file(image, loaded: bool = True) -> str | None:
     an sRGB file of a type Pillow reads, or an EXR taken as scene-linear, not painted since loaded."""
     if image.source != "FILE" or image.packed_file is not None or image.library is not None:
         return None
+    if image.type == "MULTILAYER":  # Blender shows the pass its editor picks, not the file's first
+        return None
     if loaded and image.is_dirty:
         return None
     path = bpy.path.abspath(image.filepath)

@@ -9,8 +9,9 @@ the photo's stored orientation, so its relit image lies over the photo Blender s
 
 The photos: a bundled person photo (evaluation/data/matte_eval/biden.jpg, halved) as an 8-bit
 PNG, as a JPEG stored turned with EXIF Orientation 6 and one with 8 (a phone held one way or the
-other), and as a 16-bit PNG (Blender decodes it to float by its own colour management; the
-command by relight.colour's table). Both relight at Draft under the studio preset with the
+other), as a 16-bit PNG (Blender decodes it to float by its own colour management, 0.07 off at
+most after relighting before the add-on read files through the core; the command by
+relight.colour's table) and as a linear EXR. Both relight at Draft under the studio preset with the
 person matte (the panel's Automatic mask, the command's default --matte person) and the same
 tiny model; the command writes float EXR (no 8-bit rounding), so the two must agree to float32
 rounding: the same float32 operations on the same values, composited into a strided buffer in
@@ -87,6 +88,11 @@ def _write_photos(folder: Path) -> dict[str, int]:
     deep = np.clip(codes.astype(np.int32) * 257 + rng.integers(-120, 121, codes.shape), 0, 65535)
     _write_png16(folder / "deep.png", deep.astype(np.uint16))
     photos["deep.png"] = 1
+    # linear EXR (Blender reads it as Linear Rec.709): the 8-bit photo's linear values
+    from relight.photo import read_photo, write_exr_image
+
+    write_exr_image(folder / "linear.exr", read_photo(folder / "upright.png")[0])
+    photos["linear.exr"] = 1
     return photos
 
 
