@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from relight.cli_args import EXIT_BAD_INPUT, ROTATE_LIMIT, Parser, bounded_int, finite_float
+from relight.cli_args import EXIT_BAD_INPUT, Parser, bounded_int, finite_float, rotation_deg
 
 def _cmd_sh(args) -> int:
     from relight import sh
@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("map", help="EXR/.hdr path or preset name (see `relight presets`)")
     p.add_argument("--order", type=bounded_int(0, MAX_ORDER), default=4,
                    help="SH order N, (N+1)^2 coefficients (default 4)")
-    p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"),
+    p.add_argument("--rotate", type=rotation_deg,
                    default=0.0, metavar="DEG",
                    help="rotate the light about world Z")
     p.add_argument("--normalize", action="store_true", help="scale to the reference mean luminance")

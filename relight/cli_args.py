@@ -55,3 +55,23 @@ def bounded_int(low: int, high: int, why: str = ""):
         return value
 
     return parse
+
+
+# the --rotate type of `relight sh`, `image`, `video` and `light`: one definition
+rotation_deg = finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)")
+
+
+def exposure_ev(text: str) -> float:
+    """argparse type of --exposure: the one check of the exposure on the command's path
+    (relight.decomposition.exposure_scale's bound and message); trusted after it."""
+    from relight.decomposition import exposure_scale
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+    try:
+        exposure_scale(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value

@@ -62,7 +62,7 @@ def add_relight_parser(subparsers, name: str, *, help: str, description: str, so
 def add_light_options(p) -> None:
     """The options that say what light to relight with (`image`, `video`): --light or
     --light-from, --rotate, --exposure, --no-normalize."""
-    from relight.cli_args import ROTATE_LIMIT, finite_float
+    from relight.cli_args import exposure_ev, rotation_deg
     from relight.decomposition import EXPOSURE_LIMIT
     from relight.sh import REFERENCE_LUMINANCE
 
@@ -71,29 +71,11 @@ def add_light_options(p) -> None:
                         "sun:AZIMUTH,ELEVATION[,ANGLE] (degrees; relight.lamps)")
     source.add_argument("--light-from", metavar="PHOTO",
                         help="light transfer: use the light the network estimates in another photo")
-    p.add_argument("--rotate", type=finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)"), default=0.0,
-                   metavar="DEG",
-                   help="turn the light about world Z")
+    p.add_argument("--rotate", type=rotation_deg, default=0.0, metavar="DEG", help="turn the light about world Z")
     p.add_argument("--exposure", type=exposure_ev, default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help=f"use the map's radiance as is (default: scale to mean luminance {REFERENCE_LUMINANCE:g})")
-
-
-def exposure_ev(text: str) -> float:
-    """argparse type of --exposure: the one check of the exposure on the command's path
-    (relight.decomposition.exposure_scale's bound and message); trusted after it."""
-    from relight.decomposition import exposure_scale
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
-    try:
-        exposure_scale(value)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return value
 
 
 def add_photo_options(p) -> None:
@@ -221,7 +203,7 @@ def _light(source, args, relighter) -> np.ndarray:
     from relight.decomposition import EXPOSURE_LIMIT
     from relight.light import sh_light
 
-    scale = 2.0 ** args.exposure  # checked by its argparse type (exposure_ev)
+    scale = 2.0 ** args.exposure  # checked by its argparse type (relight.cli_args.exposure_ev)
     # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is);
     # sh_light checks the light (finite SH of the order) once
     L = sh_light(source, relighter.sh_order, rotation_deg=args.rotate, normalize=None if args.normalize else False)

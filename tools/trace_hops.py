@@ -26,7 +26,8 @@ its subpackages; not the standard library, not third-party code):
 Modules are named by their file, relative to the folder that holds the `relight` package
 (`relight/photo.py`, or `relight/io/photo.py` after a move), so the tool counts the same
 way after modules move into subpackages. The raw counts (every call, every module change
-of the call sequence) are printed too, for information: they depend on the photo's size.
+of the call sequence) are printed too, for information: they depend on the photo's size;
+`--calls validate_coeffs` counts every call of the matching functions (how often a check ran).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ class Tracer:
         self.calls = 0  # every call into a project function (raw)
         self.module_changes = 0  # every call that changes the innermost project module (raw)
         self.raw_returns = Counter()  # raw: calls into a module entered before in the same thread
+        self.called = Counter()  # raw: calls per project function ('module:qualname')
         self.entered: dict[str, set] = {}
         self.files: dict[str, str | None] = {}
 
@@ -105,6 +107,7 @@ class Tracer:
         thread = threading.current_thread().name
         with self.lock:
             self.calls += 1
+            self.called[callee] += 1
             entered = self.entered.setdefault(thread, set())
             if module != caller_module:
                 self.module_changes += 1
@@ -152,6 +155,9 @@ def main(argv=None) -> int:
     parser.add_argument("--light", default="sunset")
     parser.add_argument("--quality", default="best")
     parser.add_argument("--list", action="store_true", help="print the hop list")
+    parser.add_argument("--calls", action="append", default=[], metavar="TEXT",
+                        help="also print how often each project function whose 'module:qualname' contains "
+                             "TEXT was called (every call, any caller: how often a check ran); repeatable")
     args = parser.parse_args(argv)
 
     from relight import cli
@@ -189,6 +195,10 @@ def main(argv=None) -> int:
     print(f"{'raw: calls into project functions':40s} {tracer.calls:6d}")
     print(f"{'raw: module changes':40s} {tracer.module_changes:6d}")
     print(f"{'raw: returns to a module entered before':40s} {sum(tracer.raw_returns.values()):6d}")
+    for text in args.calls:
+        for function, n in sorted(tracer.called.items()):
+            if text in function:
+                print(f"    calls of {function:52s} {n:6d}")
     return 0
 
 
