@@ -26,7 +26,7 @@ KNOWN_PASSES = tuple(sorted(PASS_NAMES))
 class _OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad command line as one line on stderr and exit code 2."""
 
-    def error(self, message: str):  # noqa: D401 - argparse hook
+    def error(self, message: str):  # argparse's hook
         raise UsageError(message)
 
 

@@ -48,7 +48,7 @@ class SceneOptions:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
                 raise ValueError(f"SceneOptions.{name} must be an integer in [{lo}, {hi}], got {value!r}")
         if not isinstance(self.denoise, bool):
-            raise ValueError(f"SceneOptions.denoise must be a bool, got {self.denoise!r}")  # noqa: TRY004 (bad option values are ValueErrors project-wide)
+            raise ValueError(f"SceneOptions.denoise must be a bool, got {self.denoise!r}")  # bad option values are ValueErrors project-wide
         if self.denoise_prefilter not in DENOISE_PREFILTERS:
             raise ValueError(f"SceneOptions.denoise_prefilter must be one of {DENOISE_PREFILTERS}, "
                              f"got {self.denoise_prefilter!r}")

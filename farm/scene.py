@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from farm.options import SceneOptions  # noqa: F401 (part of the job-module interface)
+from farm.options import SceneOptions  # part of the job-module interface
 from relight import dataset, prt, sh
 
 # Share of scenes whose materials are all pure Lambert (then "auto" skips the

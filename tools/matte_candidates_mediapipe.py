@@ -22,7 +22,7 @@ import numpy as np
 from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from evaluation.matte_eval import boundary_f, eval_photos, iou, read_reference, spill  # noqa: E402
+from evaluation.matte_eval import boundary_f, eval_photos, iou, read_reference, spill
 
 
 def main() -> int:
