@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from relight.colour import decode_srgb_codes
 
 __all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
            "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container",
@@ -84,21 +85,8 @@ def frame_number(name: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def _srgb_table(levels: int) -> np.ndarray:
-    from relight.colour import srgb_decode
-
-    return srgb_decode(np.arange(levels, dtype=np.float64) / (levels - 1)).astype(np.float32)
-
-
-_TABLES: dict[int, np.ndarray] = {}
-
-
-def decode_srgb(codes: np.ndarray) -> np.ndarray:
-    """8- or 16-bit sRGB code values -> linear float32 (an exact table per code value)."""
-    levels = 256 if codes.dtype == np.uint8 else 65536
-    if levels not in _TABLES:
-        _TABLES[levels] = _srgb_table(levels)
-    return _TABLES[levels][codes]
+# a frame's 8- or 16-bit sRGB codes -> linear float32: the one decoder (relight.colour), the photo's too
+decode_srgb = decode_srgb_codes
 
 
 # ------------------------------------------------------------------ folders of frames
