@@ -63,9 +63,9 @@ def read_sidecar(model_path: str | os.PathLike) -> str | None:
     return fields[0].lower()
 
 
-# parsed registries by resolved path: ((mtime_ns, size, inode), data); a file replaced or
+# parsed registries by absolute path: ((mtime_ns, size, inode), data); a file replaced or
 # rewritten (atomic_write_text makes a new inode) is parsed again
-_PARSED: dict[Path, tuple[tuple[int, int, int], dict]] = {}
+_PARSED: dict[str, tuple[tuple[int, int, int], dict]] = {}
 
 
 def load_registry(path: str | os.PathLike = REGISTRY_PATH) -> dict:
@@ -79,7 +79,7 @@ def load_registry(path: str | os.PathLike = REGISTRY_PATH) -> dict:
         st = None
     if st is None or not path.is_file():
         return {"format": REGISTRY_FORMAT, "default": None, "models": {}}
-    key, where = (st.st_mtime_ns, st.st_size, st.st_ino), path.resolve()
+    key, where = (st.st_mtime_ns, st.st_size, st.st_ino), os.path.abspath(path)
     cached = _PARSED.get(where)
     if cached is not None and cached[0] == key:
         return cached[1]
