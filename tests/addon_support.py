@@ -1,13 +1,10 @@
-"""What the add-on's tests share: a tiny exported model, a person photo, image pixels, a
-World with nodes on every Blender, and the N-panel drawn into a layout that checks it."""
+"""What the add-on's tests share: a person photo, image pixels, a World with nodes on every
+Blender, the N-panel drawn into a layout that checks it, the add-on in an empty scene, and a
+relit photo's session and World map. The tiny model is tests/tiny_model.py (no bpy)."""
 
 from __future__ import annotations
 
 import contextlib
-import os
-import subprocess
-import sys
-import textwrap
 import types
 from pathlib import Path
 
@@ -17,27 +14,7 @@ import bpy
 
 import blender_addon
 
-REPO = Path(__file__).resolve().parents[1]
-ORDER = 4
 H, W = 72, 48
-
-
-def make_tiny_model(tmp_path_factory) -> Path:
-    """A seeded random-weight RelightNet exported by the project's export code, in a
-    child process so torch never loads into the bpy process; made once per session."""
-    out = tmp_path_factory.getbasetemp() / "addon_tiny_model" / "tiny.onnx"
-    if out.is_file():
-        return out
-    out.parent.mkdir(exist_ok=True)
-    code = textwrap.dedent(f"""
-        from export.random_model import export_random_model
-        export_random_model({str(out)!r}, seed=3, sh_order={ORDER}, width=4, depth=2)
-    """)
-    # Blender 5.1+ bundles Python 3.13, for which no CPU torch is at hand: the make test
-    # run under bpy 5.2 names the 3.11 interpreter that has torch (RELIGHT_TORCH_PYTHON)
-    python = os.environ.get("RELIGHT_TORCH_PYTHON", sys.executable)
-    subprocess.run([python, "-c", code], cwd=REPO, check=True, capture_output=True, timeout=300)
-    return out
 
 
 def write_person_png(path: Path, with_alpha: bool = False) -> None:
@@ -135,3 +112,34 @@ def addon_in_empty_scene(folder: Path, model: Path | None = None, **settings):
     yield s
     bpy.ops.wm.read_homefile()
     blender_addon.unregister()
+
+
+def draft_photo(model: Path, folder: Path) -> str:
+    """The person photo (`folder`/person.png) loaded, the panel at Draft with `model`, the network's
+    matte, the studio preset and neutral dials; its image name."""
+    photo = bpy.data.images.load(str(folder / "person.png"))
+    s = bpy.context.scene.relight_photo
+    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
+    s.light_kind, s.preset = "PRESET", "studio"
+    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
+    return photo.name
+
+
+def relit_photo(model: Path, folder: Path) -> str:
+    """draft_photo relit (synchronously); its image name."""
+    name = draft_photo(model, folder)
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    return name
+
+
+def photo_session(name: str):
+    """The add-on's session (blender_addon.state.PhotoSession) of the photo image `name`."""
+    from blender_addon import bl_images, state
+
+    return state.SESSIONS[bpy.data.images[name][bl_images.PHOTO_ID]]
+
+
+def world_map_pixels(world) -> np.ndarray:
+    """The RGB pixels of the Environment Texture of `world` (Photo Light -> World's map)."""
+    texture = next(n for n in world.node_tree.nodes if n.type == "TEX_ENVIRONMENT")
+    return pixels(texture.image.name)[..., :3]

@@ -56,17 +56,42 @@ def write_frames(folder: Path, frames, fmt: str = "png", prefix: str = "f_") -> 
     return folder
 
 
-def write_video(path: Path, frames, fps=24) -> Path:
+def write_video(path: Path, frames, fps=24, audio: str | None = None) -> Path:
+    """A video of `frames` (linear float RGB) through relight's VideoWriter; with `audio` ("aac" or
+    "libopus") a 440 Hz sine track beside it, written with PyAV directly (the source a user would have)."""
     from fractions import Fraction
 
     from relight.video_io import ClipInfo
-    from relight.video_out import VideoWriter
+    from relight.video_out import VideoWriter, encode_srgb8
 
+    fps = Fraction(fps)
     h, w = frames[0].shape[:2]
-    writer = VideoWriter(path, ClipInfo(Path(path), "frames", w, h, Fraction(fps), len(frames)))
-    for f in frames:
-        writer.write(f)
-    return writer.close()
+    if audio is None:
+        writer = VideoWriter(path, ClipInfo(Path(path), "frames", w, h, fps, len(frames)))
+        for f in frames:
+            writer.write(f)
+        return writer.close()
+    import av
+
+    c = av.open(str(path), "w")
+    v = c.add_stream("libx264", rate=fps)
+    v.width, v.height, v.pix_fmt = w, h, "yuv420p"
+    a = c.add_stream(audio, rate=48000)
+    for i, f in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
+        frame.pts, frame.time_base = i, 1 / fps
+        c.mux(v.encode(frame))
+    total = int(48000 * len(frames) / fps)
+    tone = (0.3 * np.sin(2 * np.pi * 440 * np.arange(total) / 48000)).astype(np.float32)
+    for s0 in range(0, total, 960):
+        chunk = tone[s0:s0 + 960]
+        af = av.AudioFrame.from_ndarray(np.stack([chunk, chunk]), format="fltp", layout="stereo")
+        af.sample_rate, af.pts, af.time_base = 48000, s0, Fraction(1, 48000)
+        c.mux(a.encode(af))
+    c.mux(a.encode(None))
+    c.mux(v.encode(None))
+    c.close()
+    return Path(path)
 
 
 # A still shot with sensor noise (issue 40, "Clips"): one photo, no motion, only noise changes

@@ -5,10 +5,27 @@ import pytest
 
 @pytest.fixture(scope="session")
 def model(tmp_path_factory):
-    """The add-on tests' tiny exported model (tests/addon_support.py), made once per session;
-    a module that needs another model defines its own `model`."""
-    from addon_support import make_tiny_model
-    return make_tiny_model(tmp_path_factory)
+    """The tests' tiny exported model (tests/tiny_model.py: random weights, SH order 4), made once
+    per session, as the path string a command line takes; a module that needs another model makes
+    it under another fixture's name."""
+    from tiny_model import make_tiny_model
+    return str(make_tiny_model(tmp_path_factory))
+
+
+@pytest.fixture
+def addon_settings():
+    """The panel's settings for the `addon` fixture beyond Draft, the network's matte and the studio
+    preset: a module overrides this fixture to change them."""
+    return {}
+
+
+@pytest.fixture
+def addon(model, tmp_path, addon_settings):
+    """The add-on registered in an empty scene (tests/addon_support.addon_in_empty_scene): the person
+    photo in tmp_path/person.png, the panel set to the tiny model and `addon_settings`; yields tmp_path."""
+    from addon_support import addon_in_empty_scene
+    with addon_in_empty_scene(tmp_path, model, **addon_settings):
+        yield tmp_path
 
 
 @pytest.fixture

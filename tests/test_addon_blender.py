@@ -18,7 +18,8 @@ from relight import presets, sh_projection, sh_rotation
 from relight.exr import read_exr, write_exr
 from relight.light import sh_light
 
-from addon_support import ORDER, H, W, draw_panel, new_node_world, pixels, write_person_png
+from addon_support import H, W, draw_panel, new_node_world, pixels, write_person_png
+from tiny_model import ORDER
 
 # float32 arithmetic on values <= ~4 through a few dozen operations (SH dot
 # products of 25 terms, bilinear taps, blend): far below 1e-5

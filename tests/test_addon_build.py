@@ -23,9 +23,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import relight
 from blender_addon import build, manifest
 
-from addon_support import make_tiny_model, write_person_png
+from addon_support import write_person_png
+from tiny_model import make_tiny_model
 
 REPO = Path(__file__).resolve().parents[1]
 PLATFORM_FILE_TAGS = {  # what PyPI names the real files, in manifest.PLATFORMS order
@@ -87,6 +89,19 @@ def _blender_ext_cli() -> Path:
     return path
 
 
+def test_one_version_string():
+    """relight.__version__ is the project's version: pyproject.toml reads it (dynamic), the build
+    writes it into the zip's manifest, and the source manifest (which Blender reads when the add-on
+    folder itself is installed) states the same."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text(encoding="utf-8"))
+    assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "relight.__version__"}
+    assert manifest.load(root / "blender_addon" / "blender_manifest.toml")["version"] == relight.__version__
+
+
 def test_zip_layout_and_manifest(built_zip, tmp_path):
     with zipfile.ZipFile(built_zip) as zf:
         names = set(zf.namelist())
@@ -95,6 +110,7 @@ def test_zip_layout_and_manifest(built_zip, tmp_path):
     assert "build.py" not in names and not any("__pycache__" in n for n in names)
     data = manifest.load(tmp_path / "blender_manifest.toml")
     assert manifest.problems(data, tmp_path) == []
+    assert data["version"] == relight.__version__  # written by the build from the one version string
     listed = {w.removeprefix("./") for w in data["wheels"]}
     assert listed == {n for n in names if n.startswith("wheels/")}
     # every binary dependency for each platform and each Python its Blender releases embed
@@ -177,7 +193,7 @@ def test_size_report_is_measured_from_the_zip_and_written_into_the_docs(built_zi
 
 def test_split_platform_zips_hold_only_their_own_wheels(wheel_cache, tmp_path):
     paths = build.build_split(tmp_path / "split", wheel_cache, offline=True)
-    assert [p.name for p in paths] == [f"relight_photo-0.1.0-{p.replace('-', '_')}.zip" for p in manifest.PLATFORMS]
+    assert [p.name for p in paths] == [f"relight_photo-{relight.__version__}-{p.replace('-', '_')}.zip" for p in manifest.PLATFORMS]
     for index, (path, platform) in enumerate(zip(paths, manifest.PLATFORMS)):
         folder = tmp_path / platform
         with zipfile.ZipFile(path) as zf:
@@ -200,7 +216,7 @@ def test_split_platform_zips_hold_only_their_own_wheels(wheel_cache, tmp_path):
 def test_per_python_zips_claim_only_the_blenders_of_their_python(wheel_cache, tmp_path):
     paths = build.build_split(tmp_path / "split", wheel_cache, offline=True, by_python=True)
     expect = [(platform, py) for platform in manifest.PLATFORMS for py in manifest.PLATFORM_PYTHONS[platform]]
-    assert [p.name for p in paths] == [f"relight_photo-0.1.0-{platform.replace('-', '_')}-{_tag(py).replace('cp', 'py')}.zip"
+    assert [p.name for p in paths] == [f"relight_photo-{relight.__version__}-{platform.replace('-', '_')}-{_tag(py).replace('cp', 'py')}.zip"
                                        for platform, py in expect]
     for path, (platform, py) in zip(paths, expect):
         folder = tmp_path / path.stem

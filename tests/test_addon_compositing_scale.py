@@ -17,14 +17,7 @@ import bpy
 
 from relight import exr
 from relight.resample import resize_linear
-from addon_support import addon_in_empty_scene, H, W
-
-
-
-@pytest.fixture
-def addon(model, tmp_path):
-    with addon_in_empty_scene(tmp_path, model):
-        yield tmp_path
+from addon_support import H, W
 
 
 def _render(folder, percentage: int) -> np.ndarray:

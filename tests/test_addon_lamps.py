@@ -25,8 +25,7 @@ from relight import prt, sh_projection
 from relight.exr import write_exr
 from relight.light import SHLight
 from relight.light_map import light_map
-from addon_support import new_node_world, pixels
-from test_addon_photo_world import _relit, _session, _world_map, addon  # noqa: F401 (a fixture)
+from addon_support import new_node_world, photo_session, pixels, relit_photo, world_map_pixels
 
 ORDER = 4
 TIGHT = 1e-5   # float32 relighting of values <= ~4 (as test_addon_blender)
@@ -55,10 +54,10 @@ def scene_light(order=ORDER):
 # ------------------------------------------------------------------ Photo Light -> World: the key lamp
 
 def test_photo_light_makes_a_sun_with_the_key_lights_direction_colour_strength_and_angle(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     direction = kl.direction_from_angles(60.0, 35.0)
     light = sun_and_ambient(direction, (3.0, 2.5, 2.0), math.radians(5.0), (0.1, 0.1, 0.12))
-    _session(name).decomposition.light = light  # as if the network had estimated it
+    photo_session(name).decomposition.light = light  # as if the network had estimated it
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     split = kl.split_light(light, photo_light.MAP_WIDTH)
     lamp = key_object(name)
@@ -69,14 +68,14 @@ def test_photo_light_makes_a_sun_with_the_key_lights_direction_colour_strength_a
     assert lamp.data.energy == pytest.approx(split.key.blender_strength, rel=FLOAT32)
     assert lamp.data.energy == pytest.approx(3.0 * (1 + math.cos(math.radians(5.0))) / 2, rel=1e-5)
     assert lamp.data.angle == pytest.approx(math.radians(10.0), rel=1e-5)
-    np.testing.assert_array_equal(_world_map(bpy.context.scene.world), split.pixels)
+    np.testing.assert_array_equal(world_map_pixels(bpy.context.scene.world), split.pixels)
     # the lamp, read back as the add-on's World light reads lamps, is the key light at the person
     np.testing.assert_allclose(scene_light(), kl.key_coeffs(split.key, ORDER), rtol=1e-5, atol=1e-6)
 
     # a new estimate, a wide key: the same lamp becomes a disk area lamp aimed at the person
     wide = sun_and_ambient(kl.direction_from_angles(-30.0, 50.0), (2.0, 2.0, 2.0), math.radians(60.0),
                            (0.05, 0.05, 0.05))
-    _session(name).decomposition.light = wide
+    photo_session(name).decomposition.light = wide
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert key_object(name) == lamp and lamp.data.type == "AREA" and lamp.data.shape == "DISK"
     assert len([o for o in bpy.data.objects if o.type == "LIGHT"]) == 1 and len(bpy.data.lights) == 1
@@ -93,25 +92,25 @@ def test_photo_light_makes_a_sun_with_the_key_lights_direction_colour_strength_a
     # no key lamp: the single map, and the lamp made before is gone
     assert bpy.ops.relight_photo.light_to_world(image_name=name, lamp_free=True) == {"FINISHED"}
     assert key_object(name) is None and not bpy.data.lights
-    np.testing.assert_array_equal(_world_map(bpy.context.scene.world), light_map(wide, photo_light.MAP_WIDTH).pixels)
+    np.testing.assert_array_equal(world_map_pixels(bpy.context.scene.world), light_map(wide, photo_light.MAP_WIDTH).pixels)
 
 
 def test_a_light_without_a_lobe_gets_no_lamp(addon, model):
-    name = _relit(model, addon)
-    _session(name).decomposition.light = sun_and_ambient([0.0, 0.0, 1.0], (1.0, 1.0, 1.0), 0.0, (0.2, 0.2, 0.2))
+    name = relit_photo(model, addon)
+    photo_session(name).decomposition.light = sun_and_ambient([0.0, 0.0, 1.0], (1.0, 1.0, 1.0), 0.0, (0.2, 0.2, 0.2))
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert key_object(name) is not None
     uniform = np.zeros((25, 3))
     uniform[0] = 1.0  # the same radiance from everywhere: nothing to make a key of
-    _session(name).decomposition.light = uniform
+    photo_session(name).decomposition.light = uniform
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert key_object(name) is None and not bpy.data.lights
-    np.testing.assert_allclose(_world_map(bpy.context.scene.world), 0.5 / math.sqrt(math.pi), rtol=1e-5)
+    np.testing.assert_allclose(world_map_pixels(bpy.context.scene.world), 0.5 / math.sqrt(math.pi), rtol=1e-5)
 
 
 def test_the_key_lamp_survives_save_and_reopen_and_is_updated_in_place(addon, model):
-    name = _relit(model, addon)
-    _session(name).decomposition.light = sun_and_ambient(kl.direction_from_angles(100.0, 20.0), (2.0, 1.0, 1.0),
+    name = relit_photo(model, addon)
+    photo_session(name).decomposition.light = sun_and_ambient(kl.direction_from_angles(100.0, 20.0), (2.0, 1.0, 1.0),
                                                          0.0, (0.1, 0.1, 0.1))
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}  # makes the World too
     lamp = key_object(name)
@@ -125,7 +124,7 @@ def test_the_key_lamp_survives_save_and_reopen_and_is_updated_in_place(addon, mo
     assert bpy.context.scene.objects.get(lamp.name) is not None
     # pressed again after reopening (Relight first: the session comes back from the saved file)
     assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
-    _session(name).decomposition.light = sun_and_ambient(kl.direction_from_angles(-100.0, 40.0), (1.0, 1.0, 2.0),
+    photo_session(name).decomposition.light = sun_and_ambient(kl.direction_from_angles(-100.0, 40.0), (1.0, 1.0, 2.0),
                                                          0.0, (0.1, 0.1, 0.1))
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert len([o for o in bpy.data.objects if o.type == "LIGHT"]) == 1
@@ -169,14 +168,14 @@ def _update(*blocks):
 
 
 def test_the_world_light_takes_the_scenes_lamps_and_a_moved_lamp_relights(addon, model, monkeypatch):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     scene = bpy.context.scene
     settings = scene.relight_photo
     _, path = _flat_world(addon)
     world_sh = sh_projection.project_equirect(np.full((32, 64, 3), 0.3, np.float32), ORDER)
     lamp = _lamp("POINT", (2.0, 1.0, 2.5), 300.0, shadow_soft_size=0.25)
     settings.light_kind = "WORLD"
-    d = _session(name).decomposition
+    d = photo_session(name).decomposition
 
     def expected(rotation_deg=0.0):
         return d.relight(SHLight(world_sh + scene_light(), 0.8).at(rotation_deg))
@@ -222,7 +221,7 @@ def test_the_world_light_takes_the_scenes_lamps_and_a_moved_lamp_relights(addon,
 
 
 def test_a_black_world_with_lamps_is_lit_by_the_lamps(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     scene = bpy.context.scene
     world, _ = _flat_world(addon, value=0.0)
     scene.relight_photo.light_kind = "WORLD"
@@ -230,7 +229,7 @@ def test_a_black_world_with_lamps_is_lit_by_the_lamps(addon, model):
         bpy.ops.relight_photo.relight(image_name=name, synchronous=True)
     _lamp("SUN", (0.0, 0.0, 5.0), 3.0, angle=math.radians(20.0))
     assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
-    d = _session(name).decomposition
+    d = photo_session(name).decomposition
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], d.relight(SHLight(scene_light(), 0.8).at(0.0)),
                                atol=TIGHT)
     with pytest.raises(ValueError, match="give no light"):

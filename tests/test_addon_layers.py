@@ -22,7 +22,7 @@ from relight import sh
 from relight.decomposition import Decomposition
 from relight.light import sh_light
 from relight.resample import resize_linear
-from addon_support import addon_in_empty_scene, pixels
+from addon_support import pixels
 
 ORDER = 4
 # the in-place paths do the same float32 operations on the same values as the
@@ -94,9 +94,9 @@ LAYERS = ("alpha", "albedo", "shading", "residual")
 
 
 @pytest.fixture
-def addon(model, tmp_path):
-    with addon_in_empty_scene(tmp_path, model, rotation=0.0, exposure=0.0, strength=1.0):
-        yield tmp_path
+def addon_settings():
+    """Neutral dials for the conftest `addon` fixture."""
+    return {"rotation": 0.0, "exposure": 0.0, "strength": 1.0}
 
 
 def _relight(name):

@@ -24,13 +24,6 @@ import bpy
 
 from blender_addon import bl_images, state
 from fuzz_support import jpeg_bytes
-from addon_support import addon_in_empty_scene
-
-
-@pytest.fixture
-def addon(model, tmp_path):
-    with addon_in_empty_scene(tmp_path, model):
-        yield tmp_path
 
 
 def _relight(name):

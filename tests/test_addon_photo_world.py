@@ -16,37 +16,11 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_images, photo_light, state
+from blender_addon import bl_images, photo_light
 from relight import exr, sh
 from relight.light import directional_light
 from relight.key_light import split_light
-from addon_support import addon_in_empty_scene, H, W, pixels
-
-
-
-@pytest.fixture
-def addon(model, tmp_path):
-    with addon_in_empty_scene(tmp_path):
-        yield tmp_path
-
-
-def _photo(model, folder) -> str:
-    photo = bpy.data.images.load(str(folder / "person.png"))
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
-    return photo.name
-
-
-def _relit(model, folder) -> str:
-    name = _photo(model, folder)
-    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
-    return name
-
-
-def _session(name) -> state.PhotoSession:
-    return state.SESSIONS[bpy.data.images[name][bl_images.PHOTO_ID]]
+from addon_support import H, W, draft_photo, photo_session, relit_photo, world_map_pixels
 
 
 def _refusal(operator, name) -> str:
@@ -58,12 +32,6 @@ def _refusal(operator, name) -> str:
     status = bpy.context.window_manager.relight_photo_status
     assert status.is_error and status.message == lines[0][len("Error: "):]
     return status.message
-
-
-def _world_map(world) -> np.ndarray:
-    nodes = world.node_tree.nodes
-    texture = next(n for n in nodes if n.type == "TEX_ENVIRONMENT")
-    return pixels(texture.image.name)[..., :3]
 
 
 def check_world(name: str) -> None:
@@ -82,8 +50,8 @@ def check_world(name: str) -> None:
     assert image.packed_file is not None and image.name == f"{name}.light"
     assert tuple(image.size) == (photo_light.MAP_WIDTH, photo_light.MAP_WIDTH // 2)
     # the smooth World left after the key light (the key lamp: tests/test_addon_lamps.py)
-    expected = split_light(_session(name).decomposition.light, photo_light.MAP_WIDTH).pixels
-    np.testing.assert_array_equal(_world_map(world), expected)  # a float32 EXR, packed: lossless
+    expected = split_light(photo_session(name).decomposition.light, photo_light.MAP_WIDTH).pixels
+    np.testing.assert_array_equal(world_map_pixels(world), expected)  # a float32 EXR, packed: lossless
 
 
 def check_compositing(name: str) -> None:
@@ -111,14 +79,14 @@ def check_compositing(name: str) -> None:
 # ------------------------------------------------------------------ refusals
 
 def test_refuses_when_nothing_was_relit(addon, model):
-    name = _photo(model, addon)
+    name = draft_photo(model, addon)
     for operator in (bpy.ops.relight_photo.light_to_world, bpy.ops.relight_photo.compositing_setup):
         assert _refusal(operator, name) == f"Relight '{name}' first: its light is estimated when it is relit."
     assert bpy.context.scene.world is None and not bpy.data.worlds  # nothing was made
 
 
 def test_refuses_a_photo_changed_since_it_was_relit(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     changed = f"The photo '{name}' changed since it was relit: press Relight."
     from PIL import Image
 
@@ -142,11 +110,11 @@ def test_refuses_a_photo_changed_since_it_was_relit(addon, model):
 # ------------------------------------------------------------------ the World
 
 def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     check_world(name)
     status = bpy.context.window_manager.relight_photo_status
-    key = split_light(_session(name).decomposition.light, photo_light.MAP_WIDTH).key
+    key = split_light(photo_session(name).decomposition.light, photo_light.MAP_WIDTH).key
     # the random-weight model's light may have no lobe: then no key lamp (tests/test_addon_lamps.py)
     assert not status.is_error and status.message.startswith(
         f"The Sun '{name}.key' and the World '{name}.light' are now the light of '{name}'" if key.strength > 0 else
@@ -154,17 +122,17 @@ def test_the_world_holds_the_map_of_the_estimated_light(addon, model):
 
     # a new Relight, a new light: pressing again updates the same World and replaces its map
     world = bpy.context.scene.world
-    _session(name).decomposition.light = directional_light(-90.0, 4)  # as a relight with another estimate
+    photo_session(name).decomposition.light = directional_light(-90.0, 4)  # as a relight with another estimate
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
     assert bpy.context.scene.world == world and len(bpy.data.worlds) == 1
     check_world(name)
-    maps = [i for i in bpy.data.images if i.get(bl_images.OUTPUT_OF) == _session(name).photo_id
+    maps = [i for i in bpy.data.images if i.get(bl_images.OUTPUT_OF) == photo_session(name).photo_id
             and i.get(bl_images.OUTPUT_LAYER) == "light"]
     assert len(maps) == 1
 
 
 def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     direction = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     lights = {
         "all energy in one direction": np.outer(sh.sh_basis(direction, 4), [1.0, 1.0, 1.0]),
@@ -172,9 +140,9 @@ def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
         "very bright": 1e30 * directional_light(-90.0, 4),
     }
     for what, light in lights.items():
-        _session(name).decomposition.light = light
+        photo_session(name).decomposition.light = light
         assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}, what
-        world_map = _world_map(bpy.context.scene.world)
+        world_map = world_map_pixels(bpy.context.scene.world)
         assert np.all(np.isfinite(world_map)) and world_map.min() >= 0.0, what
         np.testing.assert_array_equal(world_map, split_light(light, photo_light.MAP_WIDTH).pixels)
     assert world_map.max() > 1e29  # the bright light stayed bright
@@ -182,7 +150,7 @@ def test_extreme_lights_make_a_finite_non_negative_world(addon, model):
 
 def test_the_buttons_never_read_the_photos_pixels(addon, model, monkeypatch):
     # what keeps them under a second on a 24 MP photo: the light is in the session already
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
 
     def forbidden(*_args, **_kwargs):
         raise AssertionError("the photo's pixels were read")
@@ -194,18 +162,18 @@ def test_the_buttons_never_read_the_photos_pixels(addon, model, monkeypatch):
 
 
 def test_compositing_setup_and_world_survive_save_and_reopen(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
     check_world(name)
     check_compositing(name)
-    expected = _world_map(bpy.context.scene.world).copy()
+    expected = world_map_pixels(bpy.context.scene.world).copy()
     blend = addon / "shot.blend"
     assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     check_compositing(name)
     world = bpy.context.scene.world
     assert world.name == f"{name}.light"
-    np.testing.assert_array_equal(_world_map(world), expected)  # from the .blend itself: packed
+    np.testing.assert_array_equal(world_map_pixels(world), expected)  # from the .blend itself: packed
     # and pressed again after reopening, the setup is updated, not duplicated
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
     check_world(name)
@@ -228,10 +196,10 @@ def _cube(location, size):
 
 
 def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(addon, model):
-    name = _relit(model, addon)
+    name = relit_photo(model, addon)
     # a light from behind the object (+Y), 35 degrees up, little ambient: the shadow falls toward
     # the camera, on the floor in front of the object
-    _session(name).decomposition.light = directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
+    photo_session(name).decomposition.light = directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
     scene = bpy.context.scene
     camera = scene.camera.data
@@ -253,7 +221,7 @@ def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(ad
         bpy.ops.render.render(write_still=True)
     planes = exr.read_exr(out)
     composite = np.stack([planes[c] for c in "RGB"], -1)  # one part: R, G, B, A
-    photo = _session(name).photo  # the photo, linear, as the add-on decoded it
+    photo = photo_session(name).photo  # the photo, linear, as the add-on decoded it
     rows, cols = np.mgrid[0:H, 0:W] + 0.5
     sky = rows < H / 2 - 2                      # above the horizon: nothing rendered there
     object_ = (np.abs(cols - W / 2) < half - 1) & (rows > base - f / 7.5 + 1) & (rows < base - 1)

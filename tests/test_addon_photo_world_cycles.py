@@ -28,7 +28,8 @@ from cycles_support import lambert_sphere, photo_camera, render_with_normals, sp
 from relight import prt, sh, sh_projection, sh_rotation
 from relight.light import directional_light
 from relight.light_map import irradiance_error
-from addon_support import make_tiny_model, write_person_png
+from addon_support import write_person_png
+from tiny_model import make_tiny_model
 
 ALBEDO = 0.8
 ORDER = 4

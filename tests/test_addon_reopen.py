@@ -21,7 +21,7 @@ import bpy
 
 from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, output_names, state
 from relight.light import sh_light
-from addon_support import addon_in_empty_scene, draw_panel, pixels, write_person_png
+from addon_support import draft_photo, draw_panel, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
 # the saved decomposition holds the network's maps in float16 (11-bit mantissa):
@@ -29,27 +29,12 @@ LAYERS = ("relit", "albedo", "shading", "residual", "alpha")
 HALF = 4e-3
 
 
-@pytest.fixture
-def addon(model, tmp_path):
-    with addon_in_empty_scene(tmp_path):
-        yield tmp_path
-
-
-def _setup(model, folder):
-    photo = bpy.data.images.load(str(folder / "person.png"))
-    s = bpy.context.scene.relight_photo
-    s.model_path, s.quality, s.mask_mode = str(model), "DRAFT", "NETWORK"
-    s.light_kind, s.preset = "PRESET", "studio"
-    s.rotation, s.exposure, s.strength = 0.0, 0.0, 1.0
-    return photo.name
-
-
 def _relight(name):
     return bpy.ops.relight_photo.relight(image_name=name, synchronous=True)
 
 
 def test_save_and_reopen_restores_the_result_and_the_dials_work_at_once(addon, model):
-    name = _setup(model, addon)
+    name = draft_photo(model, addon)
     bpy.context.scene.relight_photo.exposure = 0.5  # shading and residual follow the dials of Relight
     assert _relight(name) == {"FINISHED"}
     before = {layer: pixels(f"{name}.{layer}").copy() for layer in LAYERS}
@@ -151,7 +136,7 @@ def test_a_photo_changed_on_disk_shows_the_saved_result_and_says_so(addon, model
 
 def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_the_photo_is_read(
         addon, model, monkeypatch):
-    name = _setup(model, addon)
+    name = draft_photo(model, addon)
     monkeypatch.setattr(bl_ops.work, "PREVIEW_LONG_SIDE", 24)  # our 72 x 48 photo counts as large
     assert _relight(name) == {"FINISHED"}
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
@@ -195,7 +180,7 @@ def test_with_a_ui_reopening_shows_the_saved_preview_and_the_dials_work_before_t
 
 def _relit_and_saved(model, folder):
     """Relight the photo with the dials moved off their defaults, save: (name, photo id, outputs, blend)."""
-    name = _setup(model, folder)
+    name = draft_photo(model, folder)
     bpy.context.scene.relight_photo.exposure = 0.5
     assert _relight(name) == {"FINISHED"}
     outputs = {layer: pixels(f"{name}.{layer}").copy() for layer in LAYERS}

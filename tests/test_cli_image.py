@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from PIL import Image
 
-from export.random_model import export_random_model
 from relight.cli import main
 from relight.colour import srgb_encode
 from relight.exr import read_exr, write_exr
@@ -16,13 +14,6 @@ from relight.runtime import Relighter
 from relight.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    path, _, _ = export_random_model(tmp_path_factory.mktemp("cli") / "tiny.onnx", seed=11,
-                                     sh_order=4, width=4, depth=2)
-    return str(path)
 
 
 def _save_photo(path, h=40, w=30, seed=0, alpha=False):
@@ -150,7 +141,7 @@ def _bad_cases(tmp_path, model):
     raw = bytearray(open(model, "rb").read())
     raw[100] ^= 1
     tampered.write_bytes(bytes(raw))
-    (tmp_path / "t.onnx.sha256").write_text(open(model + ".sha256").read())
+    (tmp_path / "t.onnx.sha256").write_text(open(f"{model}.sha256").read())
     cases["tampered model"] = ([photo, "--model", tampered], "SHA-256 mismatch")
     return cases
 

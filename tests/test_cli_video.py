@@ -37,9 +37,7 @@ def _leftovers(path):
 
 
 def test_video_to_video_keeps_count_rate_size_and_audio(tmp_path, capsys, clip_frames):
-    from test_video_io import _write_video
-
-    src = _write_video(tmp_path / "in.mp4", clip_frames, Fraction(30000, 1001), audio="aac")
+    src = write_video(tmp_path / "in.mp4", clip_frames, Fraction(30000, 1001), audio="aac")
     code, out, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out.mp4")
     assert code == 0, err
     assert "relit 12 frames" in out

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from export.random_model import export_random_model
 from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform_rle_hdr
 from relight import envmap, image_limits, photo, sh_projection
 from relight.cli import main
@@ -31,13 +30,6 @@ DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
 LIMIT_AS = 3 * 1024**3  # the goal: within 3 GB
 LIMIT_S = 60
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    path, _, _ = export_random_model(tmp_path_factory.mktemp("hostile") / "tiny.onnx", seed=5,
-                                     sh_order=4, width=4, depth=2)
-    return str(path)
 
 
 def _photo(path, h=40, w=30, seed=0):

@@ -145,15 +145,6 @@ def test_check_width():
 
 # ------------------------------------------------------------------ relight light
 
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    from export.random_model import export_random_model
-
-    path, _, _ = export_random_model(tmp_path_factory.mktemp("cli_light") / "tiny.onnx", seed=11,
-                                     sh_order=ORDER, width=4, depth=2)
-    return str(path)
-
-
 def _photo(path, h=40, w=30, seed=0):
     from PIL import Image
 

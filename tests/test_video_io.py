@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import errno
 from fractions import Fraction
-from pathlib import Path
 
 import av
 import numpy as np
 import pytest
 from PIL import Image
 
+from clip_support import write_video
 from relight.colour import srgb_decode, srgb_encode
 from relight.video_io import ClipInfo, FrameFolder, decode_srgb, frame_number, open_clip
 from relight.video_out import FrameFolderWriter, VideoWriter, encode_srgb8
@@ -25,36 +25,6 @@ def _frames(n, h=36, w=48, seed=0):
         rgb = np.stack([0.2 + 0.6 * x, 0.3 + 0.4 * y * (1 - t), 0.1 + 0.5 * t + 0 * x], axis=-1)
         out.append(srgb_decode(rgb).astype(np.float32))
     return out
-
-
-def _write_video(path, frames, fps=Fraction(25), audio=None):
-    """A video through VideoWriter; with `audio` ("aac"/"libopus") a sine track beside it,
-    written with PyAV directly (the source a user would have)."""
-    h, w = frames[0].shape[:2]
-    if audio is None:
-        writer = VideoWriter(path, ClipInfo(Path(path), "frames", w, h, fps, len(frames)))
-        for f in frames:
-            writer.write(f)
-        return writer.close()
-    c = av.open(str(path), "w")
-    v = c.add_stream("libx264", rate=fps)
-    v.width, v.height, v.pix_fmt = w, h, "yuv420p"
-    a = c.add_stream(audio, rate=48000)
-    for i, f in enumerate(frames):
-        frame = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
-        frame.pts, frame.time_base = i, 1 / fps
-        c.mux(v.encode(frame))
-    total = int(48000 * len(frames) / fps)
-    tone = (0.3 * np.sin(2 * np.pi * 440 * np.arange(total) / 48000)).astype(np.float32)
-    for s0 in range(0, total, 960):
-        chunk = tone[s0:s0 + 960]
-        af = av.AudioFrame.from_ndarray(np.stack([chunk, chunk]), format="fltp", layout="stereo")
-        af.sample_rate, af.pts, af.time_base = 48000, s0, Fraction(1, 48000)
-        c.mux(a.encode(af))
-    c.mux(a.encode(None))
-    c.mux(v.encode(None))
-    c.close()
-    return Path(path)
 
 
 def _audio_seconds(path) -> float:
@@ -73,7 +43,7 @@ def test_srgb_tables_round_trip_every_code():
                                          (".mov", Fraction(24)), (".mkv", Fraction(12))])
 def test_video_round_trip_keeps_count_rate_size_and_values(tmp_path, suffix, fps):
     frames = _frames(12)
-    path = _write_video(tmp_path / f"clip{suffix}", frames, fps)
+    path = write_video(tmp_path / f"clip{suffix}", frames, fps)
     clip = open_clip(path)
     assert (clip.info.width, clip.info.height, clip.info.fps) == (48, 36, fps)
     got = [f for _, f, _, _ in clip.frames()]
@@ -91,7 +61,7 @@ def test_video_round_trip_keeps_count_rate_size_and_values(tmp_path, suffix, fps
 
 def test_odd_sizes_are_kept(tmp_path):
     frames = _frames(3, h=35, w=47)
-    clip = open_clip(_write_video(tmp_path / "odd.mp4", frames))
+    clip = open_clip(write_video(tmp_path / "odd.mp4", frames, 25))
     assert (clip.info.width, clip.info.height) == (47, 35)
     assert len(list(clip.frames())) == 3
 
@@ -99,7 +69,7 @@ def test_odd_sizes_are_kept(tmp_path):
 @pytest.mark.parametrize("source, out", [("aac", ".mp4"), ("aac", ".webm"), ("libopus", ".mkv")])
 def test_audio_is_copied_or_reencoded(tmp_path, source, out):
     frames = _frames(12)
-    src = _write_video(tmp_path / ("src.mkv" if source == "libopus" else "src.mp4"), frames, audio=source)
+    src = write_video(tmp_path / ("src.mkv" if source == "libopus" else "src.mp4"), frames, 25, audio=source)
     clip = open_clip(src)
     assert clip.info.audio
     writer = VideoWriter(tmp_path / f"out{out}", clip.info, audio_from=src)
