@@ -161,13 +161,19 @@ def blend_into(relit: np.ndarray, photo: np.ndarray, strength: float) -> None:
     if s == 1.0:
         return
     h, w = relit.shape[:2]
-    step = max(1, (1 << 12) // max(1, w))  # rows that stay in cache, one channel at a time
-    for r0 in range(0, h, step):
-        for c in range(3):
-            out, p = relit[r0:r0 + step, :, c], photo[r0:r0 + step, :, c]
-            if s == 0.0:
-                out[...] = p
-                continue
-            out -= p
-            out *= np.float32(s)
-            out += p
+    if abs(relit.strides[1]) > abs(relit.strides[0]):
+        # a turned view (blender_view of a sideways photo): its rows are the buffer's columns,
+        # so square tiles keep what is read and what is written in cache
+        rows = cols = 128
+    else:
+        rows, cols = max(1, (1 << 12) // max(1, w)), w  # rows that stay in cache, one channel at a time
+    for r0 in range(0, h, rows):
+        for c0 in range(0, w, cols):
+            for c in range(3):
+                out, p = relit[r0:r0 + rows, c0:c0 + cols, c], photo[r0:r0 + rows, c0:c0 + cols, c]
+                if s == 0.0:
+                    out[...] = p
+                    continue
+                out -= p
+                out *= np.float32(s)
+                out += p
