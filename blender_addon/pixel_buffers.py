@@ -109,14 +109,15 @@ def to_blender_rgba(pixels: np.ndarray, out: np.ndarray | None = None,
         px = px[..., None]
     h, w, c = px.shape
     rgba = BUFFERS.take(h * w * 4) if out is None else out
-    if orientation != 1:  # a turned view: rows of the upright image, one channel at a time
+    if orientation != 1:  # a turned view: square tiles of the upright image, one channel at a time
         view = blender_view(rgba, (h, w), orientation)
-        step = max(1, (1 << 16) // max(1, w))
-        for r0 in range(0, h, step):
-            src = px[r0:r0 + step]
-            for k in range(3):
-                view[r0:r0 + step, :, k] = src[..., min(k, c - 1) if c < 3 else k]
-            view[r0:r0 + step, :, 3] = alpha[r0:r0 + step] if alpha is not None else src[..., 3] if c == 4 else 1.0
+        tile = 128
+        for r0 in range(0, h, tile):
+            for c0 in range(0, w, tile):
+                src, to = px[r0:r0 + tile, c0:c0 + tile], view[r0:r0 + tile, c0:c0 + tile]
+                for k in range(3):
+                    to[..., k] = src[..., min(k, c - 1) if c < 3 else k]
+                to[..., 3] = alpha[r0:r0 + tile, c0:c0 + tile] if alpha is not None else src[..., 3] if c == 4 else 1.0
         return rgba
     view = rgba.reshape(h, w, 4)
     # blocks of rows that stay in cache, one channel at a time: a single
