@@ -30,6 +30,14 @@ from relight.resample import resize_linear  # noqa: E402
 from relight.runtime import Relighter  # noqa: E402
 
 
+def _row(preset, ms: list[float]) -> str:
+    """The table's row of `preset`: its settings, then the median milliseconds of decompose with the
+    mask given, decompose with the person segmenter and relight, and the last two together."""
+    return (f"| {preset.label} | {preset.model} | {preset.working_size} | {len(preset.augment) + 1} | "
+            f"{preset.refine} | {preset.matte_method} | {ms[0]:.0f} | {ms[1]:.0f} | {ms[2]:.0f} | "
+            f"{ms[1] + ms[2]:.0f} |")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, default=512)
@@ -64,11 +72,8 @@ def main(argv=None) -> int:
           "| decompose, person segmenter (ms) | relight (ms) | segmenter to relit photo (ms) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for preset in quality.PRESETS:
-        ms = [statistics.median(times[(preset.label, k)]) * 1e3 for k in
-              ("decompose, mask given", "decompose, person segmenter", "relight (full size)")]
-        print(f"| {preset.label} | {preset.model} | {preset.working_size} | {len(preset.augment) + 1} | "
-              f"{preset.refine} | {preset.matte_method} | {ms[0]:.0f} | {ms[1]:.0f} | {ms[2]:.0f} | "
-              f"{ms[1] + ms[2]:.0f} |")
+        print(_row(preset, [statistics.median(times[(preset.label, k)]) * 1e3 for k in
+                            ("decompose, mask given", "decompose, person segmenter", "relight (full size)")]))
     return 0
 
 

@@ -28,7 +28,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+
 SKIN_DEPTH_TOLERANCE = 0.002  # metres: the rendered surface is the body itself
 
 
@@ -38,8 +39,8 @@ def skin_prior_colour(samples: int = 20000, seed: int = 0) -> np.ndarray:
 
     rng = np.random.default_rng(seed)
     colours = np.array([sample_skin(rng) for _ in range(samples)])
-    mean = (colours / (colours @ LUMA)[:, None]).mean(axis=0)
-    return mean / (mean @ LUMA)
+    mean = (colours / luminance(colours)[:, None]).mean(axis=0)
+    return mean / luminance(mean)
 
 
 def recoloured(d, wanted_colour: np.ndarray, where: np.ndarray):
@@ -50,7 +51,7 @@ def recoloured(d, wanted_colour: np.ndarray, where: np.ndarray):
     from relight.refine import consistent_albedo
 
     own = d.albedo[where].astype(np.float64).mean(axis=0)
-    want = wanted_colour / (wanted_colour @ LUMA) * (own @ LUMA)
+    want = wanted_colour / luminance(wanted_colour) * luminance(own)
     gains = np.where(want > 1e-6, own / np.maximum(want, 1e-6), 1.0)
     light = (d.light * gains[None, :]).astype(np.float32)
     return dataclasses.replace(d, light=light, albedo=consistent_albedo(d, d.transport, light))
@@ -102,11 +103,11 @@ def colour_error(light: np.ndarray, true: np.ndarray) -> float:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True)
-    p.add_argument("--model", default=None)
-    p.add_argument("--working-size", type=int, default=128)
-    p.add_argument("--pairs-per-scene", type=int, default=4)
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--data", required=True, help="a folder of held-out farm scenes")
+    p.add_argument("--model", default=None, help="the relighting network (default: the registry's)")
+    p.add_argument("--working-size", type=int, default=128, help="the network's crop side in pixels")
+    p.add_argument("--pairs-per-scene", type=int, default=4, help="photos of each scene relit")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads")
     p.add_argument("--landmarks-model", default=None,
                    help="the pose segmentation network with its landmark output: adds the face probe's rows")
     args = p.parse_args(argv)
