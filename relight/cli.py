@@ -66,11 +66,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blender", action="store_true", help="also list Blender's maps (needs bpy)")
     p.set_defaults(func=_cmd_presets)
 
-    from relight import cli_image, cli_light, cli_video
+    from relight.cli_image import register as register_image
+    from relight.cli_light import register as register_light
+    from relight.cli_video import register as register_video
 
-    cli_image.register(sub)
-    cli_light.register(sub)
-    cli_video.register(sub)
+    register_image(sub)
+    register_light(sub)
+    register_video(sub)
     return parser
 
 

@@ -81,8 +81,8 @@ def add_light_options(p) -> None:
 def add_photo_options(p) -> None:
     """The options of a sub-command that decomposes one photo (`image`, `light`): mask,
     matte, person, model, quality, threads, largest photo."""
-    from relight import quality
     from relight.cli_args import bounded_int
+    from relight.quality import DEFAULT, PRESETS
     from relight.image_limits import DEFAULT_MAX_PIXELS, MAX_PIXELS
     from relight.runtime import MATTE_SOURCES
     from relight.session import cores_available
@@ -94,12 +94,12 @@ def add_photo_options(p) -> None:
     p.add_argument("--person", type=bounded_int(1, 1000), default=None, metavar="N",
                    help="which person when the photo shows several: 1 = the largest (default), 2 = the next, ...")
     p.add_argument("--model", default=None, help="ONNX model (default: the quality preset's installed model)")
-    p.add_argument("--quality", choices=[q.key for q in quality.PRESETS], default=quality.DEFAULT,
+    p.add_argument("--quality", choices=[q.key for q in PRESETS], default=DEFAULT,
                    help="preset of relight/quality.py: model and working resolution ("
-                        + ", ".join(f"{q.key} {q.working_size}" for q in quality.PRESETS) + " px)")
+                        + ", ".join(f"{q.key} {q.working_size}" for q in PRESETS) + " px)")
     p.add_argument("--refine", type=bounded_int(0, 100), default=None, metavar="N",
                    help="iterations refitting the photo's light to its own shading gradients (0: off; default: "
-                        "the preset's, " + ", ".join(f"{q.key} {q.refine}" for q in quality.PRESETS) + ")")
+                        "the preset's, " + ", ".join(f"{q.key} {q.refine}" for q in PRESETS) + ")")
     cores = cores_available()  # more intra-op threads than cores only slows onnxruntime down
     p.add_argument("--threads", type=bounded_int(1, cores, " (the CPU cores available)"), default=None,
                    help=f"onnxruntime threads, 1..{cores} (default: all cores)")
@@ -110,18 +110,18 @@ def add_photo_options(p) -> None:
 
 def open_relighter(args):
     """The Relighter of the parsed options --model / --quality / --threads."""
-    from relight import quality
+    from relight.quality import model_path, preset
     from relight.runtime import Relighter
 
-    model = args.model if args.model is not None else quality.model_path(args.quality)
-    return Relighter(model, threads=args.threads, working_size=quality.preset(args.quality).working_size)
+    model = args.model if args.model is not None else model_path(args.quality)
+    return Relighter(model, threads=args.threads, working_size=preset(args.quality).working_size)
 
 
 def decompose_options(args) -> dict:
     """Relighter.decompose's keyword arguments from --quality / --refine / --matte / --person."""
-    from relight import quality
+    from relight.quality import preset
 
-    options = quality.preset(args.quality).decompose_options()
+    options = preset(args.quality).decompose_options()
     if getattr(args, "refine", None) is not None:
         options["refine"] = args.refine
     return dict(options, matte=args.matte, person=getattr(args, "person", None))
@@ -197,12 +197,20 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
 NEGATIVE_WARN_FRACTION = 0.01
 
 
-def _light(source, args, relighter) -> np.ndarray:
-    """The light of every photo, as SH coefficients of the model's order: resolved once,
+def target_light(args, relighter) -> np.ndarray:
+    """The SH light of the parsed light options (add_light_options), of the model's order: the
+    map or preset, or the light the network estimates in the --light-from photo; resolved once,
     before any photo is read (a bad map fails first)."""
     from relight.decomposition import EXPOSURE_LIMIT
     from relight.light import sh_light
 
+    source = args.light
+    if args.light_from is not None:
+        from relight.photo import read_photo
+
+        donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
+        options = dict(decompose_options(args), person=None)
+        source = relighter.decompose(donor, _marks_person(donor_alpha), **options)
     scale = 2.0 ** args.exposure  # checked by its argparse type (relight.cli_args.exposure_ev)
     # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is);
     # sh_light checks the light (finite SH of the order) once
@@ -217,19 +225,6 @@ def _light(source, args, relighter) -> np.ndarray:
         raise ValueError(f"the light is too bright to relight in float32 (SH coefficients up to {peak:.3g} after "
                          f"exposure {args.exposure:g} EV, limit {LIGHT_LIMIT:g}): {fix}")
     return L
-
-
-def target_light(args, relighter) -> np.ndarray:
-    """The SH light of the parsed light options (add_light_options): the map or preset, or the
-    light the network estimates in the --light-from photo; resolved before any photo is read."""
-    light_source = args.light
-    if args.light_from is not None:
-        from relight.photo import read_photo
-
-        donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
-        options = dict(decompose_options(args), person=None)
-        light_source = relighter.decompose(donor, _marks_person(donor_alpha), **options)
-    return _light(light_source, args, relighter)
 
 
 def run_image(args) -> int:

@@ -27,16 +27,16 @@ import numpy as np
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `light` sub-command to the `relight` command's subparsers."""
-    from relight import light_map
     from relight.cli_image import add_photo_options
+    from relight.light_map import DEFAULT_WIDTH, MAX_WIDTH, MIN_WIDTH
 
     p = subparsers.add_parser("light", help="the photo's light as an equirect EXR for a Blender World",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("photo", help="photo file (PNG/JPEG/TIFF/WebP/EXR)")
     p.add_argument("--out", required=True, help="output .exr (linear, Blender's equirect World mapping)")
-    p.add_argument("--width", type=_width, default=light_map.DEFAULT_WIDTH,
-                   help=f"map width in texels, even, {light_map.MIN_WIDTH}..{light_map.MAX_WIDTH} "
-                        f"(height = width / 2; default {light_map.DEFAULT_WIDTH})")
+    p.add_argument("--width", type=_width, default=DEFAULT_WIDTH,
+                   help=f"map width in texels, even, {MIN_WIDTH}..{MAX_WIDTH} "
+                        f"(height = width / 2; default {DEFAULT_WIDTH})")
     p.add_argument("--json", action="store_true",
                    help="print the key light, the SH coefficients and the irradiance error of what was written "
                         "as JSON")

@@ -70,15 +70,15 @@ def map_file(source) -> Path:
     """The HDR file `source` names: an existing file, else a preset name (relight.presets).
 
     ValueError when it is neither."""
-    from relight import presets
+    from relight.presets import is_preset_name, preset_path
 
     if isinstance(source, str) and not source:
         raise ValueError("light is an empty string: give an HDR map path or a preset name")
     path = Path(source)
     if path.is_file():
         return path
-    if isinstance(source, str) and presets.is_preset_name(source):
-        return presets.preset_path(source)
+    if isinstance(source, str) and is_preset_name(source):
+        return preset_path(source)
     raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`) nor a sun "
                      "(sun:AZIMUTH,ELEVATION[,ANGLE])")
 
