@@ -149,12 +149,29 @@ def count(tracer: Tracer):
     return hops, returns
 
 
+def by_caller(hops) -> str:
+    """The hop list one line per caller, callers in the order first seen, `relight/` and `.py`
+    left out: `cli_image.run_image -> cli_output.light_inputs, cli_output.check_not_an_input*`."""
+    def short(function: str) -> str:
+        module, name = function.split(":", 1)
+        return module.removeprefix("relight/").removesuffix(".py").replace("/", ".") + "." + name
+
+    lines: dict[tuple[str, str], list[str]] = {}
+    for thread, caller, callee, back in hops:
+        lines.setdefault((short(caller), thread), []).append(short(callee) + ("*" if back else ""))
+    return "\n".join(f"{caller}{'' if thread == 'MainThread' else f' [{thread}]'} -> {', '.join(callees)}"
+                     for (caller, thread), callees in lines.items())
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("photo", nargs="?", default=str(DEFAULT_PHOTO))
     parser.add_argument("--light", default="sunset")
     parser.add_argument("--quality", default="best")
     parser.add_argument("--list", action="store_true", help="print the hop list")
+    parser.add_argument("--by-caller", action="store_true",
+                        help="print the hop list one line per caller (as docs/ARCHITECTURE.md shows it): "
+                             "module.function [thread] -> its callees, * on a return to a module already left")
     parser.add_argument("--calls", action="append", default=[], metavar="TEXT",
                         help="also print how often each project function whose 'module:qualname' contains "
                              "TEXT was called (every call, any caller: how often a check ran); repeatable")
@@ -185,6 +202,9 @@ def main(argv=None) -> int:
             mark = f"  <- back to {back}" if back else ""
             where = "" if thread == "MainThread" else f" [{thread}]"
             print(f"{i:4d} {caller} -> {callee}{where}{mark}")
+        print()
+    if args.by_caller:
+        print(by_caller(hops))
         print()
     print(f"command: relight {' '.join(command[:-1])} TMP.png")
     print(f"{'project modules entered':40s} {len(modules):6d}")
