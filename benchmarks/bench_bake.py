@@ -90,7 +90,7 @@ def directions_rows(counts=DIRECTION_COUNTS, reference: int = DIRECTION_REFERENC
 
     v, f, n, mats, view = dressed_mesh()
     park = load_equirect(presets.preset_path("park")).pixels
-    L = sh.normalize_reference(sh_projection.project_equirect(park, 4), 0.8)[0]
+    L = sh.normalize_reference(sh_projection.project_equirect(park, 4))[0]  # to sh.REFERENCE_LUMINANCE
     info = (f"mesh: {len(v)} vertices; error of T.L (white surface, 'park' map at mean luminance 0.8)\n"
             f"against S = {reference}; same random rotation family, different draws")
     rows = []

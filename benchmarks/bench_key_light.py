@@ -67,15 +67,16 @@ def synthetic(name: str, height: int = 256) -> np.ndarray:
 def brightest(pixels):
     """(direction of the brightest 8 x 8 block, the share of a facing surface's irradiance within 20 deg)."""
     from relight import sh_projection
-    from relight.colour import LUMINANCE_WEIGHTS
+    from relight.colour import luminance
 
+    pixels = np.asarray(pixels, np.float64)
     h, w = pixels.shape[:2]
-    blocks = pixels.reshape(h // 8, 8, w // 8, 8, 3).mean(axis=(1, 3)) @ LUMINANCE_WEIGHTS
+    blocks = luminance(pixels.reshape(h // 8, 8, w // 8, 8, 3).mean(axis=(1, 3)))
     r, c = np.unravel_index(np.argmax(blocks), blocks.shape)
     dirs, omega = sh_projection.equirect_directions(h, w)
     d = dirs[r * 8 + 4, c * 8 + 4]
     cos = dirs @ d
-    e = (pixels @ LUMINANCE_WEIGHTS) * np.maximum(cos, 0) * omega[:, None]
+    e = luminance(pixels) * np.maximum(cos, 0) * omega[:, None]
     return d, float(e[cos > math.cos(math.radians(20))].sum() / e.sum())
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from relight import sh, sh_rotation
 from relight.light import SHLight
+from relight.colour import luminance
 from relight.sh_projection import equirect_directions
 
 HARD_KINDS = ("sun", "studio", "lamp")
@@ -51,19 +52,16 @@ def lobe_map(lobes: list[dict], ambient: dict, size=MAP_SIZE) -> np.ndarray:
         out += weight[..., None] * (float(lobe["power"]) / integral) * np.asarray(lobe["colour"], np.float64)
     up = np.clip(dirs[..., 2:3] * 4.0 + 0.5, 0.0, 1.0)  # the horizon blends over +-7 degrees
     amb = up * np.asarray(ambient["sky"], np.float64) + (1.0 - up) * np.asarray(ambient["ground"], np.float64)
-    lum = amb @ np.array([0.2126, 0.7152, 0.0722])
+    lum = luminance(amb)
     integral = float((lum * solid[:, None]).sum())
     out += amb * (float(ambient["power"]) / max(integral, 1e-12))
     return out.astype(np.float32)
 
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
 def mean_luminance(pixels: np.ndarray) -> float:
     """Solid-angle-weighted mean luminance of an equirect map (what a map's scale normalizes)."""
     _, solid = equirect_directions(*pixels.shape[:2])
-    return float(((pixels @ LUMINANCE) * solid[:, None]).sum() / (4.0 * math.pi))
+    return float((luminance(np.asarray(pixels, np.float64)) * solid[:, None]).sum() / (4.0 * math.pi))
 
 
 def facing_shading(pixels: np.ndarray, normal) -> float:
@@ -71,7 +69,7 @@ def facing_shading(pixels: np.ndarray, normal) -> float:
     this normal under the map, computed on the map's texels (no SH cut)."""
     dirs, solid = equirect_directions(*pixels.shape[:2])
     cos = np.clip(dirs @ np.asarray(normal, np.float64), 0.0, None)
-    return float(((pixels @ LUMINANCE) * cos * solid[:, None]).sum() / math.pi)
+    return float((luminance(np.asarray(pixels, np.float64)) * cos * solid[:, None]).sum() / math.pi)
 
 
 def _kelvin_tint(rng, lo: float, hi: float) -> list[float]:
@@ -80,7 +78,7 @@ def _kelvin_tint(rng, lo: float, hi: float) -> list[float]:
     warm = float(np.clip((6500.0 - k) / 3800.0, -0.3, 1.0))  # 1 at 2700 K, 0 at 6500 K
     rgb = np.array([1.0 + 0.1 * max(-warm, 0), 1.0 - 0.28 * max(warm, 0), 1.0 - 0.62 * max(warm, 0)])
     rgb[2] += 0.15 * max(-warm, 0)
-    return (rgb / (rgb @ np.array([0.2126, 0.7152, 0.0722]))).tolist()
+    return (rgb / luminance(rgb)).tolist()
 
 
 def sample_lobes(kind: str, rng: np.random.Generator) -> tuple[list[dict], dict]:

@@ -8,6 +8,8 @@ import colorsys
 
 import numpy as np
 
+from relight.colour import srgb_decode
+
 # Linear-RGB skin reflectance anchors, very light to very dark (roughly the
 # range of measured skin albedos).
 _SKIN_ANCHORS = np.array([
@@ -28,8 +30,8 @@ def sample_skin(rng: np.random.Generator) -> list[float]:
 
 
 def hsv_linear(h: float, s: float, v: float) -> list[float]:
-    srgb = np.array(colorsys.hsv_to_rgb(h % 1.0, s, v))
-    lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    """A colour picked in HSV (sRGB-encoded, as a colour picker shows it) as linear RGB."""
+    lin = srgb_decode(np.array(colorsys.hsv_to_rgb(h % 1.0, s, v)))
     return np.clip(lin, 0.005, 0.95).tolist()
 
 

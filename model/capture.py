@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS, srgb_decode, srgb_encode
+from relight.colour import luminance, srgb_decode, srgb_encode
 
 BACKGROUND_P = 0.5
 PITCH_DEG = 15.0
@@ -90,7 +90,7 @@ def sample_params(rng: np.random.Generator, background_p: float = BACKGROUND_P) 
         }
     tilt = rng.normal(0.0, WB_SIGMA)
     wb = np.exp(np.array([tilt, rng.normal(0.0, 0.03), -tilt + rng.normal(0.0, 0.04)]))
-    wb = wb / float(np.dot(wb, LUMINANCE_WEIGHTS))  # luminance 1: exposure is separate
+    wb = wb / float(luminance(wb))  # luminance 1: exposure is separate
     ev = float(rng.normal(0.0, EXPOSURE_SIGMA))
     return CaptureParams(
         background=background,

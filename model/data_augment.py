@@ -12,7 +12,7 @@ import torch
 from torch.nn import functional as F
 
 from model.data_splits import held_out_light_names
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.colour import luminance, srgb_decode
 from relight.light import SHLight
 
 REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range
@@ -37,17 +37,18 @@ def mirror_signs(order: int) -> np.ndarray:
 
 
 def random_background(rng: np.random.Generator, size: int) -> np.ndarray:
-    """A linear RGB background [3, S, S]: flat colour, smooth noise or a gradient."""
+    """A linear RGB background [3, S, S]: flat colour, smooth noise or a gradient, each drawn
+    uniformly in sRGB-encoded values (as a photo's background would be) and decoded to linear."""
     kind = rng.integers(3)
     if kind == 0:
-        colour = rng.uniform(0.0, 1.0, 3) ** 2.2
+        colour = srgb_decode(rng.uniform(0.0, 1.0, 3))
         return np.broadcast_to(colour[:, None, None], (3, size, size)).astype(np.float32)
     if kind == 1:
         cells = int(rng.integers(2, 9))
         coarse = torch.from_numpy(rng.uniform(0.0, 1.0, (1, 3, cells, cells)).astype(np.float32))
         smooth = F.interpolate(coarse, size=(size, size), mode="bicubic", align_corners=False)
-        return (smooth[0].clamp(0.0, 1.0) ** 2.2).numpy()
-    a, b = rng.uniform(0.0, 1.0, (2, 3)) ** 2.2
+        return srgb_decode(smooth[0].numpy())  # srgb_decode clips to [0, 1]
+    a, b = srgb_decode(rng.uniform(0.0, 1.0, (2, 3)))
     angle = rng.uniform(0, 2 * math.pi)
     yy, xx = np.mgrid[0:size, 0:size] / max(size - 1, 1)
     t = np.clip(0.5 + (xx - 0.5) * math.cos(angle) + (yy - 0.5) * math.sin(angle), 0.0, 1.0)
@@ -91,7 +92,7 @@ def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
     radiance; the image under it is multiplied by the same factors.
     """
     tint = np.exp(rng.normal(0.0, sigma, 3))
-    return (tint / float(LUMINANCE_WEIGHTS @ tint)).astype(np.float32)
+    return (tint / float(luminance(tint))).astype(np.float32)
 
 
 def preset_training_lights(order: int) -> list[tuple[str, np.ndarray]]:

@@ -15,33 +15,36 @@ from torch.nn import functional as F
 
 from model.data_splits import held_out_light_names, is_held_out, light_name
 from relight import sh as sh_np
+from relight.box import Box
 from relight.dataset import read_scene, read_sidecar
 
 DEFAULT_PADDING = 20  # pixels around the mask bbox, as in the paper
 
 
-def crop_box(alpha: np.ndarray, padding: int) -> tuple[int, int, int]:
-    """(top, left, side): a square around the mask bbox plus padding (may leave the image)."""
-    rows = np.flatnonzero(alpha.max(axis=1) > 0)
-    cols = np.flatnonzero(alpha.max(axis=0) > 0)
-    if rows.size == 0:
+def crop_box(alpha: np.ndarray, padding: int) -> Box:
+    """A square around the mask's box plus padding, centred on it (may leave the image): a
+    relight.box.Box, rows then columns."""
+    found = Box.around(alpha, 0.0)
+    if found is None:
         raise ValueError("scene has an empty alpha mask: no person to crop")
-    top, bottom = rows[0] - padding, rows[-1] + 1 + padding
-    left, right = cols[0] - padding, cols[-1] + 1 + padding
+    top, bottom = found.y0 - padding, found.y1 + padding
+    left, right = found.x0 - padding, found.x1 + padding
     side = max(bottom - top, right - left)
     top -= (side - (bottom - top)) // 2
     left -= (side - (right - left)) // 2
-    return int(top), int(left), int(side)
+    return Box(top, top + side, left, left + side)
 
 
-def crop_resize(planes: np.ndarray, box: tuple[int, int, int], size: int) -> np.ndarray:
-    """Crop [H, W, C] to the square box (zeros outside the image), resize to [C, size, size]."""
-    top, left, side = box
+def crop_resize(planes: np.ndarray, box: Box, size: int) -> np.ndarray:
+    """Crop [H, W, C] to the square `box` (zeros outside the image), resize to [C, size, size]."""
+    side = box.height
+    if box.width != side:
+        raise ValueError(f"crop box must be square, got {box.height} x {box.width}")
     h, w, c = planes.shape
     out = np.zeros((side, side, c), dtype=np.float32)
-    y0, x0 = max(top, 0), max(left, 0)
-    y1, x1 = min(top + side, h), min(left + side, w)
-    out[y0 - top:y1 - top, x0 - left:x1 - left] = planes[y0:y1, x0:x1]
+    y0, x0 = max(box.y0, 0), max(box.x0, 0)
+    y1, x1 = min(box.y1, h), min(box.x1, w)
+    out[y0 - box.y0:y1 - box.y0, x0 - box.x0:x1 - box.x0] = planes[y0:y1, x0:x1]
     t = torch.from_numpy(out).permute(2, 0, 1)[None]
     if side != size:
         # antialiased bilinear keeps thin structures when shrinking; linear in the values,

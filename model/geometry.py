@@ -33,9 +33,9 @@ from torch import nn
 
 from model import physics
 from model.network import MAX_WIDTH_FACTOR, Encoder, Generator, LightDecoder, ResidualBlock, num_coeffs
+from relight.sh import REFERENCE_LUMINANCE  # a light's solid-angle mean luminance (docs/conventions.md)
 
 ARCH = "geometry"
-REFERENCE_LUMINANCE = 0.8   # docs/conventions.md: a light's solid-angle mean luminance
 CLIPPED = 0.99              # encoded input above this in any channel: saturated, not fitted
 
 BODY_CHANNELS = 4  # the body prior's input channels: unit normal and coverage (model.data.body_input)

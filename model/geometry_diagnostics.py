@@ -89,12 +89,12 @@ def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
 def relit_level_stops(pred: dict, sample: dict) -> float:
     """|log2| of the relit person's mean luminance over the target's (metric weight): how far
     its level is off, whatever its pattern."""
-    from relight.colour import LUMINANCE_WEIGHTS
+    from relight.colour import luminance
 
     w = channels_last(metric_weight(sample))[..., 0].astype(np.float64)
     relit = relit_np(pred["albedo"], pred["transport"], pred.get("residual"), sample["target_light"])
-    relit = relit @ np.asarray(LUMINANCE_WEIGHTS)
-    target = channels_last(sample["target_image"]) @ np.asarray(LUMINANCE_WEIGHTS)
+    relit = luminance(np.asarray(relit, np.float64))
+    target = luminance(np.asarray(channels_last(sample["target_image"]), np.float64))
     ours, truth = float((w * relit).sum()), float((w * target).sum())
     return abs(float(np.log2(max(ours, 1e-12) / max(truth, 1e-12))))
 

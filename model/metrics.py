@@ -54,11 +54,10 @@ def spatial_change(first, second, mask=None) -> float:
 def luminance_ratio(numerator, denominator, mask=None) -> float:
     """Mask-weighted mean Rec.709 luminance of `numerator` over that of `denominator` (how much
     darker one relit image is than another: a light from behind against one from the front)."""
-    from relight.colour import LUMINANCE_WEIGHTS
+    from relight.colour import luminance
 
-    weights = np.asarray(LUMINANCE_WEIGHTS, np.float64)
-    a = np.asarray(numerator, np.float64).reshape(-1, 3) @ weights
-    b = np.asarray(denominator, np.float64).reshape(-1, 3) @ weights
+    a = luminance(np.asarray(numerator, np.float64).reshape(-1, 3))
+    b = luminance(np.asarray(denominator, np.float64).reshape(-1, 3))
     w = np.ones(len(a)) if mask is None else np.asarray(mask, np.float64).reshape(-1)
     below = float((b * w).sum())
     return float((a * w).sum()) / below if below > 0 else float("nan")

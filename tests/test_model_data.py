@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from model import data, data_augment, data_crops, data_splits
+from relight.box import Box
 from model.synthetic import GLOSS, write_analytic_dataset
 from relight import presets
 from relight.colour import LUMINANCE_WEIGHTS
@@ -28,8 +29,8 @@ def scenes(tmp_path_factory):
 def test_crop_box_is_a_padded_square_around_the_mask():
     alpha = np.zeros((20, 30))
     alpha[5:9, 10:20] = 1.0  # bbox 4 x 10
-    top, left, side = data_crops.crop_box(alpha, padding=2)
-    assert side == 14 and left == 8 and top == 5 + 2 - 2 - 5  # centred vertically: (14 - 8) // 2 = 3 above
+    box = data_crops.crop_box(alpha, padding=2)  # rows then columns, as every Box
+    assert box == Box(0, 14, 8, 22)  # 14 wide with the padding; centred vertically: (14 - 8) // 2 = 3 above
     with pytest.raises(ValueError, match="empty alpha"):
         data_crops.crop_box(np.zeros((4, 4)), 1)
 
@@ -37,14 +38,14 @@ def test_crop_box_is_a_padded_square_around_the_mask():
 def test_crop_resize_zero_extends_and_is_linear():
     rng = np.random.default_rng(0)
     planes = rng.uniform(size=(10, 10, 2)).astype(np.float32)
-    out = data_crops.crop_resize(planes, (-2, -2, 12), 12)  # no resize: exact copy with a zero border
+    out = data_crops.crop_resize(planes, Box(-2, 10, -2, 10), 12)  # no resize: exact copy with a zero border
     assert out.shape == (2, 12, 12)
     np.testing.assert_array_equal(out[:, 2:, 2:], planes.transpose(2, 0, 1))
     assert not out[:, :2].any() and not out[:, :, :2].any()
     # resizing is linear: resize(a + 2b) = resize(a) + 2 resize(b) (float32 round-off)
     a, b = planes[..., :1], planes[..., 1:]
-    lhs = data_crops.crop_resize(a + 2 * b, (0, 0, 10), 4)
-    rhs = data_crops.crop_resize(a, (0, 0, 10), 4) + 2 * data_crops.crop_resize(b, (0, 0, 10), 4)
+    lhs = data_crops.crop_resize(a + 2 * b, Box.whole(10, 10), 4)
+    rhs = data_crops.crop_resize(a, Box.whole(10, 10), 4) + 2 * data_crops.crop_resize(b, Box.whole(10, 10), 4)
     np.testing.assert_allclose(lhs, rhs, rtol=1e-5, atol=1e-6)
 
 

@@ -28,7 +28,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+
 FLOOR = 1e-4
 
 FEATURES = ("l", "xr", "xg", "xb", "L", "Lxr", "Lxg", "Lxb", "dir", "photo", "albedo", "bg", "spread",
@@ -49,7 +50,7 @@ def thumbnails(d) -> np.ndarray:
 
     a = np.asarray(d.alpha, np.float32)[..., None]
     logs = [np.log2(np.maximum(d.albedo, 1e-3)),
-            np.log2(np.maximum((d.transport @ d.light) @ LUMA, 1e-3))[..., None],
+            np.log2(np.maximum(luminance(d.transport @ d.light), 1e-3))[..., None],
             np.log2(np.maximum(d.photo_working, 1e-3))]
     grid = resize_linear(np.concatenate([v * a for v in logs] + [a], axis=-1).astype(np.float32), THUMB, THUMB)
     cover = grid[..., -1:]
@@ -66,15 +67,15 @@ def pair_row(d, pair):
     light = np.asarray(d.light, np.float64)
     dc = np.maximum(light[0] / (2 * math.sqrt(math.pi)), FLOOR)
     big = _log2(mean_luminance(light))
-    dc_colour = np.log2(dc) - _log2(dc @ LUMA)
-    directional = float(np.linalg.norm(light[1:4] @ LUMA) / max(abs(light[0] @ LUMA), FLOOR))
+    dc_colour = np.log2(dc) - _log2(luminance(dc))
+    directional = float(np.linalg.norm(luminance(light[1:4])) / max(abs(luminance(light[0])), FLOOR))
     w = np.asarray(d.alpha, np.float64)
     person = w > 0.5
-    photo_lum = np.asarray(d.photo_working, np.float64) @ LUMA
-    albedo_lum = np.asarray(d.albedo, np.float64) @ LUMA
+    photo_lum = luminance(np.asarray(d.photo_working, np.float64))
+    albedo_lum = luminance(np.asarray(d.albedo, np.float64))
     shading = np.asarray(d.transport, np.float64) @ light
-    shading_lum = np.maximum(shading @ LUMA, FLOOR)
-    crop_photo = np.asarray(pair["photo"], np.float64) @ LUMA
+    shading_lum = np.maximum(luminance(shading), FLOOR)
+    crop_photo = luminance(np.asarray(pair["photo"], np.float64))
     background = np.asarray(pair["alpha"]) < 0.05
     feats = [l, *x, big, *dc_colour, directional,
              _log2(photo_lum[person].mean()) if person.any() else math.log2(FLOOR),
@@ -83,9 +84,9 @@ def pair_row(d, pair):
              float(np.std(np.log2(shading_lum[person]))) if person.any() else 0.0]
     # the target light: the relit shading's level against the fitted one, and its first band
     light_b = np.asarray(pair["light_b"], np.float64)
-    relit_shading = np.maximum((np.asarray(d.transport, np.float64) @ light_b) @ LUMA, FLOOR)
+    relit_shading = np.maximum(luminance(np.asarray(d.transport, np.float64) @ light_b), FLOOR)
     feats += [_log2(relit_shading[person].mean()) - l if person.any() else 0.0,
-              *((light_b[1:4] @ LUMA) / max(abs(light_b[0] @ LUMA), FLOOR))]
+              *(luminance(light_b[1:4]) / max(abs(luminance(light_b[0])), FLOOR))]
     relit = np.asarray(d.relight(pair["light_b"]), np.float64)
     target = np.asarray(pair["target"], np.float64)
     wi = interior_weight(pair["alpha"])[..., None].astype(np.float64)
@@ -217,7 +218,7 @@ def main(argv=None) -> int:
     Yc, Yh = best_stops(Sc), best_stops(Sh)
     print(f"{len(Fc)} calibration pairs (mixed training lights), {len(Fh)} held-out pairs; quality {args.quality}")
     print(f"held-out: as it is {psnr_with(Sh, np.zeros_like(Yh)):.2f} dB; per-pair best gains "
-          f"{psnr_with(Sh, Yh):.2f} dB; sd of the best log2 gain (luminance) {np.std(Yh @ LUMA):.2f} stops")
+          f"{psnr_with(Sh, Yh):.2f} dB; sd of the best log2 gain (luminance) {np.std(luminance(Yh)):.2f} stops")
     print("\n| features | held-out PSNR, fitted on calibration | held-out, leave-one-scene-out (in-sample) |")
     print("|---|---|---|")
     for label, names in SETS.items():
@@ -232,8 +233,8 @@ def main(argv=None) -> int:
             loso[out] = predict(fit(Xh[~out], Yh[~out], args.ridge), Xh[out])
         print(f"| {label} | {psnr_with(Sh, pred):.2f} | {psnr_with(Sh, np.clip(loso, -2, 2)):.2f} |")
     print(appearance(Fc, Tc, Yc, Sc, Fh, Th, Sh))
-    corr = [np.corrcoef(Fh[:, i], Yh @ LUMA)[0, 1] for i in range(len(FEATURES))]
-    corr_c = [np.corrcoef(Fc[:, i], Yc @ LUMA)[0, 1] for i in range(len(FEATURES))]
+    corr = [np.corrcoef(Fh[:, i], luminance(Yh))[0, 1] for i in range(len(FEATURES))]
+    corr_c = [np.corrcoef(Fc[:, i], luminance(Yc))[0, 1] for i in range(len(FEATURES))]
     print("\ncorrelation of each feature with the luminance log gain (held-out / calibration):")
     for name, a, b in zip(FEATURES, corr, corr_c):
         print(f"  {name:8s} {a:+.2f} / {b:+.2f}")

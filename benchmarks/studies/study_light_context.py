@@ -31,9 +31,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+
 INPUTS = ("person", "photo", "background")
 SIZE = 128
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 INPUT_SIZE = 64  # the estimators' input side: a light is low-frequency, and 4x fewer pixels than 128
@@ -97,7 +98,7 @@ def dc_colour_error(est: np.ndarray, true: np.ndarray) -> np.ndarray:
 
 def dc_level_error(est: np.ndarray, true: np.ndarray) -> np.ndarray:
     """|stops| between DC luminances, per image."""
-    return np.abs(np.log2(np.maximum(est[:, 0] @ LUMA, 1e-6) / np.maximum(true[:, 0] @ LUMA, 1e-6)))
+    return np.abs(np.log2(np.maximum(luminance(est[:, 0]), 1e-6) / np.maximum(luminance(true[:, 0]), 1e-6)))
 
 
 def train(torch, kind: str, data, steps: int, batch: int, seed: int):
