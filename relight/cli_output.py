@@ -6,7 +6,6 @@ now and then in a log file)."""
 from __future__ import annotations
 
 import sys
-import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -59,50 +58,60 @@ def claim_output(out: Path, command: str, folders=()):
         yield
 
 
+class _Lines:
+    """tqdm's file where stderr is not a terminal: each refresh of the bar one plain line
+    (tqdm writes a carriage return + the bar; a log file wants lines)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text: str) -> None:
+        text = text.strip()
+        if text:
+            print(text, file=self.stream, flush=True)
+
+    def flush(self) -> None:
+        pass
+
+
 class Progress:
-    """A progress report on stderr: tqdm's bar on a terminal; elsewhere (a log file, a pipe)
-    one plain line every PROGRESS_EVERY seconds: `relight video: 120 of 240 frames (50%), 61 s`."""
+    """A progress report on stderr through tqdm: its bar on a terminal; elsewhere (a log
+    file, a pipe) one plain line every PROGRESS_EVERY seconds (tqdm's mininterval), none
+    at the start or the end: `relight video: 120 of 240 frames (50%), 61 s`."""
 
     def __init__(self, total: int | None, *, command: str, unit: str, initial: int = 0):
-        self.total, self.command, self.unit = total, command, unit
-        self.count = initial
-        self.extra: dict = {}
-        self.bar = None
-        if sys.stderr is not None and sys.stderr.isatty():
-            from tqdm import tqdm
+        from tqdm import tqdm
 
+        self.command, self.unit = command, unit
+        self.extra: dict = {}
+        self.terminal = sys.stderr is not None and sys.stderr.isatty()
+        if self.terminal:
             self.bar = tqdm(total=total, initial=initial, desc="relight", unit=unit, file=sys.stderr,
                             dynamic_ncols=True)
-        self.start = self.last = time.monotonic()
+            return
+        done = (f"{{n}} of {{total}} {unit}s ({{percentage:.0f}}%)" if total else f"{{n}} {unit}s")
+        # delay: no line at the start; miniters=1: the interval alone decides; leave=False: no
+        # line at the end. A closed stderr (None) gets nothing
+        self.bar = tqdm(total=total or None, initial=initial, file=_Lines(sys.stderr), mininterval=PROGRESS_EVERY,
+                        miniters=1, delay=1e-9, leave=False, disable=sys.stderr is None,
+                        bar_format=f"{command}: {done}, {{elapsed_s:.0f}} s{{postfix}}")
 
     def update(self, n: int = 1) -> None:
-        self.count += n
-        if self.bar is not None:
-            self.bar.update(n)
-            return
-        now = time.monotonic()
-        if now - self.last >= PROGRESS_EVERY:
-            self.last = now
-            if sys.stderr is not None:
-                print(self.line(now - self.start), file=sys.stderr, flush=True)
-
-    def line(self, seconds: float) -> str:
-        done = f"{self.count} of {self.total} {self.unit}s ({100 * self.count / max(1, self.total):.0f}%)" \
-            if self.total else f"{self.count} {self.unit}s"
-        extra = "".join(f", {k.replace('_', ' ')} {v}" for k, v in self.extra.items())
-        return f"{self.command}: {done}, {seconds:.0f} s{extra}"
+        self.bar.update(n)
 
     def set_postfix(self, **values) -> None:
-        self.extra.update(values)
-        if self.bar is not None:
+        if self.terminal:
             self.bar.set_postfix(refresh=False, **values)
+            return
+        self.extra.update(values)
+        self.bar.set_postfix_str(", ".join(f"{k.replace('_', ' ')} {v}" for k, v in self.extra.items()),
+                                 refresh=False)
 
     def write(self, message: str) -> None:
-        if self.bar is not None:
+        if self.terminal:
             self.bar.write(message, file=sys.stderr)
-        else:
+        elif sys.stderr is not None:
             print(message, file=sys.stderr, flush=True)
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        self.bar.close()
