@@ -267,3 +267,15 @@ def test_folder_progress_is_reported_when_stderr_is_not_a_terminal(model, tmp_pa
     assert code == 0, err
     lines = [line.split(",")[0] for line in err.strip().splitlines() if " photos (" in line]
     assert lines == [f"relight image: {i} of 3 photos ({100 * i / 3:.0f}%)" for i in (1, 2, 3)]
+
+
+def test_exposure_is_checked_by_the_parser_before_anything_is_opened(tmp_path, capsys):
+    # issue 39: --exposure checked once, by its argparse type, with the library's bound and words
+    photo = _save_photo(tmp_path / "p.png")
+    for value, words in (("-1e9", "exposure must be a finite number of EV within +-64, got -1000000000.0"),
+                         ("nan", "exposure must be a finite number of EV within +-64, got nan"),
+                         ("bright", "invalid float value: 'bright'")):
+        code, out, err = _run(capsys, photo, "--light", "studio", "--exposure", value, "--model",
+                              tmp_path / "no-such-model.onnx", "--out", tmp_path / "o.png")
+        assert code == 2 and out == "" and err.splitlines() == [f"relight image: error: argument --exposure: {words}"]
+    assert not (tmp_path / "o.png").exists()

@@ -95,3 +95,24 @@ def test_module_entry_point_exit_code():
     bad = subprocess.run([sys.executable, "-m", "relight.cli", "sh", "/nonexistent.exr"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and bad.stdout == "" and len(bad.stderr.splitlines()) == 1
+
+
+def test_logging_is_configured_once_by_the_command():
+    # issue 39: main() configures logging once (warnings on stderr in the command's own line
+    # format) and leaves a process's own configuration alone
+    code = ("import logging, sys\n"
+            "from relight.cli import main\n"
+            "main(['sh', 'sky', '--order', '0', '--json'])\n"
+            "main(['sh', 'sky', '--order', '0', '--json'])\n"
+            "assert len(logging.getLogger().handlers) == 1\n"
+            "logging.getLogger('relight.envmap').info('not shown')\n"
+            "logging.getLogger('relight.envmap').warning('clamped %d texels', 3)\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0 and res.stderr.splitlines() == ["relight sh: warning: clamped 3 texels"], res.stderr
+    own = ("import logging\n"
+           "logging.basicConfig(format='own: %(message)s')\n"
+           "from relight.cli import main\n"
+           "main(['sh', 'sky', '--order', '0', '--json'])\n"
+           "logging.getLogger('relight.envmap').warning('w')\n")
+    res = subprocess.run([sys.executable, "-c", own], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0 and res.stderr.splitlines() == ["own: w"], res.stderr

@@ -259,6 +259,9 @@ def test_writes_are_atomic_and_checked(tmp_path):
         ph.write_png(tmp_path / "x.png", bad)
     with pytest.raises(ValueError, match="folder does not exist"):
         ph.write_png(tmp_path / "no" / "x.png", np.zeros((4, 4, 3), np.float32))
+    for write in (ph.write_image, ph.write_exr_image):  # the EXR writers say it in the same words
+        with pytest.raises(ValueError, match="folder does not exist"):
+            write(tmp_path / "no" / "x.exr", np.zeros((4, 4, 3), np.float32))
     with pytest.raises(ValueError, match=r"\.png or \.exr"):
         ph.write_image(tmp_path / "x.tif", np.zeros((4, 4, 3), np.float32))
     assert list(tmp_path.iterdir()) == []

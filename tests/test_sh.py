@@ -378,3 +378,21 @@ def test_projection_error_converges_at_second_order():
         errors.append(np.abs(c - expected).max())
     for coarse, fine in zip(errors, errors[1:]):
         assert 3.5 < coarse / fine < 4.5, errors
+
+
+def test_a_light_is_scaled_once_and_every_rotation_keeps_the_scale():
+    # issue 39: SHLight finds the scale to the reference once; normalizing again after each
+    # rotation (as before) gives the same coefficients bit for bit (a Z rotation keeps band 0)
+    from relight.light import SHLight
+    from relight.sh_rotation import rotation_matrix, z_rotation
+
+    base = RNG.random((25, 3)) + 0.1
+    light = SHLight(base, sh.REFERENCE_LUMINANCE)
+    for degrees in (0.0, 30.0, 77.7, -5.0, 123456.7):
+        rotated = base if degrees == 0.0 else rotation_matrix(z_rotation(degrees), 4) @ base
+        np.testing.assert_array_equal(light.at(degrees), sh.normalize_reference(rotated)[0])
+    assert sh.REFERENCE_LUMINANCE == 0.8
+    with pytest.raises(ValueError, match="mean luminance"):  # a black light with a target: refused at once
+        SHLight(np.zeros((9, 3)), 0.8)
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        SHLight(np.full((9, 3), np.nan))

@@ -23,6 +23,9 @@ its subpackages; not the standard library, not third-party code):
   edge seen first in an earlier thread (threads taken main thread first, then by name)
   is not counted again.
 
+The counts are a fresh process's: run again in one process, the command skips what its
+first run cached (onnxruntime sessions, tables) and takes fewer hops.
+
 Modules are named by their file, relative to the folder that holds the `relight` package
 (`relight/photo.py`, or `relight/io/photo.py` after a move), so the tool counts the same
 way after modules move into subpackages. The raw counts (every call, every module change
