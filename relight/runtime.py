@@ -199,7 +199,8 @@ class Relighter(ModelSession):
             # finite=False: the matte checks its block average, which a NaN or Inf survives (one
             # cheap check of every pixel, not a second full-photo scan)
             photo = check_photo(photo, segmenter.MIN_SIDE, finite=False, purpose="a person matte")
-            found = segmenter.matte_of_checked_photo(photo, person, method=matte_method)
+            found = segmenter.matte_of_checked_photo(photo, person, method=matte_method,
+                                                     threads=self._open["threads"])  # --threads reaches the matte
             mask = found.alpha
             box = _with_margin(found.box, *photo.shape[:2])
         elif mask is not None:

@@ -313,3 +313,15 @@ def test_24_megapixel_photo_with_the_person_matte_stays_under_2_gb(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     peak = int(res.stdout.split("PEAK_RSS_BYTES")[1].split()[0])
     assert peak < LIMIT_BYTES, f"peak RSS {peak / 2**20:.0f} MiB"
+
+
+def test_the_relighters_threads_reach_the_matte():
+    # issue 39: `relight image --threads N` opened the matte's networks on every core
+    from relight import quality
+    from relight.runtime import Relighter
+
+    relighter = Relighter(quality.model_path("draft"), threads=1, working_size=quality.preset("draft").working_size)
+    before = set(matte._SESSIONS)
+    relighter.decompose(_photo("obama_standing"), matte="person", matte_method="selfie")
+    assert {key[2] for key in set(matte._SESSIONS) - before} <= {1}
+    assert any(key[0] == "selfie" and key[2] == 1 for key in matte._SESSIONS)
