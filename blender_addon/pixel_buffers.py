@@ -66,20 +66,19 @@ BUFFERS = BufferPool()
 # transpose of the first two axes), so writing upright values into upright(stored) writes the
 # stored image.
 
-_UPRIGHT = {1: lambda s: s, 2: lambda s: s[:, ::-1], 3: lambda s: s[::-1, ::-1], 4: lambda s: s[::-1],
-            5: lambda s: s.swapaxes(0, 1), 6: lambda s: s.swapaxes(0, 1)[:, ::-1],
-            7: lambda s: s[::-1, ::-1].swapaxes(0, 1), 8: lambda s: s.swapaxes(0, 1)[::-1]}
-_INVERSE = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}  # 6 and 8 turn opposite ways
-
-
 def upright(stored: np.ndarray, orientation: int) -> np.ndarray:
-    """The stored image [H, W, ...] (top row first) turned upright by its EXIF orientation (a view)."""
-    return _UPRIGHT[orientation](stored)
+    """The stored image [H, W, ...] (top row first) turned upright by its EXIF orientation (a
+    view): relight.photo.upright, the core's one table of the eight turns."""
+    from relight.photo import upright as turn
+
+    return turn(stored, orientation)
 
 
 def as_stored(upright_image: np.ndarray, orientation: int) -> np.ndarray:
     """The upright image [H, W, ...] turned back to how its file stores it (a view): upright's inverse."""
-    return _UPRIGHT[_INVERSE[orientation]](upright_image)
+    from relight.photo import as_stored as turn_back
+
+    return turn_back(upright_image, orientation)
 
 
 def stored_size(size: tuple[int, int], orientation: int) -> tuple[int, int]:

@@ -24,7 +24,7 @@ from relight.fileio import atomic_path
 from relight.image_limits import check_declared_size
 from relight.png_decoder import check_png_chunks, read_png16
 
-__all__ = ["read_photo", "read_mask", "exif_orientation", "write_image", "write_png", "write_exr_image",
+__all__ = ["read_photo", "read_mask", "exif_orientation", "upright", "as_stored", "write_image", "write_png", "write_exr_image",
            "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
 
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
@@ -115,7 +115,10 @@ def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.nd
                     # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
                     decoded = read_png16(path, max_pixels)
                     if decoded is not None:
-                        return _decode_16bit(*decoded)
+                        orientation = im.getexif().get(0x0112, 1)
+                        rgb, alpha = _decode_16bit(*decoded)
+                        return (np.ascontiguousarray(upright(rgb, orientation)),
+                                None if alpha is None else np.ascontiguousarray(upright(alpha, orientation)))
                 im.load()
                 return _pillow_to_linear(_upright(im), path)
     finally:
@@ -128,6 +131,26 @@ def _upright(im):
     from PIL import ImageOps
 
     return ImageOps.exif_transpose(im) if im.getexif().get(0x0112, 1) not in (0, 1) else im
+
+
+# The EXIF orientation (1 - 8) is the turn from a file's stored pixels to the upright ones, as
+# PIL.ImageOps.exif_transpose makes it; each turn is a numpy view (flips and a transpose of the
+# first two axes), so writing upright values into upright(stored) writes the stored image.
+_UPRIGHT = {1: lambda s: s, 2: lambda s: s[:, ::-1], 3: lambda s: s[::-1, ::-1], 4: lambda s: s[::-1],
+            5: lambda s: s.swapaxes(0, 1), 6: lambda s: s.swapaxes(0, 1)[:, ::-1],
+            7: lambda s: s[::-1, ::-1].swapaxes(0, 1), 8: lambda s: s.swapaxes(0, 1)[::-1]}
+_INVERSE = {1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 8, 7: 7, 8: 6}  # 6 and 8 turn opposite ways
+
+
+def upright(stored: np.ndarray, orientation: int) -> np.ndarray:
+    """The stored image [H, W, ...] (top row first) turned upright by its EXIF orientation (a
+    view; orientations outside 1 - 8 count as 1, as read_photo treats them)."""
+    return _UPRIGHT.get(orientation, _UPRIGHT[1])(stored)
+
+
+def as_stored(upright_image: np.ndarray, orientation: int) -> np.ndarray:
+    """The upright image [H, W, ...] turned back to how its file stores it (a view): upright's inverse."""
+    return _UPRIGHT[_INVERSE.get(orientation, 1)](upright_image)
 
 
 def exif_orientation(path: str | os.PathLike) -> int:

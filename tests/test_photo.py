@@ -355,3 +355,32 @@ def test_exr_output_is_lossless_zip_written_on_openexrs_threads(tmp_path):
     back, alpha = ph.read_photo(tmp_path / "o.exr")
     np.testing.assert_allclose(back, lin, rtol=1e-7, atol=0)
     np.testing.assert_allclose(alpha, 0.5, rtol=1e-7)
+
+
+def _with_exif_orientation(png: bytes, orientation: int) -> bytes:
+    """The PNG with an eXIf chunk (big-endian TIFF, one IFD entry: Orientation) before IEND."""
+    tiff = b"MM\x00*" + struct.pack(">I", 8) + struct.pack(">H", 1) \
+        + struct.pack(">HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack(">I", 0)
+    body = struct.pack(">I", len(tiff)) + b"eXIf" + tiff + struct.pack(">I", zlib.crc32(b"eXIf" + tiff))
+    return png[:-12] + body + png[-12:]
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_a_16_bit_png_is_turned_upright_as_pillow_turns_an_8_bit_one(tmp_path, orientation):
+    """read_png16 bypasses Pillow's pixels, so its orientation is the core's own table; it must
+    match exif_transpose on the same pixels at 8 bits (the codes are multiples of 257, so the two
+    decodes give the same linear values up to float32 rounding)."""
+    codes8 = _rgb8(h=4, w=7, seed=orientation)
+    stored16 = codes8.astype(np.uint16) * 257
+    png16 = tmp_path / "sixteen.png"
+    png16.write_bytes(_with_exif_orientation(_encode_png16(stored16, [0]), orientation))
+    png8 = tmp_path / "eight.png"
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(codes8).save(png8, exif=exif)
+    got16, _ = ph.read_photo(png16)
+    got8, _ = ph.read_photo(png8)
+    assert ph.exif_orientation(png16) == orientation
+    assert got16.shape == got8.shape == ((7, 4, 3) if orientation >= 5 else (4, 7, 3))
+    np.testing.assert_allclose(got16, got8, rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(ph.as_stored(ph.upright(stored16, orientation), orientation), stored16)
