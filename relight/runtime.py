@@ -26,7 +26,7 @@ import numpy as np
 from relight import quality
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR
-from relight.decomposition import Decomposition, RelightStats  # noqa: F401 (the runtime's result types)
+from relight.decomposition import Decomposition, RelightStats  # the runtime's result types
 from relight.level import METADATA_KEY, LevelPrior, leveled
 from relight.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path

@@ -174,7 +174,7 @@ def _declared_size(path: Path) -> tuple[int, int]:
                 size = im.size
                 try:  # a PNG's EXIF may follow its pixels: a truncated file fails when the frame is read
                     orientation = im.getexif().get(0x0112, 1)  # EXIF rotations that swap the sides
-                except Exception:  # noqa: BLE001 - Pillow's many types; the size alone is weighed
+                except Exception:  # Pillow's many types; the size alone is weighed
                     orientation = 1
                 return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
     except Image.DecompressionBombError:  # over twice Pillow's limit: above MAX_PIXELS too

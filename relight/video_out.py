@@ -201,7 +201,7 @@ class VideoWriter:
             if closing is not None:
                 try:
                     closing.close()
-                except Exception:  # noqa: BLE001 - tearing down after an error: the first error is the one to report
+                except Exception:  # tearing down after an error: the first error is the one to report
                     pass
         self._audio = None
         self.container = None

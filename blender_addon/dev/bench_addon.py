@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     h, w = (int(v) for v in args.size.lower().split("x"))
 
-    import bpy  # noqa: F401  (imported before the add-on modules that need it)
+    import bpy  # imported before the add-on modules that need it
 
     from blender_addon import bl_images, bl_world, engine, light_sources, pixel_buffers, quality
     from relight import presets
