@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from test_refine import lobe_light, synthetic
+from refine_support import lobe_light, synthetic
 
 from relight import level
 from relight.colour import LUMINANCE_WEIGHTS

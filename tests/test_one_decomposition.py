@@ -65,7 +65,7 @@ def test_a_geometry_model_decomposes_a_photo_once_and_its_albedo_follows_from_th
 
 
 def test_with_light_keeps_the_decomposition_and_changes_only_light_and_albedo():
-    from test_refine import lobe_light, synthetic
+    from refine_support import lobe_light, synthetic
 
     light = lobe_light([0.2, -1.0, 0.4], [1.0, 0.85, 0.7], 0.5)
     d, _, transport, _ = synthetic(light, light)
