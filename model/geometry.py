@@ -33,6 +33,7 @@ from torch import nn
 
 from model import physics
 from model.network import MAX_WIDTH_FACTOR, Encoder, Generator, LightDecoder, ResidualBlock, num_coeffs
+from relight.prt import ALBEDO_RELIABLE  # the photo-consistent albedo's shading floor
 from relight.sh import REFERENCE_LUMINANCE  # a light's solid-angle mean luminance (docs/conventions.md)
 
 ARCH = "geometry"
@@ -61,7 +62,7 @@ class GeometryNet(nn.Module):
     arch = ARCH
 
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
-                 full_res_convs: int = 1, ridge: float = 0.1, reliable: float = 0.25,
+                 full_res_convs: int = 1, ridge: float = 0.1, reliable: float = ALBEDO_RELIABLE,
                  fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1,
                  front_facing: bool = False):
         super().__init__()

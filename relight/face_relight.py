@@ -5,7 +5,7 @@ GRID_MAX px (the network sees a full-body face at about 10 px).
 The transport follows from the normals by the network's own physics (model.physics.lobe_transport):
 T_lm(x) = v(x) A_l / pi Y_lm(n(x)), with v the network's ambient visibility there (its T_00 against
 an unoccluded point's, clamped to [0, 1]). The albedo follows by the network's photo-consistent
-rule (relight.refine.photo_consistent_albedo): photo / max(T . L, floor), at most 1, with the
+rule (relight.prt.photo_consistent_albedo): photo / max(T . L, floor), at most 1, with the
 decomposition's light L and its floor (RELIABLE x the person's mean shading). Relit under L':
 albedo x (T . L'), written per full-resolution pixel as min(photo, c) x g with c = max(T . L,
 floor) and g = (T . L') / c on the grid, upsampled bilinearly (the photo's own texture kept, as
