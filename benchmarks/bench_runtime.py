@@ -11,6 +11,7 @@ and fp16 ONNX in a temporary folder. Prints Markdown tables (medians).
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import platform
 import resource
@@ -121,13 +122,18 @@ def _paired_median_times(fns: dict, repeats: int) -> dict:
 
 
 def _baseline_runtime(rev: str):
-    """relight/runtime.py as of git revision `rev`, imported as a separate module."""
+    """The Decomposition of git revision `rev`, imported as a separate module: relight/decomposition.py
+    (relight/runtime.py before the two were split; today's runtime.py only re-exports it)."""
     import importlib.util
 
-    source = subprocess.run(["git", "show", f"{rev}:relight/runtime.py"], cwd=ROOT, capture_output=True,
-                            text=True, check=True).stdout
+    for rel in ("relight/decomposition.py", "relight/runtime.py"):
+        shown = subprocess.run(["git", "show", f"{rev}:{rel}"], cwd=ROOT, capture_output=True, text=True)
+        if shown.returncode == 0:
+            break
+    else:
+        raise SystemExit(f"--baseline {rev}: {shown.stderr.strip()}")
     path = Path(tempfile.mkdtemp()) / "runtime_baseline.py"
-    path.write_text(source)
+    path.write_text(shown.stdout)
     spec = importlib.util.spec_from_file_location("runtime_baseline", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
@@ -136,9 +142,12 @@ def _baseline_runtime(rev: str):
 
 
 def _as_baseline(module, d):
-    """The same decomposition as an object of the baseline runtime."""
-    names = ("albedo", "transport", "residual", "light", "alpha", "box", "working_size", "photo",
-             "photo_working", "mask", "sh_order")
+    """The same decomposition as an object of the baseline runtime (the fields both have)."""
+    import dataclasses
+
+    names = {f.name for f in dataclasses.fields(module.Decomposition) if f.init}
+    names &= {f.name for f in dataclasses.fields(d) if f.init}
+    names.discard("choices")
     return module.Decomposition(**{k: getattr(d, k) for k in names})
 
 
@@ -172,6 +181,7 @@ def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str
     from relight.runtime import Relighter
 
     old = _baseline_runtime(baseline) if baseline else None
+    old_turns = old is not None and "rotation_deg" in inspect.signature(old.Decomposition.relight_working).parameters
     head = "| what | pixels | time (ms) | ms per megapixel |"
     rows = [head + (f" {baseline} (ms) | time / {baseline} |" if old else ""),
             "|---|---|---|---|" + ("---|---|" if old else "")]
@@ -214,9 +224,10 @@ def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str
     row(f"the dot product with T, E, albedo stored float16 ({nbytes / 2**20:.0f} MiB), cast per 4096 rows",
         px, {"new": half})
     row("dot product, new rotation each call (cached matrix)", px,
-        # this tree turns the light in relight.light (a cached matrix); the baseline inside relight
+        # this tree turns the light in relight.light (a cached matrix); a baseline from before
+        # issue 19 inside relight_working (rotation_deg), a later one as this tree does
         pair(d, lambda x: x.relight_working(sh_light(L, ORDER, rotation_deg=37.0, cache=cache)),
-             lambda x: x.relight_working(L, rotation_deg=37.0)))
+             (lambda x: x.relight_working(L, rotation_deg=37.0)) if old_turns else None))
     row("relight() full frame, crop == working size", px, pair(d, lambda x: x.relight(L)))
     H, W = big
     photo = _photo(H, W, seed=2)
@@ -277,8 +288,9 @@ def main() -> None:
                         help="RelightNet widths for the network-cost table at 512 px")
     parser.add_argument("--skip", nargs="*", default=[], choices=["decompose", "widths", "relight", "memory"])
     parser.add_argument("--baseline", metavar="REV", default=None,
-                        help="also time relight/runtime.py of this git revision (e.g. HEAD), alternating "
-                             "with the working tree's, and print the ratio")
+                        help="also time relight/decomposition.py (relight/runtime.py before their split) "
+                             "of this git revision (e.g. HEAD), alternating with the working tree's, "
+                             "and print the ratio")
     args = parser.parse_args()
     from export.fp16 import export_fp16
     from export.random_model import export_random_model
