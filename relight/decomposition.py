@@ -20,11 +20,12 @@ from relight import sh
 from relight.box import Box
 from relight.composite import ALPHA_FLOOR, DETAIL_EPS, composite
 from relight.foreground import foreground, smooth_colours
-from relight.light import fit_order
+from relight.light import fit_checked
 from relight.mask_ops import dilate
 from relight.resample import Bilinear
 
-__all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "exposure_scale"]
+__all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "checked_light",
+           "exposure_scale"]
 
 DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 # the light's bands past the order a relight uses may move a working-resolution value by at
@@ -45,6 +46,18 @@ def exposure_scale(exposure_ev) -> float:
     if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
         raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
     return 2.0 ** ev
+
+
+def checked_light(coeffs) -> np.ndarray:
+    """A light given to a Decomposition, checked once: numeric SH coefficients [m, 3] of an SH
+    order, finite, as float64 (ValueError otherwise)."""
+    if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
+        raise ValueError(f"light must be SH coefficients [n, 3] (relight.light.sh_light makes them from a "
+                         f"map, preset or photo), got {type(coeffs).__name__}")
+    arr = np.asarray(coeffs)
+    if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
+    return sh.validate_coeffs(arr)
 
 
 @dataclass(frozen=True)
@@ -162,19 +175,17 @@ class Decomposition:
         model's order, times 2**exposure_ev, float32. Fitted once per light: asked again for
         the same coefficients and exposure (the add-on's layers, relight then layers) it
         returns the same array."""
-        if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
-            raise ValueError(f"light must be SH coefficients [n, 3] (relight.light.sh_light makes them from a "
-                             f"map, preset or photo), got {type(coeffs).__name__}")
-        arr = np.asarray(coeffs)
-        if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
-            raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
-        scale = exposure_scale(exposure_ev)
+        return self._fit_light(checked_light(coeffs), exposure_scale(exposure_ev))
+
+    def _fit_light(self, light: np.ndarray, scale: float) -> np.ndarray:
+        """fit_light of a light already checked (checked_light, or relight.light's SHLight: finite
+        float64 SH [m, 3]) and an exposure's scale already checked: nothing checked again."""
         last = self._fitted
-        if last is not None and last[1] == scale and last[0].shape == arr.shape and np.array_equal(last[0], arr):
+        if last is not None and last[1] == scale and last[0].shape == light.shape and np.array_equal(last[0], light):
             return last[2]
-        L = (fit_order(arr.astype(np.float64), sh.num_coeffs(self.sh_order)) * scale).astype(np.float32)
+        L = (fit_checked(light, sh.num_coeffs(self.sh_order)) * scale).astype(np.float32)
         L.setflags(write=False)  # shared by every call with this light
-        self._fitted = (arr.copy(), scale, L)
+        self._fitted = (light.copy(), scale, L)
         return L
 
     def order_needed(self, light: np.ndarray) -> int:
@@ -238,8 +249,15 @@ class Decomposition:
         `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
         written and returned instead of a new array (relight.composite).
         """
-        scale = np.float32(exposure_scale(exposure_ev))
-        relit = self._relit(self.fit_light(coeffs), float(scale))
+        return self._relight(checked_light(coeffs), exposure_scale(exposure_ev), detail, out)
+
+    def _relight(self, light: np.ndarray, scale: float, detail: bool = True,
+                 out: np.ndarray | None = None) -> np.ndarray:
+        """relight() of a light and an exposure's scale (2**EV) already checked (as _fit_light
+        takes them): relight image's path, whose light relight.light.SHLight checked and whose
+        --exposure its argparse type did."""
+        scale = np.float32(scale)
+        relit = self._relit(self._fit_light(light, 1.0), float(scale))
         quotient = detail and not self._up.identity
         if quotient:
             source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
@@ -315,7 +333,11 @@ class Decomposition:
         up to the order of upsampling, except where the matte is soft: there the albedo is
         the person's own colour (relight.foreground), without the background the photo's edge
         pixels mix in, so the layers composite over another background without its fringe."""
-        L = self.fit_light(self.light if coeffs is None else coeffs, exposure_ev)
+        return self._layers(checked_light(self.light if coeffs is None else coeffs), exposure_scale(exposure_ev))
+
+    def _layers(self, light: np.ndarray, scale: float) -> dict[str, np.ndarray]:
+        """layers() of a light and an exposure's scale already checked (as _relight takes them)."""
+        L = self._fit_light(light, scale)
         return {name: self._layer(name, L) for name in LAYER_NAMES}
 
     def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:

@@ -37,7 +37,8 @@ import numpy as np
 from relight import sh, sh_projection, sh_rotation
 from relight.sh import REFERENCE_LUMINANCE
 
-__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "directional_light", "fit_order", "map_file", "sh_light"]
+__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "directional_light", "fit_checked", "fit_order", "map_file",
+           "sh_light"]
 
 class LightCache:
     """A small LRU of projected maps (per file state and order) and Z-rotation matrices,
@@ -117,11 +118,11 @@ def _pixels(source) -> np.ndarray:
 
 def fit_order(coeffs, n: int) -> np.ndarray:
     """SH coefficients [m, 3] (float64) cut or zero-padded to n rows."""
-    return _fit(sh.validate_coeffs(coeffs), n)
+    return fit_checked(sh.validate_coeffs(coeffs), n)
 
 
-def _fit(c: np.ndarray, n: int) -> np.ndarray:
-    """fit_order of coefficients sh.validate_coeffs returned."""
+def fit_checked(c: np.ndarray, n: int) -> np.ndarray:
+    """fit_order of coefficients already checked (sh.validate_coeffs returned them)."""
     if c.shape[0] >= n:
         return c[:n]
     return np.concatenate([c, np.zeros((n - c.shape[0], 3), c.dtype)], axis=0)
@@ -183,7 +184,7 @@ class SHLight:
         n = sh.num_coeffs(order)
         goal = float(target) if normalize is not False else None
         if isinstance(source, SHLight):
-            return cls._light(_fit(source.base, n), normalize, goal, source.target)
+            return cls._light(fit_checked(source.base, n), normalize, goal, source.target)
         if isinstance(source, str) and source.startswith("sun:"):  # a directional light (relight.lamps)
             from relight.lamps import parse_sun, sun_light
 

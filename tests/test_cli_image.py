@@ -53,6 +53,30 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
     assert np.max(np.abs(got - srgb_encode(expect))) <= 0.5 / 255 + 1e-6
 
 
+def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model, tmp_path, capsys, monkeypatch):
+    # issue 39: the light where relight.light resolves it, --exposure by its argparse type; the
+    # decomposition trusts both (Decomposition._relight / _layers), its public relight checks them
+    from relight import decomposition, sh
+
+    calls = {"light": 0, "exposure": 0}
+
+    def counted(fn, key):
+        def wrapped(*args, **kwargs):
+            calls[key] += 1
+            return fn(*args, **kwargs)
+        return wrapped
+
+    monkeypatch.setattr(sh, "validate_coeffs", counted(sh.validate_coeffs, "light"))
+    monkeypatch.setattr(decomposition, "exposure_scale", counted(decomposition.exposure_scale, "exposure"))
+    photo = _save_photo(tmp_path / "p.png")
+    for out, extra in ((tmp_path / "o.png", ()), (tmp_path / "o.exr", ("--layers",))):
+        calls.update(light=0, exposure=0)
+        code, _, err = _run(capsys, photo, "--light", "studio", "--exposure", 0.5, "--model", model, "--out", out,
+                            *extra)
+        assert code == 0, err
+        assert calls == {"light": 1, "exposure": 1}, extra
+
+
 def test_default_output_name_and_exr_output(model, tmp_path, capsys):
     photo = _save_photo(tmp_path / "p.png", alpha=True)
     code, _, err = _run(capsys, photo, "--light", "city", "--model", model)
