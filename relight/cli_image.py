@@ -118,10 +118,11 @@ def open_relighter(args):
 
 
 def decompose_options(args) -> dict:
-    """Relighter.decompose's keyword arguments from --quality / --refine / --matte / --person."""
+    """Relighter.decompose's keyword arguments from --quality / --refine / --matte / --person; the
+    working size is the Relighter's own (open_relighter opens it at --quality's)."""
     from relight.quality import preset
 
-    options = preset(args.quality).decompose_options()
+    options = preset(args.quality).decompose_options(working_size=False)
     if getattr(args, "refine", None) is not None:
         options["refine"] = args.refine
     return dict(options, matte=args.matte, person=getattr(args, "person", None))

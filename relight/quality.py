@@ -42,11 +42,13 @@ class QualityPreset:
         refinement iterations, the person segmenter's cost rank: selfie < pose < ensemble)."""
         return (self.working_size, len(self.augment), self.refine, MATTE_COST_RANK[self.matte_method])
 
-    def decompose_options(self) -> dict:
-        """Relighter.decompose's keyword arguments for this preset."""
-        return {"working_size": self.working_size, "augment": self.augment, "refine": self.refine,
-                "matte_method": self.matte_method, "augment_until_agreed": self.augment_until_agreed,
-                "ensemble": self.ensemble}
+    def decompose_options(self, working_size: bool = True) -> dict:
+        """Relighter.decompose's keyword arguments for this preset. working_size=False: without
+        the working size, for a Relighter opened at this preset's (Relighter(working_size=
+        preset.working_size), as relight image's is): the size is then given once."""
+        size = {"working_size": self.working_size} if working_size else {}
+        return {**size, "augment": self.augment, "refine": self.refine, "matte_method": self.matte_method,
+                "augment_until_agreed": self.augment_until_agreed, "ensemble": self.ensemble}
 
 
 # Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set with the

@@ -77,6 +77,25 @@ def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model,
         assert calls == {"light": 1, "exposure": 1}, extra
 
 
+def test_the_working_size_is_given_once_to_the_relighter(model, tmp_path, capsys, monkeypatch):
+    # issue 39: relight image opens its Relighter at --quality's working size; its decompose is not told again
+    import json
+
+    seen = []
+    decompose = Relighter.decompose
+
+    def recorded(self, *args, **kwargs):
+        seen.append((self.working_size, kwargs))
+        return decompose(self, *args, **kwargs)
+
+    monkeypatch.setattr(Relighter, "decompose", recorded)
+    code, stdout, err = _run(capsys, _save_photo(tmp_path / "p.png"), "--light", "studio", "--model", model,
+                             "--out", tmp_path / "o.png", "--json")
+    assert code == 0, err
+    assert [(size, "working_size" in kwargs) for size, kwargs in seen] == [(DRAFT_SIZE, False)]
+    assert json.loads(stdout.splitlines()[0])["working_size"] == DRAFT_SIZE
+
+
 def test_default_output_name_and_exr_output(model, tmp_path, capsys):
     photo = _save_photo(tmp_path / "p.png", alpha=True)
     code, _, err = _run(capsys, photo, "--light", "city", "--model", model)
