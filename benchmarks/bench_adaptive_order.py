@@ -4,7 +4,7 @@ Prints markdown tables (docs/TRADEOFFS.md, "Adaptive SH order").
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_adaptive_order.py [--fraction 0.99] [--repeat 7]
 
-Error: a white, unoccluded Lambertian sphere (relight.prt.lambert_transport at
+Error: a white, unoccluded Lambertian sphere (relight.network.prt.lambert_transport at
 order 8, truncated) under each preset (normalized to mean luminance 0.8), at
 20,000 Fibonacci normals; per normal and channel |s_N - s_8| / mean(s_8)
 (relative to the mean reference shading, so dark normals do not divide by ~0).
@@ -20,10 +20,10 @@ import platform
 
 import numpy as np
 
-from farm.bake import fibonacci_directions
-from relight import presets, sh, sh_adaptive
-from relight.light import sh_light
-from relight.prt import lambert_transport
+from farm.rendering.bake import fibonacci_directions
+from relight.lighting import presets, sh, sh_adaptive
+from relight.lighting.light import sh_light
+from relight.network.prt import lambert_transport
 from timing import median_ms  # benchmarks/timing.py
 
 REF_ORDER = 8

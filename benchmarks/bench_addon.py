@@ -165,7 +165,8 @@ def main(argv=None) -> int:
     import bpy
 
     import blender_addon
-    from blender_addon import bl_dials, bl_images, bl_ops, bl_saved, bl_session, state
+    from blender_addon.blender import bl_dials, bl_images, bl_ops, bl_saved, bl_session
+    from blender_addon.worker import state
 
     load_before = os.getloadavg()[0]
     tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))

@@ -103,7 +103,7 @@ def child(flow: str, photo: str, quality: str, mask: str, out: str) -> None:
     import bpy
 
     import blender_addon
-    from blender_addon import bl_ops, bl_saved, bl_session
+    from blender_addon.blender import bl_ops, bl_saved, bl_session
 
     folder = Path(tempfile.mkdtemp(prefix="bench_mem_"))
     blender_addon.register()

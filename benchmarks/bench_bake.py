@@ -24,8 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def dressed_mesh(seed: int = 0):
     """A posed, clothed body (bpy-free), as the bake sees it."""
-    from farm import appearance, bodies, poses
-    from farm.bake import VertexMaterials
+    from farm.synthesis import appearance, bodies, poses
+    from farm.rendering.bake import VertexMaterials
 
     rng = np.random.default_rng(seed)
     params = bodies.sample_body(rng)
@@ -47,7 +47,7 @@ def dressed_mesh(seed: int = 0):
 
 
 def bench_rays(repeats: int) -> None:
-    from farm import bake
+    from farm.rendering import bake
 
     v, f, n, _, _ = dressed_mesh()
     S = 256
@@ -84,9 +84,10 @@ def directions_rows(counts=DIRECTION_COUNTS, reference: int = DIRECTION_REFERENC
     Rows: {"bake", "S", "mean", "p99", "seconds"}; error is |T.L - T_ref.L| of a white
     surface under the 'park' map at mean luminance 0.8, over the mesh's vertices.
     """
-    from farm import bake
-    from relight import presets, prt, sh, sh_projection
-    from relight.envmap import load_equirect
+    from farm.rendering import bake
+    from relight.lighting import presets, sh, sh_projection
+    from relight.network import prt
+    from relight.lighting.envmap import load_equirect
 
     v, f, n, mats, view = dressed_mesh()
     park = load_equirect(presets.preset_path("park")).pixels
@@ -117,7 +118,7 @@ def bench_directions() -> None:
 def bench_scene(resolution: int, lights: int, samples: int) -> None:
     import bpy  # noqa: F401
 
-    from farm import bodies
+    from farm.synthesis import bodies
     from farm.scene import SceneOptions, render_scene
 
     t = time.perf_counter()
@@ -164,9 +165,9 @@ def spp_rows(resolution: int, counts=SPP_COUNTS, reference: int = SPP_REFERENCE)
     """
     import bpy
 
-    from farm import passes
+    from farm.rendering import passes
     from farm.scene import SceneOptions, render_scene
-    from relight import dataset
+    from relight.files import dataset
 
     with tempfile.TemporaryDirectory() as tmp:
         path = render_scene(2, 1, SceneOptions(resolution=resolution, lights=1, samples=1, denoise=False,

@@ -1,4 +1,4 @@
-"""The albedo layer along the matte's soft edge: the person's own colour (relight.foreground)
+"""The albedo layer along the matte's soft edge: the person's own colour (relight.network.foreground)
 against the photo's mix of person and background (the rule before), on held-out farm scenes.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_edge_colour.py --data data/heldout256 [--scenes 24]
@@ -46,10 +46,10 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
 
-    from model.data import photo_pairs
-    from relight import quality
-    from relight.decomposition import Decomposition
-    from relight.runtime import Relighter
+    from model.samples.data import photo_pairs
+    from relight.network import quality
+    from relight.network.decomposition import Decomposition
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(quality.model_path("balanced"), threads=args.threads)
     person_colour = Decomposition._edge_colour
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     def photo_only(self, r0, r1):  # the rule before: the photo's own mix of person and background
         return None
 
-    rows = {"person's colour (relight.foreground)": [], "the photo (before)": []}
+    rows = {"person's colour (relight.network.foreground)": [], "the photo (before)": []}
     for pair in photo_pairs(args.data, 256, args.scenes, 1):
         d = relighter.decompose(pair["photo"], mask=pair["alpha"], **{
             k: v for k, v in quality.preset("balanced").decompose_options().items() if k != "matte_method"})

@@ -43,7 +43,8 @@ import numpy as np
 
 def _build(index: int, seed: int, options, work: Path):
     """A farm scene in Blender: reset, sample, bake, build, geometry pass (farm.scene's steps)."""
-    from farm import blender_scene, lights, passes
+    from farm.rendering import blender_scene, passes
+    from farm.synthesis import lights
     from farm.scene import bake_scene, build_blender_scene, render_buffers, sample_scene
 
     scene = blender_scene.reset_scene()
@@ -56,7 +57,7 @@ def _build(index: int, seed: int, options, work: Path):
 
 
 def _set_light(scene, light, name: str, automatic_map: bool) -> None:
-    from farm import blender_scene
+    from farm.rendering import blender_scene
 
     blender_scene.set_environment_world(scene, None, light.rotation_deg, light.scale, pixels=light.pixels, name=name)
     if automatic_map:
@@ -69,7 +70,7 @@ def _timed_call(scene, work: Path, samples: int, denoise: bool, prefilter: str,
     """(render call seconds, EXR read-back seconds) of one path-traced render."""
     import bpy
 
-    from farm import passes
+    from farm.rendering import passes
 
     if not write:  # the same render kept in memory (unreadable from Python in background mode)
         scene.cycles.samples, scene.cycles.use_denoising = samples, denoise
@@ -100,7 +101,7 @@ VARIANTS = ("automatic map", "zip-compressed EXR", "farm", "no denoiser", "no EX
 
 
 def bench_calls(args) -> None:
-    from farm import passes
+    from farm.rendering import passes
     from farm.options import SceneOptions
 
     options = SceneOptions(resolution=args.res, lights=2, samples=args.samples)
@@ -131,8 +132,8 @@ def bench_calls(args) -> None:
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """model.metrics.psnr over the masked pixels, peak = the reference's 99th percentile there (HDR-safe)."""
-    from model import metrics
+    """model.scoring.metrics.psnr over the masked pixels, peak = the reference's 99th percentile there (HDR-safe)."""
+    from model.scoring import metrics
 
     peak = float(np.percentile(reference[mask], 99.0))
     return metrics.psnr(image, reference, mask.astype(np.float64), peak=peak)
@@ -142,7 +143,7 @@ REFERENCE_SEED = 7919
 
 
 def bench_spp(args) -> None:
-    from farm import blender_scene, passes
+    from farm.rendering import blender_scene, passes
     from farm.options import SceneOptions
 
     counts = [int(c) for c in args.counts.split(",")]

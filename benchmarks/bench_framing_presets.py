@@ -1,13 +1,13 @@
 """Quality presets per framing (issue 37): each preset's relit PSNR, SI PSNR and face PSNR on a
-held-out set, through the runtime as a user runs it (relight.runtime with the preset's options),
+held-out set, through the runtime as a user runs it (relight.network.runtime with the preset's options),
 the true alpha as the mask, like benchmarks/bench_quality.py.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_framing_presets.py --data data/heldout37_hs \\
         [--presets draft,balanced,best] [--size 256] [--per-scene 4] [--threads 2]
 
 Every pair (scene, light a -> light b) is decomposed at the preset's settings and relit to light
-b; scored against the path-traced image b over the interior pixels (model.metrics) and over the
-face (model.face_region: the head mask times the interior, pairs with >= 16 face pixels). Prints
+b; scored against the path-traced image b over the interior pixels (model.scoring.metrics) and over the
+face (model.scoring.face_region: the head mask times the interior, pairs with >= 16 face pixels). Prints
 one markdown row per preset: means over the pairs, and the paired mean difference to the first
 preset with its standard error.
 """
@@ -22,11 +22,11 @@ import numpy as np
 
 
 def run(data, presets, size: int, per_scene: int, threads: int) -> list[dict]:
-    from model import face_region, metrics
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
-    from relight import quality
-    from relight.runtime import Relighter
+    from model.scoring import face_region, metrics
+    from model.samples.data import EvaluationPairs
+    from model.samples.data_splits import find_scenes, held_out_light_names
+    from relight.network import quality
+    from relight.network.runtime import Relighter
 
     pairs = EvaluationPairs(find_scenes(data), size, 4, held_out=held_out_light_names(),
                             max_pairs_per_scene=per_scene)

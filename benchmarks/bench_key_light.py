@@ -9,8 +9,8 @@ key: a warm 25-degree disk, a cool fill, a dark room), the true map is scaled to
 reference mean luminance 0.8 and projected to order-4 SH, L: the light a perfect
 estimate would give (the ceiling). From L:
 
-    (a) key   the key lamp (photo_light.lamp_setup of relight.key_light) + the smooth World
-    (b) map   today's single map (relight.light_map, `--lamp-free`)
+    (a) key   the key lamp (photo_light.lamp_setup of relight.lighting.key_light) + the smooth World
+    (b) map   today's single map (relight.lighting.light_map, `--lamp-free`)
     (c) const a constant World of L's mean colour
 
 and, as the reference, (t) the true map. Cycles renders a diffuse (albedo 0.8) and a
@@ -21,7 +21,7 @@ dB (higher is better; the truth's own render noise caps it, printed as 'noise'),
 direction error against the true map's brightest 8 x 8-texel block and that block's share of
 the irradiance of a surface facing it (dominant: >= 0.3), the cube's shadow direction error
 against (t)'s (the darkness-weighted centroid of the floor around the cube), the World's
-chroma spread (relight.key_light.chroma_spread) against the true map's, and the irradiance
+chroma spread (relight.lighting.key_light.chroma_spread) against the true map's, and the irradiance
 error of key + World and of today's map against L. --estimates DATA takes L from the shipped
 model's estimates (Balanced) on the first image of each held-out farm scene in DATA, against
 that scene's true map in the photo-camera frame (benchmarks/eval_photo_light.true_map). --photos
@@ -48,8 +48,8 @@ RADIUS = 0.3
 
 
 def synthetic(name: str, height: int = 256) -> np.ndarray:
-    from relight import sh_projection
-    from relight.key_light import direction_from_angles
+    from relight.lighting import sh_projection
+    from relight.lighting.key_light import direction_from_angles
 
     dirs, _ = sh_projection.equirect_directions(height, 2 * height)
     z = dirs[..., 2:]
@@ -66,7 +66,7 @@ def synthetic(name: str, height: int = 256) -> np.ndarray:
 
 def brightest(pixels):
     """(direction of the brightest 8 x 8 block, the share of a facing surface's irradiance within 20 deg)."""
-    from relight import sh_projection
+    from relight.lighting import sh_projection
     from relight.colour import luminance
 
     pixels = np.asarray(pixels, np.float64)
@@ -126,7 +126,7 @@ def _object(bpy, mesh_maker, location, material):
 def build(bpy, kind):
     """A fresh scene: 'spheres' (diffuse left, glossy right, at the person) or 'cube' (on a floor, seen
     from above)."""
-    from blender_addon.photo_light import PERSON_POSITION
+    from blender_addon.logic.photo_light import PERSON_POSITION
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
@@ -154,7 +154,7 @@ def build(bpy, kind):
 
 
 def light_scene(bpy, scene, world_pixels, folder, lamp_setup=None, constant=None, truth=False):
-    from relight.exr import write_exr
+    from relight.files.exr import write_exr
 
     world = bpy.data.worlds.new("w")
     if bpy.app.version < (5, 0, 0):
@@ -195,7 +195,7 @@ def light_scene(bpy, scene, world_pixels, folder, lamp_setup=None, constant=None
 
 
 def render(bpy, scene, folder, width, height, samples, seed=0) -> np.ndarray:
-    from relight.exr import read_exr
+    from relight.files.exr import read_exr
 
     _cycles_support().cycles_on_cpu(scene, samples, seed)
     scene.cycles.max_bounces = 2
@@ -237,9 +237,9 @@ def lights(args):
     """(name, true map [H, W, 3] at the reference luminance, the SH light the setups are made from):
     the true maps' own SH (the ceiling), or with --estimates the shipped model's estimates from
     held-out farm renders against their true maps in the photo-camera frame."""
-    from relight import sh, sh_projection
-    from relight.envmap import load_equirect
-    from relight.presets import preset_path
+    from relight.lighting import sh, sh_projection
+    from relight.lighting.envmap import load_equirect
+    from relight.lighting.presets import preset_path
 
     if args.estimates is None:
         for name in args.lights.split(","):
@@ -253,8 +253,9 @@ def lights(args):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from eval_photo_light import true_map
 
-    from relight import dataset, quality
-    from relight.runtime import Relighter
+    from relight.files import dataset
+    from relight.network import quality
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(str(quality.model_path("balanced")), working_size=quality.preset("balanced").working_size)
     for path in dataset.list_finished_scenes(Path(args.estimates))[:args.limit]:
@@ -268,9 +269,9 @@ def lights(args):
 
 def measure(bpy, name, pixels, L, args, folder) -> dict:
     """One light: the renders and numbers of the module docstring."""
-    from blender_addon.photo_light import lamp_setup
-    from relight.key_light import chroma_spread, split_irradiance_error, split_light
-    from relight.light_map import irradiance_error, light_map
+    from blender_addon.logic.photo_light import lamp_setup
+    from relight.lighting.key_light import chroma_spread, split_irradiance_error, split_light
+    from relight.lighting.light_map import irradiance_error, light_map
 
     t0 = time.perf_counter()
     split = split_light(L, 512)
@@ -380,11 +381,11 @@ def main(argv=None) -> int:
 
 
 def photo_rows() -> None:
-    from relight import quality
-    from relight.key_light import angles_from_direction, chroma_spread, split_irradiance_error, split_light
-    from relight.light_map import irradiance_error, light_map
-    from relight.photo import read_photo
-    from relight.runtime import Relighter
+    from relight.network import quality
+    from relight.lighting.key_light import angles_from_direction, chroma_spread, split_irradiance_error, split_light
+    from relight.lighting.light_map import irradiance_error, light_map
+    from relight.files.photo import read_photo
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(str(quality.model_path("balanced")), working_size=quality.preset("balanced").working_size)
     print("\n| photo (estimated light) | chroma spread key World / map | key az, el (deg) | key angle | "

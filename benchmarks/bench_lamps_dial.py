@@ -33,9 +33,9 @@ def main(argv=None) -> int:
     import bpy
 
     import blender_addon
-    from blender_addon import bl_dials, bl_world
-    from relight.exr import write_exr
-    from relight.lamps import lamps_coeffs
+    from blender_addon.blender import bl_dials, bl_world
+    from relight.files.exr import write_exr
+    from relight.lighting.lamps import lamps_coeffs
 
     with photo_in_temporary_folder("bench_lamps_dial_", args.megapixels) as (folder, path, size):
         flat = folder / "flat.exr"

@@ -1,4 +1,4 @@
-"""The light as a World map: per-band windows against relight.light_map's fit.
+"""The light as a World map: per-band windows against relight.lighting.light_map's fit.
 
     .venv/bin/python benchmarks/bench_light_map.py [--data DATA/heldout_light128] [--lambdas]
 
@@ -9,19 +9,19 @@ path-traced images, the scene's alpha as the mask; three extreme lights: a
 delta, a white directional light without ambient, the camera-left light of
 tests/test_addon_photo_world_cycles.py), each way of making a map >= 0 is scored by
 the irradiance error of its map against the light's SH irradiance
-(relight.light_map.irradiance_error, relative RMS over all normals) and by how
+(relight.lighting.light_map.irradiance_error, relative RMS over all normals) and by how
 often it needed clamping:
 
 - clamp: the SH itself, negative texels set to 0;
-- hanning, lanczos: the fixed windows of relight.sh.window, then clamped
+- hanning, lanczos: the fixed windows of relight.lighting.sh.window, then clamped
   where still negative;
 - smallest heat window: sigma_l = exp(-t l(l+1)) with the smallest t that
   makes every texel >= 0 (bisection; the heat equation's minimum principle
   makes the minimum rise with t), never clamped;
-- fit: relight.light_map (what `relight light` and the add-on use).
+- fit: relight.lighting.light_map (what `relight light` and the add-on use).
 
 --lambdas repeats the fit for several regularisation weights (the choice of
-relight.light_map.REGULARISATION) and prints the hot spot's peak over the mean.
+relight.lighting.light_map.REGULARISATION) and prints the hot spot's peak over the mean.
 Timings are wall-clock per light on a possibly shared machine: compare within a run.
 """
 
@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from relight import light_map as lm
-from relight import presets, sh, sh_projection
-from relight.light import directional_light, sh_light
+from relight.lighting import light_map as lm
+from relight.lighting import presets, sh, sh_projection
+from relight.lighting.light import directional_light, sh_light
 
 ORDER = 4
 WIDTH = 512
@@ -88,14 +88,14 @@ def methods():
         "hanning": clamped(lambda c: sh.window(ORDER, "hanning")),
         "lanczos": clamped(lambda c: sh.window(ORDER, "lanczos")),
         "smallest heat window": clamped(smallest_heat_window),
-        "fit (relight.light_map)": lambda c: (lm.light_map(c, WIDTH).pixels, False),
+        "fit (relight.lighting.light_map)": lambda c: (lm.light_map(c, WIDTH).pixels, False),
     }
 
 
 def network_lights(data: Path, model: str, quality: str):
-    from relight import dataset
-    from relight.quality import preset
-    from relight.runtime import Relighter
+    from relight.files import dataset
+    from relight.network.quality import preset
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(model, working_size=preset(quality).working_size)
     out = []

@@ -3,7 +3,7 @@
     python benchmarks/bench_matte.py [--threads 2] [--repeats 9] [--size 4000x3000]
 
 The bundled photo evaluation/data/matte_eval/obama_standing.jpg is enlarged to
-4000 x 3000 (12 MP, portrait) and relight.matte.person_matte runs on it
+4000 x 3000 (12 MP, portrait) and relight.person.matte.person_matte runs on it
 (after one warm-up that also loads the model). Prints the median wall time,
 the median CPU time of the process (all threads), and the wall time of each
 stage, plus the median time of one copy of the photo in the same run: on a
@@ -26,7 +26,8 @@ sys.path.insert(0, str(ROOT))
 
 def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
     """Median wall time of each step of person_matte (the same private steps, in order)."""
-    from relight import matte, resample
+    from relight.person import matte
+    from relight.network import resample
     from relight.colour import srgb_encode
 
     H, W = photo.shape[:2]
@@ -58,9 +59,9 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
 
 
 def main(argv=None) -> int:
-    from relight import matte
-    from relight.photo import read_photo
-    from relight.resample import resize_linear
+    from relight.person import matte
+    from relight.files.photo import read_photo
+    from relight.network.resample import resize_linear
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--threads", type=int, default=2)

@@ -28,7 +28,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
-from model.network import PAPER_CONFIG, PRESETS, RelightNet  # noqa: E402
+from model.networks.network import PAPER_CONFIG, PRESETS, RelightNet  # noqa: E402
 
 # Steps from the paper layout to the default one, one change at a time.
 LAYOUTS = {

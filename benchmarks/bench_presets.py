@@ -4,7 +4,7 @@ the person) and one relight.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_presets.py [--size 512] [--threads 2] [--repeats 7]
 
-Uses the shipped models (relight/quality.py names them) on the bundled photo
+Uses the shipped models (relight/network/quality.py names them) on the bundled photo
 relight/data/examples/astronaut.jpg resized to --size x --size. Times are medians
 of --repeats after a warm-up, the presets timed in alternation so that a load
 drifting on a shared machine shifts them alike (compare ratios).
@@ -24,10 +24,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from relight import photo as photo_io, quality  # noqa: E402
-from relight.light import sh_light  # noqa: E402
-from relight.resample import resize_linear  # noqa: E402
-from relight.runtime import Relighter  # noqa: E402
+from relight.files import photo as photo_io  # noqa: E402
+from relight.network import quality  # noqa: E402
+from relight.lighting.light import sh_light  # noqa: E402
+from relight.network.resample import resize_linear  # noqa: E402
+from relight.network.runtime import Relighter  # noqa: E402
 
 
 def _row(preset, ms: list[float]) -> str:

@@ -4,14 +4,14 @@ a 512 x 512 photo, the Pareto front, and the presets a stated rule picks from it
     PYTHONPATH=. .venv/bin/python benchmarks/bench_quality.py --data HELD_OUT_DIR \\
         [--pairs 48] [--size 512] [--threads 2] [--repeats 5] [--doc docs/TRADEOFFS.md]
 
-A candidate is a working size, test-time augmentations (relight.tta: the photo mirrored,
-and at 0.75x / 1.25x the size), refinement iterations (relight.refine) and the person
-segmenter's method (relight.matte: the ensemble, or the selfie model alone), other networks
-averaged in, and whether the model's level prior (relight.level) is applied. Accuracy:
+A candidate is a working size, test-time augmentations (relight.network.tta: the photo mirrored,
+and at 0.75x / 1.25x the size), refinement iterations (relight.network.refine) and the person
+segmenter's method (relight.person.matte: the ensemble, or the selfie model alone), other networks
+averaged in, and whether the model's level prior (relight.network.level) is applied. Accuracy:
 every held-out pair (scene, light a -> light b) decomposed at that setting with the true
 alpha as mask (so the segmenter does not enter it) and relit to light b, against the
 path-traced image b over the interior pixels: PSNR and scale-invariant PSNR
-(model.metrics), the worst pair's change against the network alone at the trained size,
+(model.scoring.metrics), the worst pair's change against the network alone at the trained size,
 and the share of that baseline's gain over identity (the photo as it is) that is kept; exposure-matched
 identity (the photo scaled by the true lights' DC ratio) is printed as an oracle. Time:
 segmenter + decomposition + augmentations + refinement + one full-size relight of the
@@ -61,9 +61,9 @@ class Candidate:
     augment: tuple = ()
     refine: int = 0
     matte_method: str = "ensemble"
-    until_agreed: float | None = None  # relight.tta: stop after the first run when it agrees
+    until_agreed: float | None = None  # relight.network.tta: stop after the first run when it agrees
     ensemble: tuple = ()  # registry names of other networks averaged in (Relighter.member)
-    level: bool = True    # the model's level prior (relight.level) applied, where it has one
+    level: bool = True    # the model's level prior (relight.network.level) applied, where it has one
 
     @property
     def label(self) -> str:
@@ -91,7 +91,7 @@ BALANCED = Candidate(TRAINED_SIZE, ((1.0, True),))  # the rule's Balanced: the m
 def candidates(ensemble: tuple = ()) -> list[Candidate]:
     """The candidates timed and scored; with `ensemble` (registry names), the network alone and
     Best's runs with those networks averaged in too."""
-    from relight import tta
+    from relight.network import tta
 
     mirror = ((1.0, True),)
     scales = ((1.25, False), (0.75, False))
@@ -118,7 +118,7 @@ def candidates(ensemble: tuple = ()) -> list[Candidate]:
 
 
 def decompose(relighter, photo, candidate: Candidate, mask=None):
-    """The decomposition a candidate gives (relight.runtime does the same for a preset)."""
+    """The decomposition a candidate gives (relight.network.runtime does the same for a preset)."""
     return relighter.decompose(photo, mask=mask, working_size=candidate.working_size,
                                matte_method=candidate.matte_method, augment=candidate.augment,
                                refine=candidate.refine, augment_until_agreed=candidate.until_agreed,
@@ -126,14 +126,14 @@ def decompose(relighter, photo, candidate: Candidate, mask=None):
 
 
 def load_pairs(data, count: int, per_scene: int = 4) -> list[dict]:
-    from model.data import photo_pairs
+    from model.samples.data import photo_pairs
 
     return list(photo_pairs(data, 256, count, per_scene))
 
 
 def score(pred, pair) -> tuple[float, float]:
-    from model import metrics
-    from model.metrics import interior_weight
+    from model.scoring import metrics
+    from model.scoring.metrics import interior_weight
 
     w = interior_weight(pair["alpha"])
     return (metrics.psnr(pred, pair["target"], w), metrics.scale_invariant_psnr(pred, pair["target"], w))
@@ -155,10 +155,10 @@ def accuracy(relighter, pairs, cands) -> dict[Candidate, np.ndarray]:
 
 
 def timings(model_path, cands, size: int, threads: int, repeats: int) -> dict[Candidate, float]:
-    from relight import photo as photo_io
-    from relight.light import sh_light
-    from relight.resample import resize_linear
-    from relight.runtime import Relighter
+    from relight.files import photo as photo_io
+    from relight.lighting.light import sh_light
+    from relight.network.resample import resize_linear
+    from relight.network.runtime import Relighter
 
     image = resize_linear(photo_io.read_photo(ROOT / "relight" / "data" / "examples" / "astronaut.jpg")[0],
                           size, size)
@@ -237,7 +237,7 @@ def plot(rows: list[dict], chosen: dict, out: Path) -> Path:
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
 
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, key, title in ((axes[0], "psnr", "relit PSNR (dB)"), (axes[1], "si_psnr", "scale-invariant PSNR (dB)")):
@@ -277,7 +277,7 @@ def main(argv=None) -> int:
     p.add_argument("--ensemble", nargs="*", default=(), metavar="NAME",
                    help="registry names of other networks: adds candidates that average them in")
     args = p.parse_args(argv)
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     cands = candidates(tuple(args.ensemble))
     pairs = load_pairs(args.data, args.pairs, args.per_scene)
@@ -308,7 +308,7 @@ def main(argv=None) -> int:
     if args.plot:
         plot(rows, chosen, Path(args.plot))
     if args.doc:
-        from relight.fileio import atomic_write_text
+        from relight.files.fileio import atomic_write_text
 
         doc = Path(args.doc)
         atomic_write_text(doc, replace_section(doc.read_text() if doc.exists() else "", "quality", text))

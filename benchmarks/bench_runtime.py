@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_runtime.py [--repeats 3] [--sizes 256 512 1024] [--quick]
                                                  [--skip ...] [--baseline REV]
 
-Uses the default RelightNet config (model.network.PRESETS["default"]) with seeded
+Uses the default RelightNet config (model.networks.network.PRESETS["default"]) with seeded
 random weights (timings do not depend on the weight values), exported to fp32
 and fp16 ONNX in a temporary folder. Prints Markdown tables (medians).
 """
@@ -47,7 +47,7 @@ def _photo(h: int, w: int, seed: int = 0) -> np.ndarray:
 def bench_decompose(models: dict, sizes, repeats: int) -> list[str]:
     """Decomposition of a size x size photo (working size = photo size). Above 512 px
     one cold run per cell (a warm-up would double a minute-long measurement)."""
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     rows = ["| photo (px) | precision | threads | decompose, mask given (ms) | decompose, no mask: + matte pass at 256 (ms) |",
             "|---|---|---|---|---|"]
@@ -91,7 +91,7 @@ def _gmac(net, size: int) -> float:
 
 def bench_widths(tmp: Path, widths, size: int, repeats: int) -> list[str]:
     from export.random_model import export_random_model
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     rows = [f"| width | params (M) | GMAC at {size}x{size} | decompose {size}x{size}, mask given, 2 threads (ms) |",
             "|---|---|---|---|"]
@@ -122,11 +122,11 @@ def _paired_median_times(fns: dict, repeats: int) -> dict:
 
 
 def _baseline_runtime(rev: str):
-    """The Decomposition of git revision `rev`, imported as a separate module: relight/decomposition.py
-    (relight/runtime.py before the two were split; today's runtime.py only re-exports it)."""
+    """The Decomposition of git revision `rev`, imported as a separate module: relight/network/decomposition.py
+    (relight/network/runtime.py before the two were split; today's runtime.py only re-exports it)."""
     import importlib.util
 
-    for rel in ("relight/decomposition.py", "relight/runtime.py"):
+    for rel in ("relight/network/decomposition.py", "relight/network/runtime.py"):
         shown = subprocess.run(["git", "show", f"{rev}:{rel}"], cwd=ROOT, capture_output=True, text=True)
         if shown.returncode == 0:
             break
@@ -178,7 +178,7 @@ def _float16_dot(d, L, block: int = 4096):
 def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str | None) -> list[str]:
     from dataclasses import replace
 
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     old = _baseline_runtime(baseline) if baseline else None
     old_turns = old is not None and "rotation_deg" in inspect.signature(old.Decomposition.relight_working).parameters
@@ -204,7 +204,7 @@ def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str
             fns["old"] = lambda: (old_fn or fn)(d_old)
         return fns
 
-    from relight.light import LightCache, sh_light
+    from relight.lighting.light import LightCache, sh_light
 
     cache = LightCache()
     r = Relighter(model, threads=2, working_size=512)
@@ -224,7 +224,7 @@ def bench_relight(model: Path, repeats: int, big: tuple[int, int], baseline: str
     row(f"the dot product with T, E, albedo stored float16 ({nbytes / 2**20:.0f} MiB), cast per 4096 rows",
         px, {"new": half})
     row("dot product, new rotation each call (cached matrix)", px,
-        # this tree turns the light in relight.light (a cached matrix); a baseline from before
+        # this tree turns the light in relight.lighting.light (a cached matrix); a baseline from before
         # issue 19 inside relight_working (rotation_deg), a later one as this tree does
         pair(d, lambda x: x.relight_working(sh_light(L, ORDER, rotation_deg=37.0, cache=cache)),
              (lambda x: x.relight_working(L, rotation_deg=37.0)) if old_turns else None))
@@ -288,7 +288,7 @@ def main() -> None:
                         help="RelightNet widths for the network-cost table at 512 px")
     parser.add_argument("--skip", nargs="*", default=[], choices=["decompose", "widths", "relight", "memory"])
     parser.add_argument("--baseline", metavar="REV", default=None,
-                        help="also time relight/decomposition.py (relight/runtime.py before their split) "
+                        help="also time relight/network/decomposition.py (relight/network/runtime.py before their split) "
                              "of this git revision (e.g. HEAD), alternating with the working tree's, "
                              "and print the ratio")
     args = parser.parse_args()

@@ -1,4 +1,4 @@
-"""Benchmark relight.sh: equirect projection and rotation. Prints markdown tables.
+"""Benchmark relight.lighting.sh: equirect projection and rotation. Prints markdown tables.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_sh.py [--repeat 15]
 
@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from relight import sh, sh_projection, sh_rotation
+from relight.lighting import sh, sh_projection, sh_rotation
 import timing  # benchmarks/timing.py
 
 

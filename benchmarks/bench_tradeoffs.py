@@ -10,10 +10,10 @@ Sections (each replaces its own marked block of --doc, or is appended; the rest
 of the document is kept):
 
 * network: every --model (width preset, fp32/fp16) at every working size.
-  Error: cross-light relighting over EvaluationPairs (model/data.py) of the
-  held-out scenes, cropped to --eval-size: the runtime (relight.runtime) decomposes
+  Error: cross-light relighting over EvaluationPairs (model/samples/data.py) of the
+  held-out scenes, cropped to --eval-size: the runtime (relight.network.runtime) decomposes
   the photo under light a with the GT alpha as mask, relights it to light b,
-  and model.metrics compares that with the path-traced image under b over the
+  and model.scoring.metrics compares that with the path-traced image under b over the
   person's pixels (PSNR, L1). Time: decompose (network at that working size,
   onnxruntime with --threads, 1 by default) plus relight, median of --repeats
   on the first pair.
@@ -49,8 +49,8 @@ SECTIONS = ("network", "sh", "directions", "spp")
 DEFAULT_SIZES = (128, 256, 384, 512, 1024)
 DEFAULT_ORDERS = (2, 3, 4, 6)
 BALANCED_DB = 0.5  # proposal rule: Balanced is the fastest front point within this of the best PSNR
-# "Interior" pixels as model/metrics.py defines them (why: the comment there); torch-free.
-from model.metrics import INTERIOR_ALPHA, interior_weight  # noqa: E402
+# "Interior" pixels as model/scoring/metrics.py defines them (why: the comment there); torch-free.
+from model.scoring.metrics import INTERIOR_ALPHA, interior_weight  # noqa: E402
 from timing import median_ms  # noqa: E402  (benchmarks/timing.py)
 
 
@@ -121,9 +121,9 @@ def _hwc(chw: np.ndarray) -> np.ndarray:
 
 
 def person_metrics(pred: np.ndarray, target: np.ndarray, alpha: np.ndarray) -> dict[str, float]:
-    """model.metrics over the person: alpha-weighted ("psnr", "l1") and over the
+    """model.scoring.metrics over the person: alpha-weighted ("psnr", "l1") and over the
     interior pixels, alpha > INTERIOR_ALPHA ("psnr_interior", "l1_interior")."""
-    from model import metrics
+    from model.scoring import metrics
 
     weighted = metrics.all_metrics(pred, target, alpha)
     interior = metrics.all_metrics(pred, target, interior_weight(alpha))
@@ -139,10 +139,10 @@ def network_points(models: dict[str, Path], data, sizes, *, eval_size: int | Non
                    repeats: int = 5, max_pairs: int = 64, max_pairs_per_scene: int = 4,
                    held_out_only: bool = False) -> tuple[dict, list[dict]]:
     """(info, rows): one row per (model, working size) with time and relighting error."""
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
-    from relight.dataset import read_scene
-    from relight.runtime import Relighter
+    from model.samples.data import EvaluationPairs
+    from model.samples.data_splits import find_scenes, held_out_light_names
+    from relight.files.dataset import read_scene
+    from relight.network.runtime import Relighter
 
     if not models:
         raise ValueError("the network section needs at least one --model NAME=PATH.onnx")
@@ -215,7 +215,8 @@ def propose_quality(rows: list[dict], balanced_db: float = BALANCED_DB) -> list[
 
 def prt_image(scene, k: int, order: int) -> np.ndarray:
     """albedo * (T_n . L_n) [H, W, 3] of light k with transport and light cut to `order`."""
-    from relight import prt, sh
+    from relight.network import prt
+    from relight.lighting import sh
 
     n = sh.num_coeffs(order)
     light = np.asarray(scene.lights[k]["sh"], dtype=np.float64)[:n]
@@ -228,8 +229,8 @@ def sh_order_points(data, orders, *, repeat: int = 7, max_scenes: int = 64,
     megapixel (timed on `timing_pixels` pixels, scaled to 10^6)."""
     from bench_adaptive_order import relight_ms
 
-    from model.data_splits import find_scenes
-    from relight.dataset import has_transport, read_scene, read_sidecar, traced_lights
+    from model.samples.data_splits import find_scenes
+    from relight.files.dataset import has_transport, read_scene, read_sidecar, traced_lights
 
     paths = find_scenes(data)[:max_scenes]
     metas = [read_sidecar(p) for p in paths]
@@ -311,9 +312,9 @@ def network_markdown(info: dict, rows: list[dict], threads: int, repeats: int) -
     if random:
         lines += [(f"**Random-weight models ({', '.join(random)}): these figures test the tool's mechanics "
                    "and say nothing about quality.**"), ""]
-    lines += [(f"Error: cross-light relighting of {info['pairs']} held-out pairs (model/data.py "
+    lines += [(f"Error: cross-light relighting of {info['pairs']} held-out pairs (model/samples/data.py "
               f"EvaluationPairs, {info['scenes']} scenes cropped to {info['eval_size']} px): runtime "
-              "decompose with the GT alpha as mask, relight to light b, model.metrics against the path-traced "
+              "decompose with the GT alpha as mask, relight to light b, model.scoring.metrics against the path-traced "
               "image under b over the person's pixels. Time: decompose (network) + relight of the first pair, "
               f"onnxruntime {threads} thread(s), median of {repeats}. {INTERIOR_NOTE} Upscale > 1: the network saw the "
               "evaluation crop enlarged, so that size cannot show its finer detail; judging it needs data "
@@ -331,7 +332,7 @@ def network_markdown(info: dict, rows: list[dict], threads: int, repeats: int) -
                      f"| {r['psnr']:.2f} | {100 * r['l1']:.2f} | {_mark(r['front'])} |")
     proposal = propose_quality(rows)
     if proposal:
-        lines += ["", (f"Rule for relight/quality.py (Draft: fastest front point; Balanced: fastest front point "
+        lines += ["", (f"Rule for relight/network/quality.py (Draft: fastest front point; Balanced: fastest front point "
                        f"within {BALANCED_DB} dB of the best; Best: the best interior PSNR), applied to this table:"),
                   "",
                   "| preset | model | precision | working size | total ms | PSNR interior (dB) |",
@@ -405,7 +406,7 @@ def plot(results: dict, out: Path) -> Path:
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
 
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     panels = []
     if "network" in results:
@@ -502,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(argv=None) -> dict:
     """Parse, measure, write --doc and --plot; returns the measured sections."""
-    from relight.fileio import atomic_write_text
+    from relight.files.fileio import atomic_write_text
 
     args = build_parser().parse_args(argv)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]

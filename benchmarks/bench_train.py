@@ -24,8 +24,8 @@ import time
 
 import torch
 
-from model.losses import LossWeights, relight_losses
-from model.network import PRESETS, RelightNet
+from model.training.losses import LossWeights, relight_losses
+from model.networks.network import PRESETS, RelightNet
 
 
 def fake_batch(batch: int, size: int, n: int) -> dict:
@@ -87,9 +87,9 @@ def geometry_batch(batch: int, size: int, n: int) -> dict:
 def time_geometry(preset: str, batch: int, size: int, steps: int, threads: int, channels_last: bool,
                   compiled: bool, warmup: int = 2, bf16: bool = False, fit_stride: int = 1,
                   fit_float64: bool = False, loader=None) -> float:
-    """Median images/s of GeometryNet training steps (the losses of model.geometry); `loader`:
+    """Median images/s of GeometryNet training steps (the losses of model.networks.geometry); `loader`:
     batches from the real data pipeline (timed with the step), else one random batch."""
-    from model.geometry import GEOMETRY_PRESETS, GeometryNet, geometry_losses
+    from model.networks.geometry import GEOMETRY_PRESETS, GeometryNet, geometry_losses
     from model.train import loss_weights_from_args, parse_args
 
     torch.set_num_threads(threads)
@@ -132,7 +132,7 @@ def geometry_table(args) -> None:
     if args.pack:  # the real pipeline: model.train's data module on the pack, its augmentations
         from pathlib import Path
 
-        from model.train_data import SceneDataModule
+        from model.training.train_data import SceneDataModule
 
         data = SceneDataModule([args.data], size=args.size, order=4, batch=args.batch, seed=1, pack=Path(args.pack),
                                augment={"light_tint": 0.15}, workers=args.workers)
@@ -170,7 +170,7 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--steps", type=int, default=3)
     p.add_argument("--preset", choices=sorted(PRESETS), default="default",
-                   help="network layout (model.network.PRESETS; paper: the heavy original)")
+                   help="network layout (model.networks.network.PRESETS; paper: the heavy original)")
     p.add_argument("--width", type=int, help="override the preset's width")
     p.add_argument("--variants", action="store_true", help="also time the ablations")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
@@ -205,10 +205,10 @@ def main() -> None:
         print(f"| {name} | {params / 1e6:.1f} | {gflop:.1f} | {ips:.3f} | {ips / base:.2f} | {infer:.3f} |",
               flush=True)
     if args.data:
-        from model.data import TrainingScenes
-        from model.data_augment import preset_training_lights
-        from model.data_splits import find_scenes
-        from relight import presets
+        from model.samples.data import TrainingScenes
+        from model.samples.data_augment import preset_training_lights
+        from model.samples.data_splits import find_scenes
+        from relight.lighting import presets
 
         ds = TrainingScenes(find_scenes(args.data), args.size, 4, extra_lights=preset_training_lights(4),
                             held_out=frozenset(presets.HELD_OUT))

@@ -29,9 +29,9 @@ WORKLOAD = r"""
 import json, statistics, sys, time
 sys.path.insert(0, sys.argv[1])
 from relight import photo as photo_io
-from relight.light import sh_light
-from relight.resample import resize_linear
-from relight.runtime import Relighter
+from relight.lighting.light import sh_light
+from relight.network.resample import resize_linear
+from relight.network.runtime import Relighter
 size, threads, model = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 image = resize_linear(photo_io.read_photo(sys.argv[5])[0], size, size)
 relighter = Relighter(model, threads=threads, working_size=128)
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     model = work / "model.onnx"
     shutil.copy(args.model, model)
     sys.path.insert(0, str(ROOT))
-    from relight.fileio import file_sha256
+    from relight.files.fileio import file_sha256
     from relight.models import write_sidecar
 
     write_sidecar(model, file_sha256(model))

@@ -39,8 +39,8 @@ def _clip(path: Path, frames: int, w: int, h: int) -> Path:
     from fractions import Fraction
 
     from clip_support import person_clip
-    from relight.video_io import ClipInfo
-    from relight.video_out import VideoWriter
+    from relight.files.video_io import ClipInfo
+    from relight.files.video_out import VideoWriter
 
     writer = VideoWriter(path, ClipInfo(path, "frames", w, h, Fraction(24), frames))
     # a walk of a few seconds, repeated: generating every frame anew would dominate the set-up

@@ -70,7 +70,7 @@ def png_before(linear: np.ndarray, f) -> None:
 def bench_png(linear: np.ndarray, repeats: int) -> None:
     from PIL import Image
 
-    from relight import png_encoder
+    from relight.files import png_encoder
     from relight.colour import srgb_encode
 
     cores = min(4, len(os.sched_getaffinity(0)))
@@ -117,7 +117,7 @@ def bench_png(linear: np.ndarray, repeats: int) -> None:
     finally:
         png_encoder.deflate_module = original
     module = original()[0].__name__
-    run(f"after: relight.photo.write_png as shipped ({module}, {cores} threads)",
+    run(f"after: relight.files.photo.write_png as shipped ({module}, {cores} threads)",
         lambda f: png_encoder.write_png_file(f, linear, {"relight": "{}"}))
     table(f"PNG, {linear.shape[1]} x {linear.shape[0]}, 8-bit sRGB ({cores} cores available)", rows)
 
@@ -125,7 +125,7 @@ def bench_png(linear: np.ndarray, repeats: int) -> None:
 def bench_exr(linear: np.ndarray, repeats: int, folder: Path) -> None:
     import OpenEXR
 
-    from relight.exr import write_exr
+    from relight.files.exr import write_exr
 
     channels = {c: np.ascontiguousarray(linear[..., i]) for i, c in enumerate("RGB")}
     before = OpenEXR.global_thread_count()
@@ -193,7 +193,7 @@ def main() -> int:
         folder = Path(tmp)
         photo = make_photo(folder)
         if "png" not in args.skip or "exr" not in args.skip:
-            from relight.photo import read_photo
+            from relight.files.photo import read_photo
 
             linear = read_photo(photo)[0]
             # a smooth gain, as relighting gives: float32 values off the 256 levels a JPEG decodes to

@@ -5,16 +5,16 @@ one input at a time replaced by the truth, on held-out pairs, and the relit PSNR
     PYTHONPATH=. .venv/bin/python benchmarks/diagnose_light_fit.py runs/MODEL/model.safetensors \\
         --data data/heldout256 [--every 2] [--size 128]
 
-For each pair (model.data.EvaluationPairs at --size, every --every-th) the network's own
-transport T is kept and the photo's light is fitted (model.physics.fit_light, ridge 0.1,
+For each pair (model.samples.data.EvaluationPairs at --size, every --every-th) the network's own
+transport T is kept and the photo's light is fitted (model.networks.physics.fit_light, ridge 0.1,
 the network's light prior) against the photo with: the network's albedo prior; that prior
 rescaled per channel to the true albedo's mean over the person; the true albedo; none (0.5
 grey everywhere); then
 a robust refit (Cauchy weights on the relative residual, 6 rounds), the gradient refinement
-of relight.refine (8 iterations), the fitted light with the true light's DC, and the true
+of relight.network.refine (8 iterations), the fitted light with the true light's DC, and the true
 light itself; last, the fit with the true albedo and the farm's baked T. Each light relights
-the photo by the network's photo-consistent albedo rule (model.physics) to the pair's other
-light; PSNR (model.metrics) over the interior pixels against the path-traced image.
+the photo by the network's photo-consistent albedo rule (model.networks.physics) to the pair's other
+light; PSNR (model.scoring.metrics) over the interior pixels against the path-traced image.
 """
 
 from __future__ import annotations
@@ -39,12 +39,12 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     import torch
 
-    from model import physics
-    from model.checkpoint import load_model
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
-    from model.metrics import interior_weight, psnr
-    from relight.refine import refine_light
+    from model.networks import physics
+    from model.training.checkpoint import load_model
+    from model.samples.data import EvaluationPairs
+    from model.samples.data_splits import find_scenes, held_out_light_names
+    from model.scoring.metrics import interior_weight, psnr
+    from relight.network.refine import refine_light
 
     torch.set_num_threads(args.threads)
     net = load_model(args.model)
@@ -81,7 +81,7 @@ def main(argv=None) -> int:
                 "the true albedo": (fit(T, true_albedo), T),
                 "no albedo (0.5 grey)": (fit(T, torch.full_like(albedo_prior, 0.5)), T),
                 "the prior, robust refit (Cauchy, 6 rounds)": (robust, T),
-                "the prior, then relight.refine (8 iterations)": (torch.from_numpy(np.asarray(refined, np.float32))[None], T),
+                "the prior, then relight.network.refine (8 iterations)": (torch.from_numpy(np.asarray(refined, np.float32))[None], T),
                 "the prior, then the true light's DC": (fitted * (true_light[:, :1] / fitted[:, :1].clamp(min=1e-6)), T),
                 "the true light (no fit)": (true_light, T),
                 "the true albedo and the farm's baked T": (fit(s["transport"][None], true_albedo), s["transport"][None]),

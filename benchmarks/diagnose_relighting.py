@@ -23,14 +23,14 @@ import sys
 import numpy as np
 import torch
 
-from model import metrics
-from model.data import EvaluationPairs, network_input
-from model.data_splits import find_scenes, held_out_light_names
+from model.scoring import metrics
+from model.samples.data import EvaluationPairs, network_input
+from model.samples.data_splits import find_scenes, held_out_light_names
 from model.evaluate import numpy_sample
-from model.pair_metrics import channels_last, exposure_ratio, render_np, with_metric_weight
-from model.pair_metrics import shading_np as _shading_np
-from model.predictor import Predictor
-from relight import sh
+from model.scoring.pair_metrics import channels_last, exposure_ratio, render_np, with_metric_weight
+from model.scoring.pair_metrics import shading_np as _shading_np
+from model.scoring.predictor import Predictor
+from relight.lighting import sh
 
 # a denominator below this is "no light reaches the pixel": the photo-consistent albedo is undefined
 MIN_SHADING = 1e-3
@@ -38,7 +38,7 @@ MAX_ALBEDO = 2.0  # photo-consistent albedo clip: above it the pixel is unexplai
 
 
 def shading(transport: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """T . L [H, W, 3] (model.pair_metrics.shading_np for a non-T* network)."""
+    """T . L [H, W, 3] (model.scoring.pair_metrics.shading_np for a non-T* network)."""
     return _shading_np(transport, light, False)
 
 

@@ -9,17 +9,17 @@ image (the scene's own alpha as the mask) and a diffuse white sphere (albedo
 0.8) is rendered by Cycles, seen by the photo camera (orthographic, looking
 along +Y), under three Worlds:
 
-  (a) the map made from the photo's estimated light (relight.light_map: what
+  (a) the map made from the photo's estimated light (relight.lighting.light_map: what
       `relight light` and Photo Light -> World make);
   (b) the true HDR map in the photo-camera frame (the bundled map scaled and
       turned as the sidecar says, resampled bilinearly; its order-8 SH is
       checked against the sidecar's `sh8`);
   (c) a constant World of the photo's mean colour (all its pixels) scaled to
       the mean luminance of (a): the baseline an artist could make by hand;
-  (o) the true light's order-4 SH (the sidecar's) through relight.light_map:
+  (o) the true light's order-4 SH (the sidecar's) through relight.lighting.light_map:
       the best an order-4 estimate can do, for scale.
 
-PSNR of (a), (c) and (o) against (b) over the sphere's pixels (model.metrics.psnr,
+PSNR of (a), (c) and (o) against (b) over the sphere's pixels (model.scoring.metrics.psnr,
 peak the 99th percentile of (b) there, as benchmarks/bench_farm_render.py),
 also after scaling (a) and (c) by one factor to the true light's mean
 luminance (level-matched: the direction and colour alone), and the light's
@@ -46,8 +46,8 @@ MAP_WIDTH = 512
 
 def true_map(light: dict, world_to_camera, width: int = MAP_WIDTH) -> np.ndarray:
     """The farm light `light` (sidecar record) as an equirect map in the photo-camera frame."""
-    from relight import presets, sh_projection, sh_rotation
-    from relight.envmap import load_equirect
+    from relight.lighting import presets, sh_projection, sh_rotation
+    from relight.lighting.envmap import load_equirect
 
     source = load_equirect(presets.preset_path(light["name"])).pixels.astype(np.float64)
     sh_, sw = source.shape[:2]
@@ -139,7 +139,7 @@ class SphereRenderer:
             bpy.data.worlds.remove(previous)
 
     def render(self, pixels: np.ndarray | None = None, colour=None):
-        from relight.exr import read_exr
+        from relight.files.exr import read_exr
 
         self._world(pixels, colour)
         self.count += 1
@@ -154,17 +154,18 @@ class SphereRenderer:
 # ------------------------------------------------------------------ the evaluation
 
 def psnr(image, reference, mask) -> float:
-    from model import metrics
+    from model.scoring import metrics
 
     peak = float(np.percentile(reference[mask], 99))
     return metrics.psnr(image, reference, mask.astype(np.float64), peak=peak)
 
 
 def evaluate(data: Path, model: str, quality: str, size: int, samples: int, limit: int | None) -> list[dict]:
-    from relight import dataset, sh, sh_projection
-    from relight.light_map import irradiance_error, light_map
-    from relight.quality import preset
-    from relight.runtime import Relighter
+    from relight.files import dataset
+    from relight.lighting import sh, sh_projection
+    from relight.lighting.light_map import irradiance_error, light_map
+    from relight.network.quality import preset
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(model, working_size=preset(quality).working_size)
     rows = []
@@ -241,7 +242,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", required=True, type=Path, help="held-out farm scenes (path-traced)")
     parser.add_argument("--model", default="relight/models/geometry.onnx")
-    parser.add_argument("--quality", default="balanced", help="working size preset (relight/quality.py)")
+    parser.add_argument("--quality", default="balanced", help="working size preset (relight/network/quality.py)")
     parser.add_argument("--size", type=int, default=64, help="sphere render side in pixels")
     parser.add_argument("--samples", type=int, default=64, help="Cycles samples (OIDN on)")
     parser.add_argument("--limit", type=int, default=None, help="first N scenes only")
@@ -252,7 +253,7 @@ def main(argv=None) -> int:
     if not rows:
         parser.error(f"{args.data}: no finished scenes with path-traced images")
     if args.json is not None:
-        from relight.fileio import atomic_write_json
+        from relight.files.fileio import atomic_write_json
 
         atomic_write_json(args.json, rows, indent=1)
     print()

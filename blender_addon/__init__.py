@@ -1,7 +1,7 @@
 """Relight Photo: relight a person in a photo from Blender's Image Editor.
 
-The Blender-facing modules (bl_*) are thin; the logic lives in plain-Python
-modules (output_names, photo_pixels, photo_checks, pixel_buffers, mask_choice,
+The Blender-facing modules (bl_*, in blender/) are thin; the logic lives in plain-Python
+modules (worker/, logic/ and beside this file: output_names, photo_pixels, photo_checks, pixel_buffers, mask_choice,
 light_sources, work, quality, jobs, state, engine, sequence, photo_light, build,
 manifest) that import
 without bpy, so `python -m blender_addon.build` runs outside Blender.
@@ -11,7 +11,7 @@ _REGISTERED = []
 
 
 def register():
-    from . import bl_compositing, bl_ops, bl_photo_world, bl_props, bl_sequence, bl_ui
+    from .blender import bl_compositing, bl_ops, bl_photo_world, bl_props, bl_sequence, bl_ui
 
     for module in (bl_props, bl_ops, bl_photo_world, bl_compositing, bl_sequence, bl_ui):
         module.register()
@@ -19,7 +19,7 @@ def register():
 
 
 def unregister():
-    from . import state
+    from .worker import state
 
     while _REGISTERED:
         _REGISTERED.pop().unregister()

@@ -35,7 +35,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from relight.fileio import atomic_path
+from relight.files.fileio import atomic_path
 
 from . import manifest as manifest_rules
 
@@ -59,7 +59,7 @@ PLATFORM_TAGS = {
 VERSION_OVERRIDES = {("onnxruntime", "macos-x64"): "1.23.2"}
 DOCS_BEGIN = "<!-- sizes from `python -m blender_addon.build --split-platforms --split-pythons --docs docs/addon.md`: begin -->"
 DOCS_END = "<!-- sizes: end -->"
-ADDON_EXCLUDE = {"build.py", "__main__.py"}
+ADDON_EXCLUDE = {"build.py", "__main__.py", "dev"}  # files and folders not in the zip
 CORE_DATA_SUFFIXES = {".py", ".exr", ".md", ".json", ".onnx", ".sha256"}
 ZIP_DATE = (2024, 1, 1, 0, 0, 0)  # fixed timestamps: same inputs, same zip
 
@@ -147,13 +147,13 @@ def shipped_models(registry: dict) -> list[str]:
     """The registry names the add-on needs: those the quality presets run (Draft,
     Balanced, Best, and the networks of a preset's ensemble), the registry's default and the
     person matte's networks (the Automatic mask); no other model goes into the zip."""
-    from relight import quality as core_quality
+    from relight.network import quality as core_quality
 
     names = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS}
     names.update(name for p in core_quality.PRESETS for name in p.ensemble)
     names.add(registry.get("default"))
     try:
-        from relight.matte import MODELS as MATTE_MODELS
+        from relight.person.matte import MODELS as MATTE_MODELS
     except ImportError:  # a core without the person matte
         MATTE_MODELS = {}
     names.update(name for name, _file in MATTE_MODELS.values())
@@ -232,7 +232,7 @@ def build_core_wheel(out_dir: Path, version: str, core_dir: Path = CORE_DIR) -> 
 
 
 def addon_files(addon_dir: Path = ADDON_DIR) -> list[Path]:
-    return sorted(p for p in addon_dir.glob("*.py") if p.name not in ADDON_EXCLUDE)
+    return sorted(p for p in addon_dir.rglob("*.py") if not set(p.relative_to(addon_dir).parts) & ADDON_EXCLUDE)
 
 
 def _rewrite_wheels(manifest_text: str, wheels: list[str]) -> str:
@@ -353,7 +353,7 @@ def build(out_dir: Path, cache: Path | None = None, offline: bool = False,
         with atomic_path(zip_path) as tmp_zip, zipfile.ZipFile(tmp_zip, "w") as zf:
             _zip_write(zf, "blender_manifest.toml", manifest_text.encode())
             for f in addon_files():
-                _zip_write(zf, f.name, f.read_bytes())
+                _zip_write(zf, f.relative_to(ADDON_DIR).as_posix(), f.read_bytes())
             for w in wheels:
                 info = zipfile.ZipInfo(f"wheels/{w.name}", ZIP_DATE)
                 info.compress_type = zipfile.ZIP_STORED  # wheels are zips already

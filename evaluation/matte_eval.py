@@ -11,7 +11,7 @@ threshold hides) and the time the matte took (median of --repeat runs after one 
 wall time and the process's CPU time (all threads; steadier than wall time on a
 loaded machine, and on an idle one with as many cores as threads the wall time
 is at most this). `--matte person` is
-relight.matte.person_matte as shipped (the selfie and pose segmentations
+relight.person.matte.person_matte as shipped (the selfie and pose segmentations
 combined, guided edge), `raw` the same without the guided edge, `selfie` and
 `pose` one network each (with the guided edge), `network` the relighting
 network's alpha head (Relighter.decompose(matte="network"), the matte
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.mask_ops import dilate
+from relight.person.mask_ops import dilate
 
 EVAL_DIR = Path(__file__).resolve().parent / "data" / "matte_eval"
 REFERENCE_SUBDIR = "reference"
@@ -78,7 +78,7 @@ def boundary_f(alpha: np.ndarray, reference: np.ndarray, tolerance: float = BOUN
 
 def eval_photos(folder: Path = EVAL_DIR) -> list[tuple[str, Path, Path]]:
     """(name, photo, reference) for every photo of `folder` with a reference matte."""
-    from relight.photo import PHOTO_SUFFIXES
+    from relight.files.photo import PHOTO_SUFFIXES
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -105,17 +105,17 @@ def read_reference(path: Path, shape) -> np.ndarray:
 
 def _matte_function(kind: str, threads: int | None):
     if kind == "network":
-        from relight import quality
-        from relight.runtime import Relighter
+        from relight.network import quality
+        from relight.network.runtime import Relighter
 
         relighter = Relighter(quality.model_path(quality.DEFAULT), threads=threads)
         return lambda photo: relighter.decompose(photo, matte="network").full_alpha()
     if kind == "decompose":  # the library's default, as a Python user calls it
-        from relight.runtime import Relighter
+        from relight.network.runtime import Relighter
 
         default = Relighter(threads=threads)
         return lambda photo: default.decompose(photo).full_alpha()
-    from relight.matte import person_matte
+    from relight.person.matte import person_matte
 
     method = {"person": "ensemble", "raw": "ensemble"}.get(kind, kind)
     return lambda photo: person_matte(photo, threads=threads, method=method, refine=kind != "raw").alpha
@@ -124,7 +124,7 @@ def _matte_function(kind: str, threads: int | None):
 def evaluate(kind: str = "person", folder: Path = EVAL_DIR, threads: int | None = None,
              repeat: int = 3) -> list[dict]:
     """One row per photo: name, size, iou, boundary_f, ms (median of `repeat` after a warm-up)."""
-    from relight.photo import read_photo
+    from relight.files.photo import read_photo
 
     if kind not in MATTES:
         raise ValueError(f"--matte must be one of {MATTES}, got {kind!r}")
@@ -176,7 +176,7 @@ def main(argv=None) -> int:
         rows = evaluate(args.matte, args.photos, args.threads, max(0, args.repeat))
         print(format_table(rows, args.matte))
         if args.json is not None:
-            from relight.fileio import atomic_write_json
+            from relight.files.fileio import atomic_write_json
 
             atomic_write_json(args.json, {"matte": args.matte, "rows": rows}, indent=2)
     except (ValueError, OSError) as exc:

@@ -29,7 +29,7 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 def _cell(linear: np.ndarray, tile: int | None, backdrop: int) -> np.ndarray:
     if tile is None:
         return _srgb8(linear)
-    from relight.resample import resize_linear
+    from relight.network.resample import resize_linear
 
     h, w = linear.shape[:2]
     s = tile / max(h, w)
@@ -69,7 +69,7 @@ def write_sheet(path, sheet: np.ndarray) -> Path:
     """The uint8 sheet as a PNG, written atomically."""
     from PIL import Image
 
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     with atomic_path(path, ".png") as tmp:
         Image.fromarray(sheet, "RGB").save(tmp, format="PNG", compress_level=6)

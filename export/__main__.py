@@ -20,10 +20,10 @@ REAL_PHOTO = Path(__file__).resolve().parent.parent / "relight" / "data" / "exam
 
 
 def _real_input(size_multiple: int) -> np.ndarray:
-    """The bundled example photo as the network sees it (relight.prt.to_network_input), cropped
+    """The bundled example photo as the network sees it (relight.network.prt.to_network_input), cropped
     to a multiple of size_multiple: parity on a real image, not only on noise."""
-    from relight.photo import read_photo
-    from relight.prt import to_network_input
+    from relight.files.photo import read_photo
+    from relight.network.prt import to_network_input
 
     linear = read_photo(REAL_PHOTO)[0]
     h, w = (d - d % size_multiple for d in linear.shape[:2])
@@ -40,7 +40,7 @@ def _parity_inputs(size_multiple: int, seed: int = 0) -> list[np.ndarray]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m export", description=__doc__.splitlines()[0])
-    parser.add_argument("weights", help="RelightNet checkpoint (.safetensors, model/checkpoint.py)")
+    parser.add_argument("weights", help="RelightNet checkpoint (.safetensors, model/training/checkpoint.py)")
     parser.add_argument("--out", required=True, help="output .onnx path")
     parser.add_argument("--fp16", action="store_true", help="also write OUT stem + .fp16.onnx")
     parser.add_argument("--training-data", default=None,
@@ -55,14 +55,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"export: error: --out must end in .onnx, got {out}", file=sys.stderr)
         return 2
     try:
-        from model.checkpoint import load_model, read_metadata as read_ckpt_metadata
+        from model.training.checkpoint import load_model, read_metadata as read_ckpt_metadata
 
         from export.onnx_export import (DEFAULT_TRAINING_DATA, export_onnx, max_abs_diff,
                                         onnx_outputs, read_metadata, torch_outputs)
 
         net = load_model(args.weights)
         if args.fp16 and getattr(net, "arch", None) == "geometry":
-            # its light fit runs in float64 (model.physics.fit_light), which
+            # its light fit runs in float64 (model.networks.physics.fit_light), which
             # onnxconverter-common's fp16 pass cannot keep apart; fp16 graphs were
             # no faster on the CPU provider anyway (docs/TRADEOFFS.md)
             raise ValueError("--fp16 is not available for the geometry-first model; export fp32 only")

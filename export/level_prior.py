@@ -1,6 +1,6 @@
 """python -m export.level_prior MODEL.onnx --data CALIBRATION_DIR [...] [--write] [--check HELD_OUT_DIR] [--quality KEY]
 
-Calibrates a relighting model's LevelPrior (relight.level): on farm scenes lit by
+Calibrates a relighting model's LevelPrior (relight.network.level): on farm scenes lit by
 training lights (never the held-out maps: render them with `python -m farm ...
 --light-pool train`), every pair (scene, light a -> light b) is decomposed by the
 runtime as `relight image` would (the true alpha as the mask, a quality preset's work,
@@ -24,7 +24,7 @@ CROP = 256          # the pairs' crop size, as benchmarks/bench_quality.py score
 
 
 def _pairs(data, count: int | None):
-    from model.data import photo_pairs
+    from model.samples.data import photo_pairs
 
     return photo_pairs(data, CROP, count)
 
@@ -32,9 +32,9 @@ def _pairs(data, count: int | None):
 def _mixed_pairs(data, count: int | None, seed: int = 0):
     """Pairs under lights no map gives, as the photo's light is in a real photo: each scene's
     first two path-traced pairs re-rendered by PRT (albedo x (T . L)) under two mixes of its own
-    lights and the training presets (model.data_augment.random_mixed_light), seeded per pair."""
-    from model.data import photo_pairs
-    from model.data_augment import preset_training_lights, random_mixed_light
+    lights and the training presets (model.samples.data_augment.random_mixed_light), seeded per pair."""
+    from model.samples.data import photo_pairs
+    from model.samples.data_augment import preset_training_lights, random_mixed_light
 
     bank = [light for _, light in preset_training_lights(4)]
     for i, pair in enumerate(photo_pairs(data, CROP, count, per_scene=2, transport=True)):
@@ -50,7 +50,7 @@ def _mixed_pairs(data, count: int | None, seed: int = 0):
 
 def _options(quality: str) -> dict:
     """Relighter.decompose's options for a preset, less the segmenter (the pairs carry their mask)."""
-    from relight.quality import preset
+    from relight.network.quality import preset
 
     options = preset(quality).decompose_options()
     options.pop("matte_method")
@@ -58,11 +58,11 @@ def _options(quality: str) -> dict:
 
 
 def calibration_rows(relighter, data, count: int | None = None, quality: str = "balanced", mixed: bool = False):
-    """(lums, colours, log2 gains [N, 3]) of the pairs in `data` (relight.level.features of
+    """(lums, colours, log2 gains [N, 3]) of the pairs in `data` (relight.network.level.features of
     each decomposition, and the per-channel least-squares gains of its relit image); with
     `mixed`, of its PRT pairs under mixed lights (`_mixed_pairs`) instead."""
-    from model.metrics import interior_weight
-    from relight.level import features
+    from model.scoring.metrics import interior_weight
+    from relight.network.level import features
 
     lums, colours, gains = [], [], []
     for pair in (_mixed_pairs(data, count) if mixed else _pairs(data, count)):
@@ -82,8 +82,8 @@ def calibration_rows(relighter, data, count: int | None = None, quality: str = "
 
 def held_out_psnr(relighter, data, count: int | None = None, quality: str = "balanced") -> tuple[float, float, int]:
     """Mean relit PSNR of held-out pairs without and with the model's level prior."""
-    from model import metrics
-    from model.metrics import interior_weight
+    from model.scoring import metrics
+    from model.scoring.metrics import interior_weight
 
     without, with_prior = [], []
     for pair in _pairs(data, count):
@@ -101,7 +101,7 @@ def write_prior(model_path: Path, prior) -> str:
 
     from export.onnx_export import read_metadata, save_atomic, set_metadata
     from relight import models
-    from relight.level import METADATA_KEY
+    from relight.network.level import METADATA_KEY
 
     model = onnx.load(str(model_path))
     metadata = read_metadata(model)
@@ -131,8 +131,8 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
     try:
-        from relight.level import fit_prior
-        from relight.runtime import Relighter
+        from relight.network.level import fit_prior
+        from relight.network.runtime import Relighter
 
         relighter = Relighter(args.model, threads=args.threads)
         rows = [calibration_rows(relighter, folder, args.pairs, args.quality, args.mixed_lights)

@@ -94,7 +94,7 @@ def save_atomic(model: onnx.ModelProto, out: str | os.PathLike) -> tuple[Path, s
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.checker.check_model(model, full_check=True)
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     with atomic_path(out) as tmp:
         tmp.write_bytes(model.SerializeToString())

@@ -14,7 +14,7 @@ from export.onnx_export import export_onnx
 def random_relightnet(seed: int = 0, **config):
     """A RelightNet(**config) whose weights and BatchNorm statistics are seeded random
     (non-trivial running stats, so BatchNorm folding is exercised)."""
-    from model.network import RelightNet
+    from model.networks.network import RelightNet
 
     torch.manual_seed(seed)
     net = RelightNet(**config)

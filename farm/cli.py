@@ -12,10 +12,10 @@ import os
 import sys
 from pathlib import Path
 
-from farm.camera import FRAMINGS, parse_framings
+from farm.synthesis.camera import FRAMINGS, parse_framings
 from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
-from farm.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
-from relight.cli_args import bounded_int, finite_float
+from farm.execution.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
+from relight.command.cli_args import bounded_int, finite_float
 
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
@@ -81,10 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="train maps, or only the held-out maps")
     s.add_argument("--framing", type=_framing, default="full-body",
                    help="framings a scene draws from, uniformly: 'all' or a comma list of "
-                        + ",".join(FRAMINGS) + " (farm/camera.py)")
+                        + ",".join(FRAMINGS) + " (farm/synthesis/camera.py)")
     s.add_argument("--hard-lights", type=finite_float(0, 1, what="share"), default=0.0, metavar="SHARE",
                    help="share of the lights that are a hard light (sun, studio key and fill, lamp; "
-                        "farm/hard_lights.py) instead of a map")
+                        "farm/synthesis/hard_lights.py) instead of a map")
     s.add_argument("--clip-frames", type=bounded_int(2, 1000), default=None, metavar="F",
                    help="render clips instead of stills: scene i is frame i mod F of clip i // F (farm/clips.py)")
     s.add_argument("--motion", choices=("turn", "sway"), default="turn",
@@ -147,8 +147,8 @@ def parse_args(argv: list[str]) -> RunConfig:
 def main(argv: list[str] | None = None) -> int:
     """Run the farm; returns the process exit code."""
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["--summary"]:  # python -m farm --summary DIR: dataset feature fractions (farm/summary.py)
-        from farm.summary import main as summary_main
+    if argv[:1] == ["--summary"]:  # python -m farm --summary DIR: dataset feature fractions (farm/execution/summary.py)
+        from farm.execution.summary import main as summary_main
         return summary_main(argv[1:])
     try:
         config = parse_args(argv)
@@ -159,11 +159,11 @@ def main(argv: list[str] | None = None) -> int:
         return int(exit_.code or 0)
     try:
         if config.ray is not None:
-            from farm.ray_executor import run_on_ray
+            from farm.execution.ray_executor import run_on_ray
 
             summary = run_on_ray(config)
         else:
-            from farm.executors import run_local
+            from farm.execution.executors import run_local
 
             summary = run_local(config)
     except FarmError as err:

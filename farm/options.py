@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-PASS_NAMES = frozenset({"pt", "prt", "body"})  # body: the unclothed body ray-cast (farm/body_pass.py)
+PASS_NAMES = frozenset({"pt", "prt", "body"})  # body: the unclothed body ray-cast (farm/rendering/body_pass.py)
 SPECULAR_MODES = ("auto", "on", "off")
 LIGHT_POOLS = ("train", "heldout")
 # OIDN prefilter of the albedo/normal guides: "fast" trusts them as rendered (they are
@@ -30,9 +30,9 @@ class SceneOptions:
     passes: frozenset = frozenset({"pt", "prt", "body"})
     specular: str = "auto"
     light_pool: str = "train"
-    # issue 37: the framings a scene draws from (farm.camera.FRAMINGS, "all" or a comma list;
+    # issue 37: the framings a scene draws from (farm.synthesis.camera.FRAMINGS, "all" or a comma list;
     # "full-body" draws nothing new: the scenes of before) and the share of lights that are hard
-    # lights (farm.hard_lights; 0 draws nothing new)
+    # lights (farm.synthesis.hard_lights; 0 draws nothing new)
     framing: str = "full-body"
     hard_lights: float = 0.0
 
@@ -57,7 +57,7 @@ class SceneOptions:
             raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
         if self.specular not in SPECULAR_MODES:
             raise ValueError(f"SceneOptions.specular must be one of {SPECULAR_MODES}, got {self.specular!r}")
-        from farm.camera import parse_framings
+        from farm.synthesis.camera import parse_framings
 
         parse_framings(self.framing)
         if isinstance(self.hard_lights, bool) or not isinstance(self.hard_lights, (int, float)) \

@@ -27,7 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from farm.options import SceneOptions  # part of the job-module interface
-from relight import dataset, prt, sh
+from relight.files import dataset
+from relight.network import prt
+from relight.lighting import sh
 
 # Share of scenes whose materials are all pure Lambert (then "auto" skips the
 # view-dependent bake, and the PRT image equals the path-traced one up to
@@ -90,15 +92,15 @@ class SceneSample:
     index: int
     seed: int
     options: SceneOptions
-    body: object  # farm.bodies.BodyParams
-    pose: object  # farm.poses.Pose
+    body: object  # farm.synthesis.bodies.BodyParams
+    pose: object  # farm.synthesis.poses.Pose
     yaw_deg: float
     penetration: float
     penetration_pair: object
-    parts: list  # farm.appearance.Part, in scene order
+    parts: list  # farm.synthesis.appearance.Part, in scene order
     look: dict  # the appearance record
-    camera: object  # farm.camera.Camera
-    lights: list  # farm.lights.SampledLight
+    camera: object  # farm.synthesis.camera.Camera
+    lights: list  # farm.synthesis.lights.SampledLight
     timings: dict = field(default_factory=dict)
     body_mesh: tuple | None = None  # (vertices [V, 3] world, faces [F, 3]): the posed body without clothes
     head_labels: list | None = None  # per part: float [V], 1 on the head's skin and face details (the head mask)
@@ -178,7 +180,7 @@ def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) 
 
 def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
     """sample_scene for a request already checked (check_request)."""
-    from farm import appearance, bodies, camera, hard_lights, lights, poses
+    from farm.synthesis import appearance, bodies, camera, hard_lights, lights, poses
 
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
@@ -252,7 +254,8 @@ class SceneBake:
 def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
     """Bake the transport of the vertices that can reach a pixel (rays in the camera frame:
     they are invariant under the rigid change of frame)."""
-    from farm import bake, material_specs
+    from farm.rendering import bake
+    from farm.synthesis import material_specs
 
     options = sample.options
     record = {"directions": options.bake_directions, "specular": "skipped"}
@@ -292,7 +295,8 @@ def bake_scene(sample: SceneSample, threads: int = 0) -> SceneBake:
 def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
     """Meshes with per-vertex normal, depth and transport attributes routed to AOVs, their
     materials, the camera and the first light's World; returns the AovSpec."""
-    from farm import blender_scene, camera, materials, passes
+    from farm.rendering import blender_scene, materials, passes
+    from farm.synthesis import camera
 
     options = sample.options
     cam = sample.camera
@@ -334,9 +338,9 @@ def _transport_blocks(options: SceneOptions) -> int:
 
 def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir: Path) -> tuple[dict, dict]:
     """Cycles' geometry pass, the PRT images from the baked transport, one path-traced
-    image per light; returns the scene's channels (relight.dataset names) and the
+    image per light; returns the scene's channels (relight.files.dataset names) and the
     seconds of these stages (geometry_pass, path_trace, path_trace_render_calls)."""
-    from farm import blender_scene, passes
+    from farm.rendering import blender_scene, passes
 
     options = sample.options
     timings: dict = {}
@@ -384,7 +388,7 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
     timings["path_trace_render_calls"] = path_trace_seconds
     if "body" in options.passes:
         t0 = time.perf_counter()
-        from farm.body_pass import scene_body_buffers
+        from farm.rendering.body_pass import scene_body_buffers
 
         channels.update(scene_body_buffers(sample).channels())
         timings["body_pass"] = round(time.perf_counter() - t0, 4)
@@ -398,7 +402,8 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
     the request checked here) draws the scene: farm.clips passes one that poses a
     clip's person for one frame."""
     check_request(index, seed, options)  # before bpy is imported: a bad request needs no Blender
-    from farm import blender_scene, lights, passes
+    from farm.rendering import blender_scene, passes
+    from farm.synthesis import lights
 
     threads = passes.thread_count()  # validates $RELIGHT_CYCLES_THREADS before any work
     out_dir = Path(out_dir)

@@ -1,10 +1,10 @@
 """Evaluate a model on scene files: `python -m model.evaluate MODEL --data DIR [--out DIR]`.
 
-MODEL is a .safetensors checkpoint (model.checkpoint) or an .onnx file (run
+MODEL is a .safetensors checkpoint (model.training.checkpoint) or an .onnx file (run
 with onnxruntime, I/O of docs/ARCHITECTURE.md: input "image", outputs
 "albedo", "transport", "residual", "light", "alpha"). For every pair
 (scene, light a -> light b) of path-traced images the paper's metrics are
-measured over the person's pixels (model.metrics): albedo, shading and image
+measured over the person's pixels (model.scoring.metrics): albedo, shading and image
 L1 (x100), L2 (x100), PSNR, for (a) reconstruction under the predicted light
 and (b) relighting to light b vs the path-traced image under b. Baselines in
 the same run: identity (input as output), exposure-matched identity (input
@@ -29,17 +29,20 @@ import torch
 
 from evaluation.sheet import contact_sheet as _contact_sheet
 from evaluation.sheet import write_sheet
-from relight.fileio import atomic_write_text
+from relight.files.fileio import atomic_write_text
 
-from model.data import EvaluationPairs
-from model.face_region import FaceRows
-from model.data_splits import find_scenes, held_out_light_names
-from model.geometry_diagnostics import (TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table,
-                                        parametric_transport_error, transport_normal)
-from model.pair_metrics import (MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction,
-                                gain_fitted, oracle_prt, render_np, shading_np, with_metric_weight)
-from model.predictor import Predictor
-from model.report_cli import run_report
+from model.samples.data import EvaluationPairs
+from model.scoring.face_region import FaceRows
+from model.samples.data_splits import find_scenes, held_out_light_names
+from model.scoring.geometry_diagnostics import (
+    TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table, parametric_transport_error, transport_normal,
+)
+from model.scoring.pair_metrics import (
+    MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction, gain_fitted, oracle_prt,
+    render_np, shading_np, with_metric_weight,
+)
+from model.scoring.predictor import Predictor
+from model.scoring.report_cli import run_report
 
 
 def _mean_table(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -56,7 +59,7 @@ def markdown_table(results: dict[str, dict], n_pairs: int, data: str, mask: str 
     lines = [f"# Evaluation ({n_pairs} image pairs from `{data}`)", "",
              f"Over the person's pixels ({where}), linear values; L1 and L2 x100, "
              "PSNR in dB with peak 1.0; SI PSNR after per-channel gains fitted to the truth "
-             "(scale-invariant: the pattern, not the colour and level; model/metrics.py).", ""]
+             "(scale-invariant: the pattern, not the colour and level; model/scoring/metrics.py).", ""]
     header = "| method | setting | " + " | ".join(f"{m} L1 | {m} L2 | {m} PSNR | {m} SI PSNR" for m in MAPS) + " |"
     lines += [header, "|" + "---|" * (2 + 4 * len(MAPS))]
     for method, table in results.items():
@@ -240,7 +243,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
 
 
 def face_rows(face: FaceRows, pred: dict, sample: dict, json_path, tstar: bool, order: int) -> None:
-    """The pair's rows over its face (model.face_region), when it has one: ours, the identity
+    """The pair's rows over its face (model.scoring.face_region), when it has one: ours, the identity
     baselines, the oracle, the breakdown's ceilings and the normals' angle."""
     fs = face.face_sample(sample, json_path)
     if fs is None:

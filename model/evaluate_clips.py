@@ -2,7 +2,7 @@
 
 Reads farm clips (`python -m farm ... --clip-frames F`, farm/clips.py: a person moving
 in front of a fixed camera; light 0 is the shot's light, light 1 the target), relights
-each clip's light-0 frames to light 1 with relight.clip.ClipRelighter, once frame by
+each clip's light-0 frames to light 1 with relight.command.clip.ClipRelighter, once frame by
 frame independently (stability 0, `relight image` on each frame) and once for each
 --stability and --mode, and measures, over the person:
 
@@ -11,7 +11,7 @@ frame independently (stability 0, `relight image` on each frame) and once for ea
   (relative to the image), averaged over the frame pairs; reported as the excess
   over the ground-truth clip's own flicker (its motion), so 0 is "as steady as the
   truth" and below 0 steadier;
-* **PSNR** of each frame against the truth (model.metrics.psnr over the true
+* **PSNR** of each frame against the truth (model.scoring.metrics.psnr over the true
   matte), averaged over frames: stabilising must not cost per-frame accuracy;
 * the milliseconds a frame takes (the whole ClipRelighter.relight call).
 
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from model.metrics import psnr
+from model.scoring.metrics import psnr
 
 REGION_ALPHA = 0.5  # true alpha above which a pixel is the person, for the flicker region
 SOURCES = ("prt", "pt")
@@ -42,7 +42,7 @@ def load_clips(folders, max_frames: int | None = None, source: str = "prt") -> l
     light: noise-free), over the path-traced background either way."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
-    from relight.dataset import list_finished_scenes, read_scene
+    from relight.files.dataset import list_finished_scenes, read_scene
 
     clips = defaultdict(list)
     for folder in folders:
@@ -103,7 +103,7 @@ def relight_clip(clip: dict, relighter, stability: float, mode: str, matte: str,
                  light_window: int | None = None) -> tuple[np.ndarray, float]:
     """(relit frames [T, H, W, 3], mean ms per frame) of one clip. matte "gt": the true alpha is
     each frame's mask (the decomposition alone); "person"/"network": the runtime's mattes."""
-    from relight.clip import ClipRelighter
+    from relight.command.clip import ClipRelighter
 
     runner = ClipRelighter(relighter, clip["light"], stability=stability, mode=mode,
                            matte="network" if matte == "network" else "person",
@@ -131,8 +131,8 @@ def evaluate(folders, model=None, quality: str = "balanced", stabilities=(0.5,),
              light_windows=(None,)) -> dict:
     """{"rows": [{"method", "flicker_excess", "psnr", "ms"}...], "clips": N, "frames": T}: per-frame
     processing first, then every (stability, mode); each figure the mean over clips."""
-    from relight import quality as quality_presets
-    from relight.runtime import Relighter
+    from relight.network import quality as quality_presets
+    from relight.network.runtime import Relighter
 
     clips = load_clips(folders, max_frames, source)
     path = model if model is not None else quality_presets.model_path(quality)
@@ -182,7 +182,7 @@ def main(argv=None) -> int:
                         "on its own, so its noise flickers in the input and in the truth)")
     p.add_argument("--frames", type=int, default=None, help="first N frames of each clip")
     p.add_argument("--light-window", type=int, nargs="+", default=[None],
-                   help="frames the light is averaged over (default: relight.clip's, from the stability)")
+                   help="frames the light is averaged over (default: relight.command.clip's, from the stability)")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--json", default=None, help="also write the figures as JSON here")
     args = p.parse_args(argv)
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
                       args.threads, args.source, args.light_window)
     print(markdown(result))
     if args.json:
-        from relight.fileio import atomic_write_json
+        from relight.files.fileio import atomic_write_json
 
         atomic_write_json(args.json, result, indent=1)
     return 0

@@ -1,12 +1,12 @@
 """Evaluate a shipped model on real photos: `python -m model.evaluate_photos MODEL.onnx --photos DIR --out DIR`.
 
-Runs the torch-free runtime (relight.runtime), as a user would, on every
+Runs the torch-free runtime (relight.network.runtime), as a user would, on every
 photo in DIR. Real photos have no ground truth, so the one number is the
 reconstruction: the photo re-rendered from its own decomposition,
 albedo * (T . L) + E . L with the predicted light L (negative values set to
 0, as the runtime returns them), against the photo itself (linear, at the
 network's working resolution, weighted by the matte: the file's alpha channel
-when it has one, else the person segmenter's (relight.matte), else the
+when it has one, else the person segmenter's (relight.person.matte), else the
 network's alpha head). A contact
 sheet shows each photo relit under three bundled training presets, each at
 0 and 180 degrees. Writes OUT/photos.md, OUT/photos.json and
@@ -23,20 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from model import metrics
-from model.report_cli import run_report
-from relight import photo as photo_io
-from relight import sh
+from model.scoring import metrics
+from model.scoring.report_cli import run_report
+from relight.files import photo as photo_io
+from relight.lighting import sh
 from evaluation.sheet import LABEL_HEIGHT as _SHEET_LABEL_HEIGHT
 from evaluation.sheet import contact_sheet as _contact_sheet
 from evaluation.sheet import write_sheet
-from relight.fileio import atomic_write_text
-from relight.light import directional_light, sh_light
-from relight import quality as quality_presets
-from relight.runtime import Relighter
+from relight.files.fileio import atomic_write_text
+from relight.lighting.light import directional_light, sh_light
+from relight.network import quality as quality_presets
+from relight.network.runtime import Relighter
 
-# a directional light turned about the person (relight.light.directional_light): a viewer
-# should see it move across the body; then a training preset (not relight.presets.HELD_OUT),
+# a directional light turned about the person (relight.lighting.light.directional_light): a viewer
+# should see it move across the body; then a training preset (not relight.lighting.presets.HELD_OUT),
 # what a user would pick, at two rotations
 SHEET_DIRECTIONS = (0.0, 90.0, 180.0, 270.0)
 SHEET_PRESETS = ("sunset",)
@@ -64,7 +64,7 @@ class PhotoResult:
 
 
 def find_photos(folder) -> list[Path]:
-    """Photo files of `folder` (relight.photo.PHOTO_SUFFIXES), sorted by name."""
+    """Photo files of `folder` (relight.files.photo.PHOTO_SUFFIXES), sorted by name."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"photo folder not found: {folder}")
@@ -89,7 +89,7 @@ def evaluate_photo(relighter: Relighter, path: Path, options: dict | None = None
     source = "file alpha" if file_mask is not None else "person segmenter"
     try:
         dec = relighter.decompose(image, mask=file_mask, matte="person", **options)
-    except ValueError:  # relight.matte.NoPersonError, or too small for the segmenter
+    except ValueError:  # relight.person.matte.NoPersonError, or too small for the segmenter
         options.pop("matte_method", None)
         dec, source = relighter.decompose(image, matte="network", **options), "network alpha (no person found)"
     # the network's own resolution: the full-resolution result borrows the photo's
@@ -133,7 +133,7 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
             "linear values at the network's working resolution (crop around the person, longest side "
             f"{working} px), each pixel weighted by the matte (the file's alpha, else the person "
             "segmenter's, else the network's). L1 and L2 "
-            "x100, PSNR in dB with peak 1.0 (model/metrics.py). No ground truth exists for these photos: "
+            "x100, PSNR in dB with peak 1.0 (model/scoring/metrics.py). No ground truth exists for these photos: "
             "this measures self-consistency, not relighting accuracy.")
     lines = [f"# Real photos (`{model}`)", "", note, "",
              "| photo | size | matte | matte coverage | light mean luminance | light motion | backlight ratio "
@@ -156,14 +156,14 @@ def markdown_table(results: list[PhotoResult], model: str, working: int) -> str:
         lines.append(f"| mean of {len(measured)} | | | | | {motion:.3f} | {backlight:.3f} | {cast:.1f} | "
                      f"{100 * means['l1']:.2f} | "
                      f"{100 * means['l2']:.3f} | {means['psnr']:.2f} |")
-    lines += ["", "Light motion: model.metrics.spatial_change of the relit person (working resolution, "
+    lines += ["", "Light motion: model.scoring.metrics.spatial_change of the relit person (working resolution, "
               "weighted by the matte) between a directional light at 0 and at 180 degrees "
-              "(relight.light.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
+              "(relight.lighting.light.directional_light), after per-channel gains; `python -m model.evaluate` prints the "
               "same number for ground-truth renders of held-out scenes.", "",
-              "Backlight ratio: model.metrics.luminance_ratio of the relit person's mean luminance lit "
+              "Backlight ratio: model.scoring.metrics.luminance_ratio of the relit person's mean luminance lit "
               "from behind (180 degrees) to lit from the camera's side (0 degrees); `python -m "
               "model.evaluate` prints it for ground-truth renders too.", "",
-              "Colour cast: model.metrics.colour_cast_deg, the angle between the person's mean colour "
+              "Colour cast: model.scoring.metrics.colour_cast_deg, the angle between the person's mean colour "
               "relit under the four white directional lights and in the photo (0: colours kept up to "
               "exposure).", "",
               "Contact sheet columns: " + ", ".join(column_labels()) +
@@ -211,7 +211,7 @@ def main(argv=None) -> int:
                    help="folder of photos (default: the bundled relight/data/examples)")
     p.add_argument("--out", default="evaluation_photos", help="output folder (default: ./evaluation_photos)")
     p.add_argument("--quality", choices=[q.key for q in quality_presets.PRESETS], default="balanced",
-                   help="working resolution, as `relight --quality` (relight/quality.py; default balanced, "
+                   help="working resolution, as `relight --quality` (relight/network/quality.py; default balanced, "
                         f"{quality_presets.preset('balanced').working_size} px)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: all cores)")
     p.add_argument("--tile", type=int, default=TILE, help=f"contact-sheet tile side in px (default {TILE})")

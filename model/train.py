@@ -4,10 +4,10 @@ Lightning on the CPU by default (--device cpu); --device cuda (or --device auto 
 CUDA device is present) trains on the GPU with mixed precision.
 AdamW, lr 5e-5 (the paper's). Writes to --out:
   checkpoints/last.ckpt   Lightning state for --resume (loaded with weights_only=True)
-  model.safetensors/.json final weights + config (model.checkpoint), seed and args recorded
+  model.safetensors/.json final weights + config (model.training.checkpoint), seed and args recorded
   metrics.csv (CSV logger under logs/)
-The LightningModule is model.train_module.RelightModule, the LightningDataModule
-model.train_data.SceneDataModule; this module is the command line.
+The LightningModule is model.training.train_module.RelightModule, the LightningDataModule
+model.training.train_data.SceneDataModule; this module is the command line.
 """
 
 from __future__ import annotations
@@ -23,21 +23,21 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
-from model.checkpoint import load_model, save_model
-from model.data_augment import preset_training_lights
-from model.data_crops import DEFAULT_PADDING
-from model.data_splits import first_maps, training_map_names
-from model.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS
-from model.losses import LossWeights
-from model.network import PRESETS
-from model.train_data import SceneDataModule
-from model.train_module import RelightModule
+from model.training.checkpoint import load_model, save_model
+from model.samples.data_augment import preset_training_lights
+from model.samples.data_crops import DEFAULT_PADDING
+from model.samples.data_splits import first_maps, training_map_names
+from model.networks.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS
+from model.training.losses import LossWeights
+from model.networks.network import PRESETS
+from model.training.train_data import SceneDataModule
+from model.training.train_module import RelightModule
 
 
 def build_model_config(args) -> dict:
     """Network config: the named --preset layout, --width/--depth when given, the ablation flags.
 
-    geo-* presets build the geometry-first GeometryNet (model.geometry), the
+    geo-* presets build the geometry-first GeometryNet (model.networks.geometry), the
     others RelightNet."""
     lambertian = args.lambertian
     if args.preset in GEOMETRY_PRESETS:
@@ -62,7 +62,7 @@ def build_model_config(args) -> dict:
 
 def loss_weights_from_args(args) -> dict:
     """Loss weights by name: the model's defaults (LossWeights for RelightNet,
-    model.geometry.GEOMETRY_LOSS_WEIGHTS for the geometry-first model) with each
+    model.networks.geometry.GEOMETRY_LOSS_WEIGHTS for the geometry-first model) with each
     --loss-weight NAME=VALUE applied; --no-log-loss sets RelightNet's log term to 0."""
     geometry = args.preset in GEOMETRY_PRESETS
     weights = dict(GEOMETRY_LOSS_WEIGHTS) if geometry else LossWeights().to_dict()
@@ -98,8 +98,8 @@ def parse_args(argv=None):
                    help="gradient accumulation: effective batch = batch x accumulate (paper: 16)")
     p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
     p.add_argument("--preset", choices=tuple(PRESETS) + tuple(GEOMETRY_PRESETS), default="default",
-                   help="network layout: model.network.PRESETS (the paper's decomposition) or "
-                        "model.geometry.GEOMETRY_PRESETS (geometry-first); --width/--depth override it")
+                   help="network layout: model.networks.network.PRESETS (the paper's decomposition) or "
+                        "model.networks.geometry.GEOMETRY_PRESETS (geometry-first); --width/--depth override it")
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--depth", type=int, default=None)
     p.add_argument("--order", type=int, default=4, help="SH order N (paper: 4; Kanamori-Endo: 2)")
@@ -131,15 +131,15 @@ def parse_args(argv=None):
                         "(exact augmentation; 0: off)")
     p.add_argument("--light-mix", type=float, default=0.0, metavar="P",
                    help="chance that an extra light is two training lights mixed, turned and tilted "
-                        "(model.data_augment.random_mixed_light; exact for PRT images; 0: off)")
+                        "(model.samples.data_augment.random_mixed_light; exact for PRT images; 0: off)")
     p.add_argument("--light-maps", type=int, default=None, metavar="K",
                    help="study: only K of the training HDR maps light the samples (a fixed, nested choice: "
-                        "model.data_splits.first_maps); default: all")
+                        "model.samples.data_splits.first_maps); default: all")
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="SIGMA",
                    help="scale the input light and image by 2^N(0, SIGMA^2), albedo target unchanged "
                         "(exposure augmentation, exact; 0: off)")
     p.add_argument("--capture", action=argparse.BooleanOptionalAction, default=False,
-                   help="photo-like capture of the input (model/capture.py: real backgrounds, white balance, "
+                   help="photo-like capture of the input (model/samples/capture.py: real backgrounds, white balance, "
                         "exposure, blur, noise, JPEG); off by default, measured in docs/EVALUATION.md")
     p.add_argument("--no-presets", action="store_true", help="extra lights from scene lights only")
     p.add_argument("--fit-stride", type=int, default=1, choices=(1, 2, 3, 4),

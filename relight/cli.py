@@ -9,11 +9,11 @@ import sys
 
 import numpy as np
 
-from relight.cli_args import EXIT_BAD_INPUT, Parser, bounded_int, finite_float, rotation_deg
+from relight.command.cli_args import EXIT_BAD_INPUT, Parser, bounded_int, finite_float, rotation_deg
 
 def _cmd_sh(args) -> int:
-    from relight import sh
-    from relight.light import sh_light
+    from relight.lighting import sh
+    from relight.lighting.light import sh_light
 
     coeffs = sh_light(args.map, args.order, rotation_deg=args.rotate, normalize=args.normalize, target=args.target)
     if args.window != "none":
@@ -30,7 +30,7 @@ def _cmd_sh(args) -> int:
 
 
 def _cmd_presets(args) -> int:
-    from relight import presets
+    from relight.lighting import presets
 
     names = presets.list_presets()
     if args.blender:
@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="relight", description="Single-image full-body human relighting.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
-    from relight.sh import MAX_ORDER, REFERENCE_LUMINANCE
+    from relight.lighting.sh import MAX_ORDER, REFERENCE_LUMINANCE
 
     p = sub.add_parser("sh", help="SH coefficients of an equirect HDR map or preset")
     p.add_argument("map", help="EXR/.hdr path or preset name (see `relight presets`)")
@@ -66,9 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blender", action="store_true", help="also list Blender's maps (needs bpy)")
     p.set_defaults(func=_cmd_presets)
 
-    from relight.cli_image import register as register_image
-    from relight.cli_light import register as register_light
-    from relight.cli_video import register as register_video
+    from relight.command.cli_image import register as register_image
+    from relight.command.cli_light import register as register_light
+    from relight.command.cli_video import register as register_video
 
     register_image(sub)
     register_light(sub)

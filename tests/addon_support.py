@@ -133,8 +133,9 @@ def relit_photo(model: Path, folder: Path) -> str:
 
 
 def photo_session(name: str):
-    """The add-on's session (blender_addon.state.PhotoSession) of the photo image `name`."""
-    from blender_addon import bl_images, state
+    """The add-on's session (blender_addon.worker.state.PhotoSession) of the photo image `name`."""
+    from blender_addon.blender import bl_images
+    from blender_addon.worker import state
 
     return state.SESSIONS[bpy.data.images[name][bl_images.PHOTO_ID]]
 

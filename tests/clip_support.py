@@ -14,8 +14,8 @@ H, W = 90, 160
 
 
 def _person(height: int) -> np.ndarray:
-    from relight.photo import read_photo
-    from relight.resample import resize_linear
+    from relight.files.photo import read_photo
+    from relight.network.resample import resize_linear
 
     img, _ = read_photo(PHOTO)
     return resize_linear(img, height, int(round(img.shape[1] * height / img.shape[0])))
@@ -48,7 +48,7 @@ def two_shots(n1: int, n2: int) -> list[np.ndarray]:
 
 
 def write_frames(folder: Path, frames, fmt: str = "png", prefix: str = "f_") -> Path:
-    from relight.photo import write_image
+    from relight.files.photo import write_image
 
     folder.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(frames):
@@ -61,8 +61,8 @@ def write_video(path: Path, frames, fps=24, audio: str | None = None) -> Path:
     "libopus") a 440 Hz sine track beside it, written with PyAV directly (the source a user would have)."""
     from fractions import Fraction
 
-    from relight.video_io import ClipInfo
-    from relight.video_out import VideoWriter, encode_srgb8
+    from relight.files.video_io import ClipInfo
+    from relight.files.video_out import VideoWriter, encode_srgb8
 
     fps = Fraction(fps)
     h, w = frames[0].shape[:2]
@@ -106,8 +106,8 @@ def noisy_still(n: int, height: int = 256, sigma: float = NOISE_SIGMA, seed: int
     `height`) plus independent Gaussian noise of `sigma` codes per pixel, channel and frame,
     rounded and clipped to 8 bits as a video's frames are (seeded: the same frames every run)."""
     from relight.colour import srgb_decode, srgb_encode
-    from relight.photo import read_photo
-    from relight.resample import resize_linear
+    from relight.files.photo import read_photo
+    from relight.network.resample import resize_linear
 
     img, _ = read_photo(photo)
     codes = srgb_encode(resize_linear(img, height, int(round(img.shape[1] * height / img.shape[0])))) * 255.0
@@ -119,8 +119,8 @@ def noisy_still(n: int, height: int = 256, sigma: float = NOISE_SIGMA, seed: int
 def still_region(height: int = 256, matte: Path = STILL_MATTE, photo: Path = STILL_PHOTO) -> np.ndarray:
     """[height, w] float32 in {0, 1}: the photo's person (its reference matte > 0.5), where the
     still shot's flicker is measured: fixed, so the measure does not move with the relighter's matte."""
-    from relight.photo import read_photo
-    from relight.resample import resize_linear
+    from relight.files.photo import read_photo
+    from relight.network.resample import resize_linear
 
     img, _ = read_photo(photo)
     ref, _ = read_photo(matte)

@@ -11,7 +11,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from relight.exr import read_exr
+from relight.files.exr import read_exr
 
 SPHERE_CENTRE = (0.0, 5.0, 0.0)  # a unit sphere 5 m along the camera's view
 ORTHO_SCALE = 2.2  # the orthographic view's width: the sphere and a margin
@@ -115,7 +115,7 @@ def sh_world(scene: bpy.types.Scene, index: int) -> None:
     """World radiance = the real SH basis function Y_k(w) (negative emission allowed).
 
     Built from the world's direction vector with math nodes, exactly the
-    polynomial form of relight.sh for l <= 2, which is what the transport
+    polynomial form of relight.lighting.sh for l <= 2, which is what the transport
     check needs.
     """
     world = scene.world or bpy.data.worlds.new("World")

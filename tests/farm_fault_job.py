@@ -11,7 +11,7 @@ Faults come from the environment, which workers inherit:
                    FARM_FAULT_SLOW seconds, then render)
   FARM_FAULT_SLOW_ALL  non-empty: every scene is "slow"
   FARM_FAULT_REAL  "1": render with the real farm.scene.render_scene, else write a tiny
-                   valid scene through relight.dataset.write_scene
+                   valid scene through relight.files.dataset.write_scene
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ def _first_time(name: str) -> bool:
 
 
 def _tiny_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
-    """An 8x8 scene in the real format (relight.dataset.write_scene), fast to write."""
-    from relight.dataset import write_scene
+    """An 8x8 scene in the real format (relight.files.dataset.write_scene), fast to write."""
+    from relight.files.dataset import write_scene
 
     rng = np.random.default_rng([seed, index])
     size, k, n = 8, options.lights, (options.sh_order + 1) ** 2

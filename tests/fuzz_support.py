@@ -202,8 +202,8 @@ def png_bytes(height: int, width: int, *, declared: tuple[int, int] | None = Non
 
 
 def exr_bytes(tmp_dir, planes: dict[str, np.ndarray], compression: str = "zip") -> bytes:
-    """An EXR of the given [H, W] planes, written by relight.exr."""
-    from relight.exr import write_exr
+    """An EXR of the given [H, W] planes, written by relight.files.exr."""
+    from relight.files.exr import write_exr
 
     path = tmp_dir / f".gen_{os.getpid()}.exr"
     write_exr(path, planes, compression=compression)
@@ -217,7 +217,7 @@ def exr_bytes(tmp_dir, planes: dict[str, np.ndarray], compression: str = "zip") 
 
 @contextmanager
 def writer_holding(output):
-    """A separate process that holds the writer's lock of `output` (relight.fileio.output_lock)
+    """A separate process that holds the writer's lock of `output` (relight.files.fileio.output_lock)
     as a running `relight image` / `relight video` would, until the block ends (then killed with
     SIGKILL, as kill -9 would: the kernel drops the lock). Yields the process."""
     import subprocess
@@ -225,7 +225,7 @@ def writer_holding(output):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    code = ("import sys; from relight.fileio import output_lock\n"
+    code = ("import sys; from relight.files.fileio import output_lock\n"
             "with output_lock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()\n")
     proc = subprocess.Popen([sys.executable, "-c", code, str(output)], cwd=root, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True)

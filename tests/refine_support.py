@@ -8,9 +8,9 @@ import dataclasses
 
 import numpy as np
 
-from relight import refine as rf
-from relight import sh
-from relight.decomposition import Decomposition
+from relight.network import refine as rf
+from relight.lighting import sh
+from relight.network.decomposition import Decomposition
 
 ORDER = 4
 SIZE = 64

@@ -13,10 +13,11 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_dials, bl_images, bl_light, bl_ops, bl_session, bl_world, state
-from relight import presets, sh_projection, sh_rotation
-from relight.exr import read_exr, write_exr
-from relight.light import sh_light
+from blender_addon.blender import bl_dials, bl_images, bl_light, bl_ops, bl_session, bl_world
+from blender_addon.worker import state
+from relight.lighting import presets, sh_projection, sh_rotation
+from relight.files.exr import read_exr, write_exr
+from relight.lighting.light import sh_light
 
 from addon_support import H, W, draw_panel, new_node_world, pixels, write_person_png
 from tiny_model import ORDER
@@ -107,8 +108,8 @@ def test_relight_writes_every_layer(addon, settings):
     run = session(name)
     expected = run.decomposition.relight(sh_light("studio", ORDER))
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], expected, atol=TIGHT)
-    # and the photo is the PNG decoded to linear (what relight.photo reads)
-    from relight.photo import read_photo
+    # and the photo is the PNG decoded to linear (what relight.files.photo reads)
+    from relight.files.photo import read_photo
 
     linear, _ = read_photo(addon["folder"] / "person.png")
     np.testing.assert_allclose(run.photo, linear, atol=1e-6)
@@ -762,7 +763,7 @@ def test_esc_stops_the_network_while_it_runs(addon, settings, monkeypatch):
     import time
     import types
 
-    from relight.quality import QualityPreset
+    from relight.network.quality import QualityPreset
 
     # a working size that makes the tiny network run for seconds, so Esc lands inside it
     slow = QualityPreset("draft", "Draft", None, 1024, "slow")
@@ -860,7 +861,7 @@ def test_editors_showing_the_result_switch_between_preview_and_full_size(addon, 
 # ------------------------------------------------------------------ the person matte (Mask: Automatic)
 
 def test_automatic_mask_is_the_person_matte_shown_as_a_cut_out(addon, settings):
-    from relight.matte import person_matte
+    from relight.person.matte import person_matte
     from evaluation.matte_eval import EVAL_DIR
 
     photo = bpy.data.images.load(str(EVAL_DIR / "grace_hopper.jpg"))
@@ -869,7 +870,7 @@ def test_automatic_mask_is_the_person_matte_shown_as_a_cut_out(addon, settings):
     try:
         assert relight(photo.name) == {"FINISHED"}
         run = session(photo.name)
-        from relight import quality
+        from relight.network import quality
 
         want = person_matte(run.photo, 1, method=quality.preset(settings.quality).matte_method)  # the preset's
         assert settings.people_found == want.count >= 1 and run.people == want.count
@@ -918,7 +919,7 @@ def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, s
         log = draw_panel(addon["photo"])
         labels = [text for kind, text in log if kind == "label"]
         assert ("prop", "person") in log
-        from blender_addon import bl_props
+        from blender_addon.blender import bl_props
 
         assert [item[0] for item in bl_props._person_items(settings, None)] == ["1", "2"]  # one per person
         assert "2 people found; '.matte' shows the cut-out" in labels
@@ -933,7 +934,8 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
     import time
     import types
 
-    from blender_addon import bl_layers, work
+    from blender_addon.blender import bl_layers
+    from blender_addon.worker import work
 
     events = []  # each layer made, then written, before the next is made: one full-size buffer at a time
     make, write = work.layer_buffer, bl_layers.write_output
@@ -974,7 +976,7 @@ def test_with_a_ui_the_relit_image_comes_first_and_the_other_layers_follow(addon
 def test_the_quality_preset_decides_the_networks_test_time_work(addon, settings):
     """Best runs the preset's augmentations (and refinement, which a network with a residual E
     skips: its albedo is not photo-consistent); Draft runs the network once."""
-    from relight import quality
+    from relight.network import quality
 
     name = addon["photo"]
     settings.quality = "BEST"

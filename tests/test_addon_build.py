@@ -147,7 +147,7 @@ def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
             data = wheel.read(arc)
             want = "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
             assert digest == want and int(size) == len(data), arc
-    for required in ("relight/runtime.py", "relight/sh.py", "relight/envmap.py", "relight/photo.py",
+    for required in ("relight/network/runtime.py", "relight/lighting/sh.py", "relight/lighting/envmap.py", "relight/files/photo.py",
                      "relight/models/models.json", "relight/data/hdri/studio.exr"):
         assert required in names
     # the core only: evaluation-only code (evaluation/: contact sheets, the matte evaluation, its photos) stays out
@@ -155,10 +155,10 @@ def test_core_wheel_is_a_valid_wheel_of_relight(built_zip, tmp_path):
     assert not any("matte_eval" in n or n.endswith("/sheet.py") for n in names)
     # only the models Draft / Balanced / Best and the person matte run ship; the registry lists exactly them
     from relight import models as core_models
-    from relight import quality as core_quality
+    from relight.network import quality as core_quality
 
     registry = core_models.load_registry(core_models.REGISTRY_PATH)
-    from relight.matte import MODELS as MATTE_MODELS
+    from relight.person.matte import MODELS as MATTE_MODELS
 
     wanted = {core_quality.model_name(p.key, registry) for p in core_quality.PRESETS} | {registry["default"]}
     wanted |= {name for name, _file in MATTE_MODELS.values()}  # the Automatic mask's person matte

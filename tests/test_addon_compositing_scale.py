@@ -15,8 +15,8 @@ import pytest
 
 import bpy
 
-from relight import exr
-from relight.resample import resize_linear
+from relight.files import exr
+from relight.network.resample import resize_linear
 from addon_support import H, W
 
 
@@ -40,7 +40,8 @@ def _render(folder, percentage: int) -> np.ndarray:
 
 @pytest.mark.parametrize("percentage", [25, 50])
 def test_the_whole_photo_is_behind_the_render_at_any_resolution_percentage(addon, percentage):
-    from blender_addon import bl_images, state
+    from blender_addon.blender import bl_images
+    from blender_addon.worker import state
 
     photo = bpy.data.images.load(str(addon / "person.png"))
     assert bpy.ops.relight_photo.relight(image_name=photo.name, synchronous=True) == {"FINISHED"}

@@ -1,11 +1,11 @@
 """Relight Photo add-on: the key lamp of Photo Light -> World, and the scene's lamps in the World light.
 
-Photo Light -> World splits the session's light (relight.key_light) into a Sun (an area lamp when
+Photo Light -> World splits the session's light (relight.lighting.key_light) into a Sun (an area lamp when
 it is wide) with the key's direction, colour, strength and angle, and a smooth World; pressing again
 updates the same lamp; it survives save and reopen; `lamp_free` keeps the single map. The World
 light source adds the scene's lamps projected to SH at the person (light_sources.with_lamps), and a
 lamp moved, changed, added or removed relights through the depsgraph handler, as a World edit does.
-Cycles checks the lamps' units (relight.lamps) on a Lambertian sphere."""
+Cycles checks the lamps' units (relight.lighting.lamps) on a Lambertian sphere."""
 
 from __future__ import annotations
 
@@ -17,14 +17,16 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_dials, bl_world, light_sources, photo_light
+from blender_addon.blender import bl_dials, bl_world
+from blender_addon.logic import light_sources, photo_light
 from cycles_support import SPHERE_CENTRE, lambert_sphere, photo_camera, render_with_normals, sphere_pixels
-from relight import key_light as kl
-from relight import lamps as rl
-from relight import prt, sh_projection
-from relight.exr import write_exr
-from relight.light import SHLight
-from relight.light_map import light_map
+from relight.lighting import key_light as kl
+from relight.lighting import lamps as rl
+from relight.network import prt
+from relight.lighting import sh_projection
+from relight.files.exr import write_exr
+from relight.lighting.light import SHLight
+from relight.lighting.light_map import light_map
 from addon_support import new_node_world, photo_session, pixels, relit_photo, world_map_pixels
 
 ORDER = 4
@@ -279,7 +281,7 @@ def lamp_renders(tmp_path_factory):
 
 @pytest.mark.parametrize("name", list(LAMPS))
 def test_a_lamp_projected_to_sh_lights_a_sphere_as_cycles_does(lamp_renders, name):
-    """Each sphere pixel against the lamp's SH at that pixel's own point (relight.lamps.lamp_coeffs at
+    """Each sphere pixel against the lamp's SH at that pixel's own point (relight.lighting.lamps.lamp_coeffs at
     C + n), to order 16, through the unoccluded Lambert transport (a convex sphere occludes exactly
     its tangent plane, which the clamped cosine is)."""
     lamp, px = lamp_renders[name]

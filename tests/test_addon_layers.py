@@ -17,11 +17,13 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_images, bl_layers, engine, pixel_buffers, state, work
-from relight import sh
-from relight.decomposition import Decomposition
-from relight.light import sh_light
-from relight.resample import resize_linear
+from blender_addon.blender import bl_images, bl_layers
+from blender_addon.worker import engine, state, work
+from blender_addon.logic import pixel_buffers
+from relight.lighting import sh
+from relight.network.decomposition import Decomposition
+from relight.lighting.light import sh_light
+from relight.network.resample import resize_linear
 from addon_support import pixels
 
 ORDER = 4
@@ -169,7 +171,7 @@ def test_relight_again_shares_the_photo_and_its_person_matte_but_not_a_changed_p
     assert again is not first and again.photo is first.photo and again.decomposition.mask is first.decomposition.mask
     assert found == [] and again.people == first.people
     # a preset with another person segmenter looks for the person again
-    from relight import quality
+    from relight.network import quality
 
     other = next(p for p in quality.PRESETS if p.matte_method != quality.preset(settings.quality).matte_method)
     before = settings.quality
@@ -196,7 +198,7 @@ def test_relight_again_shares_the_photo_and_its_person_matte_but_not_a_changed_p
 def test_save_layers_writes_the_layers_under_the_current_dials(addon):
     import OpenEXR
 
-    from relight.exr import read_exr
+    from relight.files.exr import read_exr
 
     name = bpy.data.images.load(str(addon / "person.png")).name
     assert _relight(name) == {"FINISHED"}

@@ -11,10 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blender_addon import engine, jobs, light_sources, manifest, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality, work
-from relight import sh, sh_projection
-from relight.exr import write_exr
-from relight.light import sh_light
+from blender_addon.worker import engine, jobs, work
+from blender_addon.logic import (
+    light_sources, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality,
+)
+from blender_addon import manifest
+from relight.lighting import sh, sh_projection
+from relight.files.exr import write_exr
+from relight.lighting.light import sh_light
 
 ADDON_DIR = Path(__file__).resolve().parents[1] / "blender_addon"
 EPS32 = float(np.finfo(np.float32).eps)
@@ -23,7 +27,7 @@ EPS32 = float(np.finfo(np.float32).eps)
 # ------------------------------------------------------------------ quality table
 
 def test_quality_presets_are_ordered_and_match_the_runtime_sizes():
-    from relight import quality as core_quality
+    from relight.network import quality as core_quality
 
     presets = [quality.preset(key) for key, _, _ in quality.enum_items()]
     work = [p.work() for p in presets]  # fastest first: more work in some part, less in none
@@ -193,12 +197,12 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
 
 
 def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
-    """One decoder of 8-bit sRGB (relight.colour.decode_srgb_codes): `relight image` (relight.photo),
+    """One decoder of 8-bit sRGB (relight.colour.decode_srgb_codes): `relight image` (relight.files.photo),
     the add-on's file reader and the pixels Blender hands over (code / 255) give the same floats."""
     from PIL import Image
 
     from relight.colour import srgb_decode
-    from relight.photo import read_photo
+    from relight.files.photo import read_photo
 
     codes = np.zeros((16, 64, 4), np.uint8)
     codes[..., 0] = np.arange(256).reshape(4, 64).repeat(4, axis=0)  # every code value
@@ -443,7 +447,7 @@ def test_a_polling_timer_waits_for_its_job_then_gets_it_once():
 
 
 def test_saved_lights_come_back_as_the_same_coefficients():
-    from blender_addon import state
+    from blender_addon.worker import state
 
     coeffs = np.arange(27, dtype=np.float64).reshape(9, 3) / 7.0
     state.LIGHT_SOURCES.clear()
@@ -501,6 +505,6 @@ def test_manifest_wheels_must_exist_in_the_package(tmp_path):
 def test_no_network_code_in_the_addon():
     # the add-on asks only for the 'files' permission; only the build script downloads
     pattern = re.compile(r"^\s*(import|from)\s+(urllib|requests|socket|http|ftplib|aiohttp|ssl)\b", re.M)
-    offenders = [p.name for p in ADDON_DIR.glob("*.py")
+    offenders = [p.name for p in ADDON_DIR.rglob("*.py")
                  if p.name != "build.py" and pattern.search(p.read_text(encoding="utf-8"))]
     assert offenders == []

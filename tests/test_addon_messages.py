@@ -3,7 +3,7 @@
 - A photo whose header claims 20000 x 20000 pixels was decoded by Pillow on the worker and
   reported as "The network failed (DecompressionBombError: ...)": the network never ran. It is
   refused from its header, before Blender or the worker decodes it, saying it is too large and
-  what allows it (the panel's Max Photo Size, within relight.image_limits).
+  what allows it (the panel's Max Photo Size, within relight.files.image_limits).
 - Reopened after the photo was moved, deleted or replaced, Photo Light -> World said the photo
   was "still being read after opening the file: try again in a moment": nothing was being read.
 - A full disk while the .blend was saved named one photo whose saved relight was not written
@@ -22,7 +22,8 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_images, state
+from blender_addon.blender import bl_images
+from blender_addon.worker import state
 from fuzz_support import jpeg_bytes
 
 
@@ -151,7 +152,8 @@ def test_a_full_disk_while_saving_names_every_photo_not_saved_and_leaves_no_open
     import sys
     import zipfile
 
-    from blender_addon import bl_saved, bl_session, output_names
+    from blender_addon.blender import bl_saved, bl_session
+    from blender_addon.logic import output_names
 
     names = []
     for stem in ("ana", "ben", "cleo", "dev"):
@@ -192,7 +194,7 @@ def test_a_full_disk_while_saving_names_every_photo_not_saved_and_leaves_no_open
 def test_an_exr_photo_over_max_photo_size_is_refused_from_its_header(addon):
     import numpy as np
 
-    from relight.exr import write_exr
+    from relight.files.exr import write_exr
 
     plane = np.full((1000, 1200), 0.2, np.float32)  # 1.2 MP of float
     write_exr(addon / "float.exr", {c: plane for c in "RGB"})

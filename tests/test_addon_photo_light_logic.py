@@ -1,4 +1,4 @@
-"""blender_addon.photo_light without Blender: the camera, the floor, the EXIF focal length, the map file."""
+"""blender_addon.logic.photo_light without Blender: the camera, the floor, the EXIF focal length, the map file."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from blender_addon import photo_light
-from relight.light import directional_light
-from relight.exr import read_exr
-from relight.light_map import light_map
+from blender_addon.logic import photo_light
+from relight.lighting.light import directional_light
+from relight.files.exr import read_exr
+from relight.lighting.light_map import light_map
 
 
 def test_camera_is_the_photo_camera_at_the_photos_resolution():
@@ -51,7 +51,7 @@ def test_focal_length_comes_from_exif_when_the_photo_says_it(tmp_path):
 
 
 def test_the_map_file_is_the_light_map_written_losslessly(tmp_path):
-    from relight.key_light import split_light
+    from relight.lighting.key_light import split_light
 
     light = directional_light(30.0, 4)
     pixels, key = photo_light.write_light_map(light, str(tmp_path / "light.exr"), width=64)
@@ -74,7 +74,7 @@ def test_names_follow_the_add_ons_outputs():
 
 
 def test_the_key_lamp_is_a_sun_or_a_disk_subtending_the_keys_cone():
-    from relight.key_light import KeyLight, direction_from_angles
+    from relight.lighting.key_light import KeyLight, direction_from_angles
 
     d = direction_from_angles(40.0, 30.0)
     sun = photo_light.lamp_setup(KeyLight(d, np.array([2.0, 1.0, 0.5]), math.radians(5.0)))

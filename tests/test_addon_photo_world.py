@@ -1,7 +1,7 @@
 """Relight Photo add-on: Photo Light -> World and Compositing Setup under headless bpy.
 
 The World holds the map of the light the network estimated (the smooth World of
-relight.key_light.split_light of the session's light, packed into the .blend), the compositing setup puts a
+relight.lighting.key_light.split_light of the session's light, packed into the .blend), the compositing setup puts a
 render over the photo with a shadow-catcher floor, both survive save and
 reopen, and the buttons refuse in the artist's words when nothing was relit or
 the photo changed since."""
@@ -16,10 +16,12 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_images, photo_light
-from relight import exr, sh
-from relight.light import directional_light
-from relight.key_light import split_light
+from blender_addon.blender import bl_images
+from blender_addon.logic import photo_light
+from relight.files import exr
+from relight.lighting import sh
+from relight.lighting.light import directional_light
+from relight.lighting.key_light import split_light
 from addon_support import H, W, draft_photo, photo_session, relit_photo, world_map_pixels
 
 

@@ -8,7 +8,7 @@ along +Y) twice with different seeds. Compared per pixel, using Cycles'
 Normal pass, with albedo * (T . L), T the unoccluded Lambert transport at the
 runtime's order 4 and L the light: relative RMS within 3 % (the issue's
 goal). The budget: the map's own irradiance error against the SH (0.7 %,
-relight.light_map.irradiance_error) plus Monte Carlo noise. Against the
+relight.lighting.light_map.irradiance_error) plus Monte Carlo noise. Against the
 irradiance of the map itself (its SH to order 16) the render agrees to the
 noise, and a mirrored or turned light fails by far.
 """
@@ -23,11 +23,13 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, state
+from blender_addon.blender import bl_images
+from blender_addon.worker import state
 from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
-from relight import prt, sh, sh_projection, sh_rotation
-from relight.light import directional_light
-from relight.light_map import irradiance_error
+from relight.network import prt
+from relight.lighting import sh, sh_projection, sh_rotation
+from relight.lighting.light import directional_light
+from relight.lighting.light_map import irradiance_error
 from addon_support import write_person_png
 from tiny_model import make_tiny_model
 

@@ -19,8 +19,10 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session, output_names, state
-from relight.light import sh_light
+from blender_addon.blender import bl_dials, bl_images, bl_layers, bl_ops, bl_saved, bl_session
+from blender_addon.logic import output_names
+from blender_addon.worker import state
+from relight.lighting.light import sh_light
 from addon_support import draft_photo, draw_panel, pixels, write_person_png
 
 LAYERS = ("relit", "albedo", "shading", "residual", "alpha")

@@ -3,7 +3,7 @@ pixels, up to the orientation Blender stores (issue 39, "one reader for the comm
 
 Blender shows a photo file as it is stored: rows bottom-up and, for a phone photo, turned as the
 camera held it (Blender ignores the EXIF orientation). The command reads the photo upright
-(relight.photo.read_photo applies the EXIF orientation) and so must the network in the add-on: the
+(relight.files.photo.read_photo applies the EXIF orientation) and so must the network in the add-on: the
 add-on reads through the same reader, relights the upright photo and turns the result back to
 the photo's stored orientation, so its relit image lies over the photo Blender shows.
 
@@ -89,7 +89,7 @@ def _write_photos(folder: Path) -> dict[str, int]:
     _write_png16(folder / "deep.png", deep.astype(np.uint16))
     photos["deep.png"] = 1
     # linear EXR (Blender reads it as Linear Rec.709): the 8-bit photo's linear values
-    from relight.photo import read_photo, write_exr_image
+    from relight.files.photo import read_photo, write_exr_image
 
     write_exr_image(folder / "linear.exr", read_photo(folder / "upright.png")[0])
     photos["linear.exr"] = 1
@@ -99,7 +99,7 @@ def _write_photos(folder: Path) -> dict[str, int]:
 def _command(photo: Path, out: Path, model: Path, *light: str) -> np.ndarray:
     """`relight image` in this process; its output read back upright (linear float32)."""
     from relight.cli import main
-    from relight.photo import read_photo
+    from relight.files.photo import read_photo
 
     assert main(["image", str(photo), *light, "--quality", "draft", "--model", str(model),
                  "--out", str(out)]) == 0
@@ -126,11 +126,11 @@ def _agreement(addon_rgb: np.ndarray, command_stored: np.ndarray) -> tuple[float
 def test_the_add_ons_turns_are_pillows_exif_turns(tmp_path, orientation):
     """pixel_buffers.upright is PIL.ImageOps.exif_transpose (what read_photo applies), as_stored its
     inverse, and a buffer in Blender's layout written through blender_view / to_blender_rgba holds
-    the stored image, bottom row first; relight.photo.exif_orientation reads the tag back."""
+    the stored image, bottom row first; relight.files.photo.exif_orientation reads the tag back."""
     from PIL import Image, ImageOps
 
-    from blender_addon import pixel_buffers
-    from relight.photo import exif_orientation
+    from blender_addon.logic import pixel_buffers
+    from relight.files.photo import exif_orientation
 
     stored = np.arange(3 * 5 * 3, dtype=np.uint8).reshape(3, 5, 3) * 3
     exif = Image.Exif()
@@ -154,7 +154,7 @@ def test_the_add_ons_turns_are_pillows_exif_turns(tmp_path, orientation):
 
 def test_the_photo_and_the_command_read_alike_upright(tmp_path):
     """The photos are what they say: each read upright by the core is the upright photo."""
-    from relight.photo import read_photo
+    from relight.files.photo import read_photo
 
     photos = _write_photos(tmp_path)
     upright = read_photo(tmp_path / "upright.png")[0]
@@ -203,11 +203,11 @@ def test_light_from_another_photo_is_estimated_as_the_command_does(addon, model)
     assert largest <= SAME
     # the light itself (the tiny model's may clamp the whole person to black: the pixels alone
     # could agree by it): the command's estimate in the upright donor, inside its person matte
-    from relight import quality
-    from relight.photo import read_photo
-    from relight.runtime import Relighter
+    from relight.network import quality
+    from relight.files.photo import read_photo
+    from relight.network.runtime import Relighter
 
-    from blender_addon import state
+    from blender_addon.worker import state
 
     draft = quality.preset("draft")
     relighter = Relighter(model, working_size=draft.working_size)
@@ -222,7 +222,7 @@ def test_light_from_another_photo_is_estimated_as_the_command_does(addon, model)
 
 def test_a_mask_image_over_a_sideways_photo_masks_it_as_the_commands_mask_file(addon, model):
     """Other Image mask over a sideways photo: Blender shows both as stored; the add-on turns the
-    mask upright with the photo, as the command reads the mask file upright (relight.photo.read_mask)."""
+    mask upright with the photo, as the command reads the mask file upright (relight.files.photo.read_mask)."""
     from PIL import Image
 
     folder, settings = addon
@@ -273,7 +273,8 @@ def test_photo_light_and_compositing_setup_take_a_sideways_photo_as_blender_show
 def test_a_sideways_photo_reopens_with_its_outputs_where_they_were(addon):
     """Save and reopen: the restore re-reads the photo upright and writes the outputs turned back,
     the same pixels as before saving (the saved decomposition's key is the upright photo's digest)."""
-    from blender_addon import bl_images, state
+    from blender_addon.blender import bl_images
+    from blender_addon.worker import state
 
     folder, settings = addon
     _write_photos(folder)

@@ -19,8 +19,9 @@ import pytest
 
 import bpy
 
-from blender_addon import bl_images, bl_ops, bl_session, engine, jobs, state
-from relight.exr import read_exr
+from blender_addon.blender import bl_images, bl_ops, bl_session
+from blender_addon.worker import engine, jobs, state
+from relight.files.exr import read_exr
 from addon_support import addon_in_empty_scene, pixels
 
 
@@ -82,17 +83,17 @@ def test_save_layers_runs_on_a_worker_polled_by_the_timer_and_writes_what_it_wro
     here = folder / "here.exr"
     assert bpy.ops.relight_photo.save_layers(filepath=str(here), image_name=name) == {"FINISHED"}
     monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
-    import relight.exr
+    import relight.files.exr
 
     threads, gate = [], threading.Event()
-    write = relight.exr.write_exr
+    write = relight.files.exr.write_exr
 
     def write_on_the_worker(*args, **kw):
         threads.append(threading.current_thread())
         gate.wait(30)  # held until the main thread has seen the writing stage
         return write(*args, **kw)
 
-    monkeypatch.setattr(relight.exr, "write_exr", write_on_the_worker)
+    monkeypatch.setattr(relight.files.exr, "write_exr", write_on_the_worker)
     target = folder / "ui.exr"
     op, context = _ui_operator(name, target)
     started = time.perf_counter()
@@ -150,11 +151,11 @@ def test_esc_leaves_no_file_and_no_temporary(relit, monkeypatch, when):
 def test_the_exr_writer_gets_planes_it_need_not_copy(relit, monkeypatch):
     """The peak at 24 MP came from copies: the relit photo made contiguous (288 MB), each map's
     channels copied out of it (288 MB a map), a black residual made as a full map."""
-    import relight.exr
+    import relight.files.exr
 
     name, folder = relit
-    seen, write = {}, relight.exr.write_exr
-    monkeypatch.setattr(relight.exr, "write_exr", lambda path, channels, **kw: seen.update(channels) or
+    seen, write = {}, relight.files.exr.write_exr
+    monkeypatch.setattr(relight.files.exr, "write_exr", lambda path, channels, **kw: seen.update(channels) or
                         write(path, channels, **kw))
     assert bpy.ops.relight_photo.save_layers(filepath=str(folder / "l.exr"), image_name=name) == {"FINISHED"}
 
@@ -181,9 +182,9 @@ def test_the_exr_writer_gets_planes_it_need_not_copy(relit, monkeypatch):
 def test_a_pooled_rgba_buffer_holds_the_relit_planes_and_the_alpha(relit, monkeypatch):
     """With a 384 MB RGBA buffer kept for reuse (24 MP), the relit photo takes three of its planes
     and the alpha the fourth: no new memory for either; the file is the same."""
-    import relight.exr
+    import relight.files.exr
 
-    from blender_addon import pixel_buffers
+    from blender_addon.logic import pixel_buffers
 
     name, folder = relit
     assert bpy.ops.relight_photo.save_layers(filepath=str(folder / "fresh.exr"), image_name=name) == {"FINISHED"}
@@ -192,8 +193,8 @@ def test_a_pooled_rgba_buffer_holds_the_relit_planes_and_the_alpha(relit, monkey
     kept = np.empty(h * w * 4, np.float32)
     pixel_buffers.BUFFERS.clear()
     pixel_buffers.BUFFERS.give(kept)
-    seen, write = {}, relight.exr.write_exr
-    monkeypatch.setattr(relight.exr, "write_exr", lambda path, channels, **kw: seen.update(channels) or
+    seen, write = {}, relight.files.exr.write_exr
+    monkeypatch.setattr(relight.files.exr, "write_exr", lambda path, channels, **kw: seen.update(channels) or
                         write(path, channels, **kw))
     assert bpy.ops.relight_photo.save_layers(filepath=str(folder / "pooled.exr"), image_name=name) == {"FINISHED"}
     for channel in ("Relight.Relit.R", "Relight.Relit.G", "Relight.Relit.B", "Relight.Alpha.A"):

@@ -1,5 +1,5 @@
 """The add-on's Relight Sequence: a movie or image sequence relit frame by frame into a new
-image sequence beside the .blend (blender_addon/sequence.py without Blender, the operator
+image sequence beside the .blend (blender_addon/worker/sequence.py without Blender, the operator
 under headless bpy)."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import engine, sequence
+from blender_addon.worker import engine, sequence
 from clip_support import background, person_clip, write_frames
-from relight import quality
-from relight.photo import read_photo
+from relight.network import quality
+from relight.files.photo import read_photo
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def frames(tmp_path_factory):
 
 
 def _plan(frames, folder, **extra):
-    from relight.light import sh_light
+    from relight.lighting.light import sh_light
 
     return dict(path=str(frames / "shot_0001.png"), source="SEQUENCE", folder=str(folder),
                 model_path=str(quality.model_path("draft")), long_side=96, light=sh_light("studio", 4),

@@ -16,8 +16,9 @@ import pytest
 import bpy
 
 import blender_addon
-from blender_addon import bl_images, state
-from relight.exr import write_exr
+from blender_addon.blender import bl_images
+from blender_addon.worker import state
+from relight.files.exr import write_exr
 from addon_support import pixels, write_person_png
 
 ORDER = 4
@@ -62,8 +63,8 @@ def _set(**values) -> None:
 
 def _expected(name: str) -> dict:
     """Every output the photo's session gives under the settings the panel shows now."""
-    from blender_addon import engine
-    from blender_addon.bl_light import current_dials
+    from blender_addon.worker import engine
+    from blender_addon.blender.bl_light import current_dials
 
     pid = bpy.data.images[name][bl_images.PHOTO_ID]
     session = state.SESSIONS[pid]
@@ -111,7 +112,7 @@ def test_undo_and_redo_of_a_second_relight_leave_the_outputs_of_the_settings_sho
 
 
 def test_with_a_ui_undo_remakes_the_outputs_on_a_worker_one_per_timer_call(addon, monkeypatch):
-    from blender_addon import bl_layers, bl_ops
+    from blender_addon.blender import bl_layers, bl_ops
 
     name = bpy.data.images.load(str(addon / "person.png")).name
     assert _press_relight(name) == {"FINISHED"}

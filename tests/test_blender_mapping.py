@@ -3,7 +3,7 @@ Lambert transport (A_l / pi), camera frame.
 
 A diffuse sphere (albedo 0.5) lit only by an HDR world (Environment Texture,
 default mapping, closest-texel lookup, so the map is exactly the
-piecewise-constant function relight.sh projects) is rendered by Cycles and
+piecewise-constant function relight.lighting.sh projects) is rendered by Cycles and
 compared pixel by pixel with albedo * (T . L), T the unoccluded Lambert
 transport of the pixel's normal (from Cycles' Normal pass) and L our order-8
 projection of the same map.
@@ -24,7 +24,9 @@ import numpy as np
 import pytest
 
 from cycles_support import lambert_sphere, photo_camera, render_with_normals, sphere_pixels
-from relight import envmap, exr, presets, prt, sh_projection, sh_rotation
+from relight.lighting import envmap, presets, sh_projection, sh_rotation
+from relight.files import exr
+from relight.network import prt
 
 ALBEDO = 0.5
 ORDER = 8

@@ -1,4 +1,4 @@
-"""relight/box.py: the one box type (rows then columns, end exclusive) and the boxes the
+"""relight/person/box.py: the one box type (rows then columns, end exclusive) and the boxes the
 matte, the runtime and the clip filters take from it."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from relight.box import Box
+from relight.person.box import Box
 
 
 def test_around_holds_every_pixel_above_the_threshold_and_no_more():
@@ -49,7 +49,7 @@ def test_grown_scaled_union_stay_in_the_image():
 
 
 def _decomposition(box):
-    from relight.decomposition import Decomposition
+    from relight.network.decomposition import Decomposition
 
     h, w = 6, 8
     return Decomposition(albedo=np.full((h, w, 3), 0.5, np.float32), transport=np.zeros((h, w, 9), np.float32),

@@ -7,11 +7,11 @@ from PIL import Image
 
 from relight.cli import main
 from relight.colour import srgb_encode
-from relight.exr import read_exr, write_exr
-from relight.photo import read_photo
-from relight.light import sh_light
-from relight.runtime import Relighter
-from relight.quality import preset
+from relight.files.exr import read_exr, write_exr
+from relight.files.photo import read_photo
+from relight.lighting.light import sh_light
+from relight.network.runtime import Relighter
+from relight.network.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
@@ -54,9 +54,10 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
 
 
 def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model, tmp_path, capsys, monkeypatch):
-    # issue 39: the light where relight.light resolves it, --exposure by its argparse type; the
+    # issue 39: the light where relight.lighting.light resolves it, --exposure by its argparse type; the
     # decomposition trusts both (Decomposition._relight / _layers), its public relight checks them
-    from relight import decomposition, sh
+    from relight.network import decomposition
+    from relight.lighting import sh
 
     calls = {"light": 0, "exposure": 0}
 
@@ -299,7 +300,7 @@ def test_too_bright_advises_only_what_helps(model, tmp_path, capsys):
 
 
 def test_folder_progress_is_reported_when_stderr_is_not_a_terminal(model, tmp_path, capsys, monkeypatch):
-    from relight import cli_output
+    from relight.command import cli_output
 
     src = tmp_path / "in"
     src.mkdir()

@@ -7,7 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from relight import cli, exr, light, presets, sh, sh_projection, sh_rotation
+from relight import cli
+from relight.files import exr
+from relight.lighting import light, presets, sh, sh_projection, sh_rotation
 
 
 def run(capsys, *argv):
@@ -105,14 +107,14 @@ def test_logging_is_configured_once_by_the_command():
             "main(['sh', 'sky', '--order', '0', '--json'])\n"
             "main(['sh', 'sky', '--order', '0', '--json'])\n"
             "assert len(logging.getLogger().handlers) == 1\n"
-            "logging.getLogger('relight.envmap').info('not shown')\n"
-            "logging.getLogger('relight.envmap').warning('clamped %d texels', 3)\n")
+            "logging.getLogger('relight.lighting.envmap').info('not shown')\n"
+            "logging.getLogger('relight.lighting.envmap').warning('clamped %d texels', 3)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and res.stderr.splitlines() == ["relight sh: warning: clamped 3 texels"], res.stderr
     own = ("import logging\n"
            "logging.basicConfig(format='own: %(message)s')\n"
            "from relight.cli import main\n"
            "main(['sh', 'sky', '--order', '0', '--json'])\n"
-           "logging.getLogger('relight.envmap').warning('w')\n")
+           "logging.getLogger('relight.lighting.envmap').warning('w')\n")
     res = subprocess.run([sys.executable, "-c", own], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and res.stderr.splitlines() == ["own: w"], res.stderr

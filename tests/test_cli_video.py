@@ -11,9 +11,10 @@ import pytest
 from PIL import Image
 
 from clip_support import background, person_clip, write_frames, write_video
-from relight import cli_video, video_io, video_out
+from relight.command import cli_video
+from relight.files import video_io, video_out
 from relight.cli import main
-from relight.photo import read_photo
+from relight.files.photo import read_photo
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +74,7 @@ def test_layers_and_a_frame_without_a_person(tmp_path, capsys, clip_frames):
     code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out", "--layers")
     assert code == 0, err
     assert "no person in frames 4: written unchanged" in err
-    from relight.exr import read_exr
+    from relight.files.exr import read_exr
 
     empty = read_exr(tmp_path / "out" / "f_0004.exr")
     assert np.all(empty["Relight.Alpha.A"] == 0)
@@ -180,7 +181,7 @@ def _disk_full(*_a, **_k):
 def test_a_full_disk_fails_the_job_with_one_message_and_whole_frames_only(tmp_path, capsys, monkeypatch,
                                                                            clip_frames):
     src = write_frames(tmp_path / "in", clip_frames[:6])
-    from relight import png_encoder
+    from relight.files import png_encoder
 
     original, calls = png_encoder.write_png_file, {"n": 0}
 
@@ -370,7 +371,7 @@ def test_a_read_only_output_is_exit_2_for_a_video_and_a_folder(tmp_path, capsys,
 
 
 def test_progress_is_reported_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypatch, clip_frames):
-    from relight import cli_output
+    from relight.command import cli_output
 
     src = write_frames(tmp_path / "in", clip_frames[:4])
     monkeypatch.setattr(cli_output, "PROGRESS_EVERY", 0.0)  # a line at every frame
@@ -382,7 +383,7 @@ def test_progress_is_reported_when_stderr_is_not_a_terminal(tmp_path, capsys, mo
 
 def _tagged_video(path, frames, **tags):
     """A video written with PyAV directly, carrying exactly `tags` (none: an untagged stream)."""
-    from relight.video_out import encode_srgb8
+    from relight.files.video_out import encode_srgb8
 
     h, w = frames[0].shape[:2]
     with av.open(str(path), "w") as c:

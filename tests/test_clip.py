@@ -1,4 +1,4 @@
-"""relight.clip and relight.clip_maps: a clip relit frame by frame, stable over time."""
+"""relight.command.clip and relight.command.clip_maps: a clip relit frame by frame, stable over time."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from clip_support import background, person_clip, two_shots
-from relight import quality
-from relight.clip import LIGHT_WINDOW, ClipRelighter, CutDetector
-from relight.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, Stillness, history_weight
-from relight.light import sh_light
-from relight.runtime import Relighter
+from relight.network import quality
+from relight.command.clip import LIGHT_WINDOW, ClipRelighter, CutDetector
+from relight.command.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, Stillness, history_weight
+from relight.lighting.light import sh_light
+from relight.network.runtime import Relighter
 
 
 @pytest.fixture(scope="module")
@@ -61,14 +61,14 @@ def test_stability_zero_is_relight_image_on_every_frame(relighter, clip12):
 
 
 def test_the_clips_albedo_rule_is_the_graphs_inside_the_matte(relighter, clip12):
-    """relight.clip re-derives each frame's albedo under the shot's light by
-    relight.refine.consistent_albedo with the model's own `reliable`: under the network's own
+    """relight.command.clip re-derives each frame's albedo under the shot's light by
+    relight.network.refine.consistent_albedo with the model's own `reliable`: under the network's own
     light and transport that must be the albedo the graph itself computed, wherever the
     graph's input was not faded by the matte (alpha 1: masked and unmasked input agree)."""
     from types import SimpleNamespace
 
-    from relight.prt import to_network_input
-    from relight.refine import CLIPPED, SATURATED, consistent_albedo
+    from relight.network.prt import to_network_input
+    from relight.network.refine import CLIPPED, SATURATED, consistent_albedo
 
     d = relighter.decompose(clip12[3])
     config = json.loads(relighter.metadata["relight.network_config"])
@@ -87,7 +87,7 @@ def test_the_clips_albedo_rule_is_the_graphs_inside_the_matte(relighter, clip12)
              for sat in (seen_saturated, d.photo_working.max(axis=-1) >= SATURATED)]
     floor_shift = abs(means[1] / means[0] - 1.0)
     np.testing.assert_allclose(albedo[inside], out["albedo"][inside], rtol=2e-4 + floor_shift, atol=2e-5)
-    # and off the matte the rule is not the masked one (what relight.clip fixes there)
+    # and off the matte the rule is not the masked one (what relight.command.clip fixes there)
     edge = (d.alpha > 0.05) & (d.alpha < 0.95)
     assert edge.sum() > 50
     assert np.abs(albedo[edge] - out["albedo"][edge]).max() > 1e-2
@@ -131,7 +131,7 @@ def test_state_round_trip_continues_exactly(relighter, clip12):
 
 
 def test_state_is_a_snapshot_the_next_frame_does_not_change(relighter, clip12):
-    """relight.cli_video keeps state() after each frame written and saves it on Ctrl-C, while the
+    """relight.command.cli_video keeps state() after each frame written and saves it on Ctrl-C, while the
     next frame is finished: the filters must replace their arrays, never change them in place."""
     runner = ClipRelighter(relighter, sh_light("studio", relighter.sh_order), stability=0.5, threads=1)
     for f in clip12[:3]:

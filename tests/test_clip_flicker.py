@@ -13,11 +13,11 @@ import pytest
 
 from clip_support import lowpass_flicker, noisy_still, still_region
 from model.evaluate_clips import evaluate_clip, flicker, jitter, relight_clip
-from relight import quality
-from relight.clip import ClipRelighter
-from relight.light import sh_light
-from relight.runtime import Relighter
-from relight.video_io import decode_srgb
+from relight.network import quality
+from relight.command.clip import ClipRelighter
+from relight.lighting.light import sh_light
+from relight.network.runtime import Relighter
+from relight.files.video_io import decode_srgb
 
 FIXTURE = Path(__file__).parent / "data" / "farm_clip.npz"
 

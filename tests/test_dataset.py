@@ -1,4 +1,4 @@
-"""relight.exr and relight.dataset: EXR I/O and the scene file format."""
+"""relight.files.exr and relight.files.dataset: EXR I/O and the scene file format."""
 
 import json
 import os
@@ -7,7 +7,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from relight import dataset, exr, fileio
+from relight.files import dataset, exr, fileio
 
 RNG = np.random.default_rng(5)
 H, W, ORDER = 6, 10, 2

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from model import metrics
+from model.scoring import metrics
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("diagnose_relighting", ROOT / "benchmarks" / "diagnose_relighting.py")
@@ -62,7 +62,7 @@ def test_photo_consistent_albedo_absorbs_an_albedo_error_but_not_a_light_error()
 
 
 def test_exposure_matched_identity_matches_model_evaluate():
-    from model import pair_metrics
+    from model.scoring import pair_metrics
 
     sample, pred = _scene(2)
     sample["alpha"] = np.ones((1, 6, 5))
@@ -74,8 +74,8 @@ def test_exposure_matched_identity_matches_model_evaluate():
 
 def test_cli_on_the_analytic_dataset(tmp_path, capsys, one_thread):
     from export.random_model import random_relightnet
-    from model.checkpoint import save_model
-    from model.synthetic import write_analytic_dataset
+    from model.training.checkpoint import save_model
+    from model.samples.synthetic import write_analytic_dataset
 
     write_analytic_dataset(tmp_path / "data", n_scenes=2, size=32, order=4, lights=("studio", "city", "venice"))
     model = save_model(random_relightnet(1, sh_order=4, width=4, depth=2), tmp_path / "m" / "model.safetensors")

@@ -1,4 +1,4 @@
-"""relight.envmap (loading, validation) and relight.presets."""
+"""relight.lighting.envmap (loading, validation) and relight.lighting.presets."""
 
 import subprocess
 import sys
@@ -6,7 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from relight import envmap, exr, light, presets, sh, sh_projection, sh_rotation
+from relight.lighting import envmap, light, presets, sh, sh_projection, sh_rotation
+from relight.files import exr
 
 RNG = np.random.default_rng(11)
 
@@ -207,8 +208,8 @@ def test_unknown_preset(name):
 
 def test_core_imports_neither_bpy_nor_torch():
     code = (
-        "import sys, relight, relight.sh, relight.prt, relight.colour, relight.exr, relight.envmap, "
-        "relight.dataset, relight.presets, relight.cli; relight.presets.list_presets(); "
+        "import sys, relight, relight.lighting.sh, relight.network.prt, relight.colour, relight.files.exr, relight.lighting.envmap, "
+        "relight.files.dataset, relight.lighting.presets, relight.cli; relight.lighting.presets.list_presets(); "
         "relight.cli.build_parser(); "
         "bad = [m for m in ('bpy', 'torch') if m in sys.modules]; assert not bad, bad"
     )

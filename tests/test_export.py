@@ -140,7 +140,7 @@ def test_export_of_a_net_in_training_mode_matches_eval_torch(tmp_path):
 
 def test_export_command(tmp_path, capsys):
     from export.__main__ import main
-    from model.checkpoint import save_model
+    from model.training.checkpoint import save_model
 
     weights = save_model(random_relightnet(seed=1, **CONFIG), tmp_path / "w.safetensors")
     out = tmp_path / "m.onnx"
@@ -159,7 +159,7 @@ def test_export_command(tmp_path, capsys):
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_cli_registers_fp32_and_fp16_and_sets_the_default(tmp_path, monkeypatch, capsys):
     from export.__main__ import main
-    from model.checkpoint import save_model
+    from model.training.checkpoint import save_model
 
     reg = tmp_path / "models" / "models.json"
     reg.parent.mkdir()

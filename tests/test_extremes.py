@@ -20,14 +20,14 @@ import torch
 from export.fp16 import export_fp16
 from export.onnx_export import export_onnx, onnx_outputs
 from export.random_model import export_random_model, random_relightnet
-from farm.bake import fibonacci_directions
-from relight import envmap, presets, sh, sh_projection
-from relight.prt import lambert_transport
-from relight.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
-from relight.light import sh_light
-from relight.resample import resize_linear
-from relight.runtime import Relighter
-from relight.quality import preset
+from farm.rendering.bake import fibonacci_directions
+from relight.lighting import envmap, presets, sh, sh_projection
+from relight.network.prt import lambert_transport
+from relight.network.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
+from relight.lighting.light import sh_light
+from relight.network.resample import resize_linear
+from relight.network.runtime import Relighter
+from relight.network.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
@@ -158,8 +158,8 @@ def test_relight_image_output_is_non_negative(tmp_path, capsys):
     from PIL import Image
 
     from relight.cli import main
-    from relight.exr import read_exr, write_exr
-    from relight.photo import read_photo
+    from relight.files.exr import read_exr, write_exr
+    from relight.files.photo import read_photo
 
     model, _, _ = export_random_model(tmp_path / "m.onnx", seed=12, sh_order=ORDER, width=4, depth=2)
     sun = _sun_map()
@@ -296,8 +296,8 @@ def test_fp16_cancelling_transport_parts(tmp_path):
 BIG_CHILD = r"""
 import sys
 import numpy as np
-from relight.light import sh_light
-from relight.runtime import Relighter
+from relight.lighting.light import sh_light
+from relight.network.runtime import Relighter
 r = Relighter(sys.argv[1], threads=1, working_size=64)
 side = 8000
 photo = np.empty((side, side, 3), np.float32)

@@ -1,4 +1,4 @@
-"""The face's own mesh (relight/face_mesh.py, relight/face_relight.py; issue 37): the shipped
+"""The face's own mesh (relight/network/face_mesh.py, relight/network/face_relight.py; issue 37): the shipped
 landmark network and triangles hash-checked, faces found inside the person's head on the bundled
 photos, normals facing the camera at the face's centre and turned sideways at its edges, a
 mirrored photo giving the mirrored normals, and the face layer's physics."""
@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 
 from evaluation.matte_eval import EVAL_DIR
-from relight import face_mesh, face_relight, matte, sh
+from relight.network import face_mesh, face_relight
+from relight.person import matte
+from relight.lighting import sh
 from relight.models import REGISTRY_PATH, load_registry
-from relight.photo import read_photo
+from relight.files.photo import read_photo
 
 PHOTOS = ("astronaut", "grace_hopper", "obama_standing")
 # measured 2026-11-27: (median, 90th percentile) 9.8/41.1, 5.1/11.2, 3.9/9.3 degrees
@@ -141,8 +143,8 @@ def test_holes_are_filled_and_the_feather_stays_inside():
 
 
 def test_face_layer_relights_the_photo_to_itself_and_toward_a_side_light(faces):
-    from relight.light import directional_light
-    from relight.runtime import Relighter
+    from relight.lighting.light import directional_light
+    from relight.network.runtime import Relighter
 
     photo, _, _ = faces["grace_hopper"]
     d = Relighter(threads=2).decompose(photo)
@@ -171,7 +173,7 @@ def test_face_layer_relights_the_photo_to_itself_and_toward_a_side_light(faces):
 
 
 def test_small_faces_are_left_to_the_network(faces):
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     photo, _, mesh = faces["astronaut"]
     d = Relighter(threads=2).decompose(photo)

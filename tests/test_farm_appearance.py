@@ -1,6 +1,6 @@
 """Issue 20's appearance features without Blender: determinism, closed outward meshes, rates, prints, summary.
 
-Needs anny (a body) but not bpy: farm.appearance.dress is numpy.
+Needs anny (a body) but not bpy: farm.synthesis.appearance.dress is numpy.
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from farm import appearance, bodies, garments, hair, prints, summary
-from farm import faces as face_details
+from farm.synthesis import appearance, bodies, garments, hair, prints
+from farm.execution import summary
+from farm.synthesis import faces as face_details
 
 
 @pytest.fixture(scope="module")

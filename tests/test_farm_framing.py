@@ -1,5 +1,5 @@
-"""Issue 37 in the farm: framings cut at the posed body's own joints (farm/camera.py), hard
-lights beside the maps (farm/hard_lights.py), the head mask (the `head` channel), and that the
+"""Issue 37 in the farm: framings cut at the posed body's own joints (farm/synthesis/camera.py), hard
+lights beside the maps (farm/synthesis/hard_lights.py), the head mask (the `head` channel), and that the
 scenes of before stay the same (same seed: same body, clothes, light maps and camera)."""
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ try:
 except ImportError:
     bpy = None
 
-from farm import camera, hard_lights
+from farm.synthesis import camera, hard_lights
 from farm.options import SceneOptions
-from relight import sh
-from relight.sh_projection import project_equirect
+from relight.lighting import sh
+from relight.lighting.sh_projection import project_equirect
 
 needs_bpy = pytest.mark.skipif(bpy is None, reason="needs bpy (the farm extra)")
 CUT = ("three-quarter", "waist-up", "head-and-shoulders", "face")
@@ -113,7 +113,7 @@ def test_full_body_only_draws_nothing_and_keeps_the_camera():
 
 
 def _power(pixels):
-    from relight.sh_projection import equirect_directions
+    from relight.lighting.sh_projection import equirect_directions
 
     _, solid = equirect_directions(*pixels.shape[:2])
     return (pixels * solid[:, None, None]).sum(axis=(0, 1))
@@ -149,7 +149,7 @@ def test_hard_lights_are_normalized_recorded_and_point_where_their_key_is(kind):
     key = np.array(record["hard"]["lobes"][0]["direction_camera"])
     # exposed for the key: the SH's Lambert shading facing it (order 8: Lambert's bands above 2 are
     # small, and the shadowed half's cut rings by a few per cent) is the drawn key_shading
-    from relight.prt import lambert_transport
+    from relight.network.prt import lambert_transport
 
     facing = (lambert_transport(key[None], 8)[0] @ light.sh8) @ np.array([0.2126, 0.7152, 0.0722])
     assert 0.9 <= record["hard"]["key_shading"] <= 1.3
@@ -214,7 +214,7 @@ def test_framing_and_hard_lights_leave_the_body_and_the_maps_as_they_were():
 @pytest.mark.anny
 def test_a_head_and_shoulders_scene_under_hard_lights_renders_its_head_mask(tmp_path):
     from farm.scene import render_scene
-    from relight import dataset
+    from relight.files import dataset
 
     options = SceneOptions(resolution=64, lights=2, samples=8, denoise=False, bake_directions=64,
                            framing="head-and-shoulders", hard_lights=1.0)
@@ -237,7 +237,7 @@ def test_a_head_and_shoulders_scene_under_hard_lights_renders_its_head_mask(tmp_
 
 def test_the_command_line_takes_the_framing_mix_and_the_hard_light_share(tmp_path):
     from farm.cli import parse_args
-    from farm.run_config import UsageError
+    from farm.execution.run_config import UsageError
 
     base = ["--out", str(tmp_path), "--scenes", "2", "--seed", "1"]
     assert (parse_args(base).scene.framing, parse_args(base).scene.hard_lights) == ("full-body", 0.0)
@@ -276,7 +276,7 @@ def test_a_cut_framing_is_taken_from_the_persons_front_and_hard_lights_turn_with
 
 
 def test_the_dataset_summary_counts_framings_and_hard_lights():
-    from farm import summary
+    from farm.execution import summary
 
     f = summary.features({"camera": {"framing": "waist-up"}, "lights": [{"source": "bundled"}, {"source": "hard"}]})
     assert f["framing: waist-up"] and not f["framing: full-body"] and f["hard light (any)"]

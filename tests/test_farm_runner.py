@@ -1,7 +1,7 @@
 """The render farm's runner: command line, local worker pool, faults, resume, disk space.
 
 Fault tests use tests/farm_fault_job.py, a scene module that writes tiny but
-real scene files (relight.dataset.write_scene) and crashes, hangs or fails on
+real scene files (relight.files.dataset.write_scene) and crashes, hangs or fails on
 demand; the end-to-end tests render with the real farm.scene.render_scene.
 """
 
@@ -23,8 +23,9 @@ from pathlib import Path
 
 import pytest
 
-from farm import cli, pool, progress, runbook
-from relight.dataset import read_scene
+from farm import cli
+from farm.execution import pool, progress, runbook
+from relight.files.dataset import read_scene
 
 REPO = Path(__file__).resolve().parent.parent
 PYTHON = sys.executable
@@ -476,7 +477,7 @@ def test_worker_that_cannot_start_stops_the_run_with_its_error(tmp_path):
 
 
 def test_worker_cpus_are_disjoint_equal_shares_or_none():
-    from farm.pool import worker_cpus
+    from farm.execution.pool import worker_cpus
 
     cores = {0, 1, 2, 3, 5, 7}
     shares = [worker_cpus(slot, 3, cores) for slot in range(3)]
@@ -490,7 +491,7 @@ def test_started_worker_runs_on_its_pinned_cores():
     import functools
     import subprocess
 
-    from farm.pool import _start_child
+    from farm.execution.pool import _start_child
 
     core = min(os.sched_getaffinity(0))
     out = subprocess.run(

@@ -19,9 +19,10 @@ try:
 except ImportError:  # the Blender layer's tests skip; the numpy-only ones below still run
     bpy = None
 
-from farm import bodies, camera, lights, poses
+from farm.synthesis import bodies, camera, lights, poses
 from farm.scene import SceneOptions, render_scene
-from relight import dataset, presets, sh, sh_projection, sh_rotation
+from relight.files import dataset
+from relight.lighting import presets, sh, sh_projection, sh_rotation
 
 SMALL = {"resolution": 64, "lights": 2, "samples": 4, "denoise": False, "bake_directions": 64}
 needs_bpy = pytest.mark.skipif(bpy is None, reason="needs bpy (the farm extra)")
@@ -137,7 +138,7 @@ def test_posed_body_bytes_do_not_depend_on_the_processs_torch_threads(model):
 
 @pytest.mark.anny
 def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
-    from farm import appearance, material_specs
+    from farm.synthesis import appearance, material_specs
 
     body = bodies.build_body(bodies.BodyParams(0.3, 0.8, 0.5, 0.5, 0.5, 0.5), None)
     parts, record = appearance.dress(body, np.random.default_rng(0), diffuse_only=True)
@@ -157,7 +158,7 @@ def test_diffuse_only_outfits_are_pure_lambert_and_others_are_not(model):
 @needs_bpy
 @pytest.mark.anny
 def test_body_pass_is_the_unclothed_body_where_cycles_sees_it(scene_pair):
-    """The ray-cast body (farm/body_pass.py) against Cycles' own buffers of the dressed person:
+    """The ray-cast body (farm/rendering/body_pass.py) against Cycles' own buffers of the dressed person:
     the body lies inside the person's silhouette, and where Cycles' visible surface is the body
     itself (its depth within 2 mm of the body's) the two normals are the same smooth normal, up
     to the pixel filters (Cycles: 16 samples through a 1.5 px Blackman-Harris; the pass: 4 rays
@@ -269,7 +270,7 @@ def test_camera_frames_every_vertex():
 @needs_bpy
 def test_sky_light_is_rendered_from_blender_sky_texture(tmp_path):
     """The procedural sky: finite, the sun above the horizon (L_1,0 > 0 with an upright camera)."""
-    from farm import blender_scene, passes
+    from farm.rendering import blender_scene, passes
 
     blender_scene.reset_scene()
     rng = np.random.default_rng(2)
@@ -305,7 +306,7 @@ def test_diffuse_scene_image_matches_albedo_times_shading_end_to_end(model, tmp_
     down (a frame error) must visibly lower the correlation.
     """
     from farm import scene as farm_scene
-    from relight import prt
+    from relight.network import prt
 
     monkeypatch.setattr(farm_scene, "DIFFUSE_ONLY_SHARE", 1.0)
     opts = SceneOptions(resolution=64, lights=2, samples=16, denoise=True, bake_directions=128)

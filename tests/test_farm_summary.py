@@ -1,4 +1,4 @@
-"""farm/summary.py's colour flags use relight.colour (one sRGB, one luminance)."""
+"""farm/execution/summary.py's colour flags use relight.colour (one sRGB, one luminance)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import colorsys
 import numpy as np
 import pytest
 
-from farm import summary
+from farm.execution import summary
 from relight.colour import srgb_encode
 
 

@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from relight import fileio
+from relight.files import fileio
 
 
 def test_failed_write_keeps_the_old_file_and_leaves_no_temp(tmp_path):

@@ -1,14 +1,14 @@
-"""The person's own colour along the matte's soft edge (relight.foreground) and the albedo
-layer that uses it (relight.decomposition)."""
+"""The person's own colour along the matte's soft edge (relight.network.foreground) and the albedo
+layer that uses it (relight.network.decomposition)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from relight.decomposition import Decomposition
-from relight.foreground import foreground, smooth_colours
-from relight.resample import resize_linear
+from relight.network.decomposition import Decomposition
+from relight.network.foreground import foreground, smooth_colours
+from relight.network.resample import resize_linear
 
 N = 25  # SH order 4
 U = 2.0 ** -24

@@ -26,7 +26,7 @@ from PIL import Image
 from export.random_model import export_random_model
 from fuzz_support import accepted_share, exr_bytes, fuzz_settings, jpeg_bytes, new_case, radiance_hdr, record
 from relight.cli import main
-from relight.exr import read_exr
+from relight.files.exr import read_exr
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,8 @@ from PIL import Image
 
 from fuzz_support import (CASES, OUTCOMES, accepted_share, exr_bytes, fuzz_settings, new_case, png_bytes, radiance_hdr,
                           record, run_case)
-from relight import envmap, exr, photo
+from relight.lighting import envmap
+from relight.files import exr, photo
 
 
 def _pillow_bytes(fmt: str, mode: str, **kw) -> bytes:

@@ -1,4 +1,4 @@
-"""Fuzzing the SH projection and the map recipe (relight.light.sh_light of a map) (Hypothesis; profile in fuzz_support).
+"""Fuzzing the SH projection and the map recipe (relight.lighting.light.sh_light of a map) (Hypothesis; profile in fuzz_support).
 
 Property: any array (any real dtype, shape, values including NaN, Inf,
 negatives, subnormals and values near float32's maximum) gives finite
@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fuzz_support import accepted_share, fuzz_settings, new_case, run_case
-from relight import envmap, light, sh, sh_projection
+from relight.lighting import envmap, light, sh, sh_projection
 
 F32_MAX = float(np.finfo(np.float32).max)
 

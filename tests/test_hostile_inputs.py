@@ -18,13 +18,14 @@ import pytest
 from PIL import Image
 
 from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform_rle_hdr
-from relight import envmap, image_limits, photo, sh_projection
+from relight.lighting import envmap, sh_projection
+from relight.files import image_limits, photo
 from relight.cli import main
 from relight.colour import srgb_encode
 from relight.models import write_sidecar
-from relight.light import sh_light
-from relight.runtime import Relighter
-from relight.quality import preset
+from relight.lighting.light import sh_light
+from relight.network.runtime import Relighter
+from relight.network.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 

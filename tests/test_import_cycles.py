@@ -110,9 +110,9 @@ def test_the_cycle_finder_finds_a_cycle_and_only_that():
 
 def test_the_graph_sees_lazy_and_relative_imports():
     graph = import_graph()
-    assert "relight.cli_image" in graph["relight.cli"]          # imported inside build_parser()
-    assert "blender_addon.light_sources" in graph["blender_addon.engine"]  # `from . import light_sources`
-    assert "relight.light" in graph["farm.lights"]
+    assert "relight.command.cli_image" in graph["relight.cli"]          # imported inside build_parser()
+    assert "blender_addon.logic.light_sources" in graph["blender_addon.worker.engine"]  # `from . import light_sources`
+    assert "relight.lighting.light" in graph["farm.synthesis.lights"]
 
 
 @pytest.mark.parametrize("package", PACKAGES)
@@ -127,11 +127,11 @@ def test_from_relight_import_relighter_and_import_relight_stays_light():
     import sys
 
     code = ("import sys, relight\n"
-            "heavy = sorted(m for m in ('numpy', 'onnxruntime', 'relight.runtime') if m in sys.modules)\n"
+            "heavy = sorted(m for m in ('numpy', 'onnxruntime', 'relight.network.runtime') if m in sys.modules)\n"
             "assert heavy == [], heavy\n"
             "from relight import Relighter, Decomposition, SHLight, sh_light\n"
-            "from relight.runtime import Relighter as R\n"
-            "assert Relighter is R and 'relight.runtime' in sys.modules\n"
+            "from relight.network.runtime import Relighter as R\n"
+            "assert Relighter is R and 'relight.network.runtime' in sys.modules\n"
             "assert {'Relighter', 'sh_light'} <= set(dir(relight))\n"
             "try:\n    relight.no_such_name\nexcept AttributeError as e:\n    assert 'no_such_name' in str(e)\n"
             "else:\n    raise SystemExit('no AttributeError')\n")

@@ -104,9 +104,40 @@ def test_architecture_states_the_same_directions():
 
 
 def test_architecture_names_every_module_and_no_other():
-    """Each module's path (`relight/sh.py`) in the rooms table; each path there exists."""
+    """Each module's path (`relight/lighting/sh.py`) in the rooms table; each path there exists."""
     table = _doc_section("Data flow, and each room's one job")
     named = set(re.findall(r"`((?:%s)/[\w/]+\.py)`" % "|".join(PACKAGES), table))
     files = {p.relative_to(ROOT).as_posix() for p in module_files().values()}
     assert sorted(files - named) == [], "modules missing from docs/ARCHITECTURE.md's rooms table"
     assert sorted(named - files) == [], "docs/ARCHITECTURE.md's rooms table names modules that do not exist"
+
+
+# the add-on's Blender layer: the only modules of the add-on that import bpy (dev/: tools run in Blender)
+ADDON_BPY_LAYER = "blender_addon.blender"
+MAX_MODULES_PER_FOLDER = 15
+MAX_MODULE_LINES = 450
+
+
+def test_only_the_addons_blender_layer_imports_bpy():
+    """The add-on's rule: its bl_* modules, in blender_addon/blender/, import bpy; the others do not."""
+    names = {m: n for m, n in imported_names().items() if room(m) == "blender_addon"}
+    uses_bpy = {m for m, imported in names.items() if any(n.split(".")[0] == "bpy" for n in imported)}
+    layer = {m for m in names if m.startswith(ADDON_BPY_LAYER + ".")}
+    dev = {m for m in names if m.startswith("blender_addon.dev")}
+    assert sorted(uses_bpy - layer - dev) == [], "bpy imported outside blender_addon/blender/"
+    assert sorted(layer - uses_bpy) == [], "a module of blender_addon/blender/ without bpy belongs elsewhere"
+    assert sorted(m for m in layer if not m.rpartition(".")[2].startswith("bl_")) == []
+
+
+def test_no_crowded_folder_and_no_long_module():
+    """No folder of the packages holds more than 15 modules (besides its __init__.py), and no module of
+    theirs is over 450 lines (issue 39: the layout shows the jobs)."""
+    folders: dict[str, int] = {}
+    for path in module_files().values():
+        if path.name != "__init__.py":
+            folder = path.parent.relative_to(ROOT).as_posix()
+            folders[folder] = folders.get(folder, 0) + 1
+    assert {f: n for f, n in folders.items() if n > MAX_MODULES_PER_FOLDER} == {}
+    lengths = {p.relative_to(ROOT).as_posix(): len(p.read_text(encoding="utf-8").splitlines())
+               for p in module_files().values()}
+    assert {f: n for f, n in lengths.items() if n > MAX_MODULE_LINES} == {}

@@ -1,5 +1,5 @@
-"""The light split into a key light and a smooth World (relight.key_light), lamps as SH
-(relight.lamps) and the `sun:` light. No Blender: tests/test_addon_lamps.py checks the units
+"""The light split into a key light and a smooth World (relight.lighting.key_light), lamps as SH
+(relight.lighting.lamps) and the `sun:` light. No Blender: tests/test_addon_lamps.py checks the units
 against Cycles."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from numpy.polynomial import legendre
 
-from relight import key_light as kl
-from relight import lamps, sh, sh_projection
+from relight.lighting import key_light as kl
+from relight.lighting import lamps, sh, sh_projection
 from relight.colour import LUMINANCE_WEIGHTS
-from relight.light import directional_light, sh_light
-from relight.light_map import light_map
+from relight.lighting.light import directional_light, sh_light
+from relight.lighting.light_map import light_map
 
 ORDER = 4
 A = sh.clamped_cosine_coeffs(ORDER)
@@ -175,8 +175,8 @@ def test_a_light_whose_own_irradiance_dips_below_zero_still_has_a_key():
 
 def test_key_direction_median_on_maps_with_a_dominant_source():
     """The true maps' SH (the ceiling): the key points at the brightest region of maps with one."""
-    from relight.envmap import load_equirect
-    from relight.presets import preset_path
+    from relight.lighting.envmap import load_equirect
+    from relight.lighting.presets import preset_path
 
     errors = []
     for name in ("esplanade", "sky", "park", "studio"):
@@ -258,7 +258,7 @@ def test_a_two_colour_light_gives_a_world_within_its_colours():
 def test_key_and_world_match_the_irradiance_of_held_out_maps(name):
     """Bands 0-2 are fitted (up to the chromaticity's constraint); band 4 is left out on purpose (a
     diffuse surface nearly cannot see it): the error is at most that band's share plus a little."""
-    from relight.presets import preset_path
+    from relight.lighting.presets import preset_path
 
     L = sh_light(preset_path(name), ORDER)
     split = kl.split_light(L, 256)
@@ -352,7 +352,7 @@ def test_bad_lamps_are_refused(kwargs, match):
 
 
 def test_sun_light_matches_directional_light_and_parses():
-    # sun:AZ,EL with angle 0 is relight.light.directional_light's white sun + ambient, scaled alike
+    # sun:AZ,EL with angle 0 is relight.lighting.light.directional_light's white sun + ambient, scaled alike
     np.testing.assert_allclose(sh_light("sun:30,45", ORDER), directional_light(30.0, ORDER, elevation_deg=45.0),
                                rtol=1e-9, atol=1e-12)
     L = sh_light("sun:-60,20,40", ORDER)

@@ -1,4 +1,4 @@
-"""The level prior (relight.level): its regression, its bounds, what applying it changes and
+"""The level prior (relight.network.level): its regression, its bounds, what applying it changes and
 what it keeps, and the runtime and model.evaluate's predictor applying a model's prior."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from refine_support import lobe_light, synthetic
 
-from relight import level
+from relight.network import level
 from relight.colour import LUMINANCE_WEIGHTS
-from relight.level import LevelPrior
+from relight.network.level import LevelPrior
 
 PRIOR = LevelPrior(((0.3, 0.6, -0.4), (0.2, 0.4, 0.2), (0.25, 0.3, 0.0)), pairs=10)
 
@@ -113,10 +113,10 @@ def test_the_runtime_and_the_predictor_apply_a_models_prior(tmp_path):
     import torch
 
     from export.onnx_export import export_onnx, read_metadata, save_atomic, set_metadata
-    from model.geometry import GeometryNet
-    from model.predictor import Predictor
-    from relight.prt import to_network_input
-    from relight.runtime import Relighter
+    from model.networks.geometry import GeometryNet
+    from model.scoring.predictor import Predictor
+    from relight.network.prt import to_network_input
+    from relight.network.runtime import Relighter
 
     torch.manual_seed(3)
     path, _ = export_onnx(GeometryNet(sh_order=4, width=4, depth=2, decoder_width=4).eval(), tmp_path / "tiny.onnx")
@@ -157,9 +157,9 @@ def test_calibration_command_fits_writes_and_checks(tmp_path, capsys, one_thread
 
     from export import level_prior
     from export.onnx_export import export_onnx
-    from model.geometry import GeometryNet
-    from model.synthetic import write_analytic_dataset
-    from relight.runtime import Relighter
+    from model.networks.geometry import GeometryNet
+    from model.samples.synthetic import write_analytic_dataset
+    from relight.network.runtime import Relighter
 
     data = tmp_path / "scenes"
     write_analytic_dataset(data, n_scenes=3, size=32, order=4, lights=("studio", "city", "venice"))

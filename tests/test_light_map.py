@@ -1,4 +1,4 @@
-"""The photo's light as a non-negative equirect map (relight.light_map) and `relight light`."""
+"""The photo's light as a non-negative equirect map (relight.lighting.light_map) and `relight light`."""
 
 from __future__ import annotations
 
@@ -8,12 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from relight import sh, sh_projection
-from relight.light import directional_light, sh_light
-from relight.exr import read_exr, write_exr
-from relight.light_map import (FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error,
-                               light_map)
-from relight.quality import preset
+from relight.lighting import sh, sh_projection
+from relight.lighting.light import directional_light, sh_light
+from relight.files.exr import read_exr, write_exr
+from relight.lighting.light_map import (
+    FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error, light_map,
+)
+from relight.network.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
@@ -162,8 +163,8 @@ def _run(capsys, *argv):
 
 
 def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, capsys):
-    from relight.photo import read_photo
-    from relight.runtime import Relighter
+    from relight.files.photo import read_photo
+    from relight.network.runtime import Relighter
 
     photo = _photo(tmp_path / "p.png")
     out = tmp_path / "light.exr"
@@ -190,9 +191,9 @@ def test_relight_light_writes_the_map_of_the_estimated_light(model, tmp_path, ca
 
 
 def test_relight_light_prints_the_key_light_and_writes_the_smooth_world(model, tmp_path, capsys):
-    from relight.key_light import split_irradiance_error, split_light
-    from relight.photo import read_photo
-    from relight.runtime import Relighter
+    from relight.lighting.key_light import split_irradiance_error, split_light
+    from relight.files.photo import read_photo
+    from relight.network.runtime import Relighter
 
     photo = _photo(tmp_path / "p.png")
     out = tmp_path / "light.exr"
@@ -240,8 +241,8 @@ def test_relight_light_refuses_an_output_that_is_its_photo_and_a_second_writer(m
 
 def test_relight_image_takes_a_sun(model, tmp_path, capsys):
     from relight.cli import main
-    from relight.photo import read_photo
-    from relight.runtime import Relighter
+    from relight.files.photo import read_photo
+    from relight.network.runtime import Relighter
 
     photo = _photo(tmp_path / "p.png")
     out = tmp_path / "relit.exr"

@@ -1,4 +1,4 @@
-"""relight.mask_ops against scipy.ndimage (a test-only reference: the core is numpy only)."""
+"""relight.person.mask_ops against scipy.ndimage (a test-only reference: the core is numpy only)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from relight.mask_ops import box_mean, dilate, label
+from relight.person.mask_ops import box_mean, dilate, label
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -1,4 +1,4 @@
-"""Person matte (relight/matte.py): hash-checked model, people, bad input, accuracy on real photos."""
+"""Person matte (relight/person/matte.py): hash-checked model, people, bad input, accuracy on real photos."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from evaluation.matte_eval import EVAL_DIR
-from relight import matte
+from relight.person import matte
 from relight.models import REGISTRY_PATH
-from relight.photo import read_photo
+from relight.files.photo import read_photo
 
 
 
@@ -213,7 +213,7 @@ def test_cli_no_person_and_bad_choices_exit_2_and_write_nothing(tmp_path, capsys
 def test_cli_relights_only_the_person_and_keeps_the_network_matte_for_comparison(tmp_path):
     photo = EVAL_DIR / "obama_standing.jpg"
     image, _ = read_photo(photo)
-    from relight import quality
+    from relight.network import quality
 
     # the matte the command uses: Draft's person segmenter
     alpha = matte.person_matte(image, method=quality.preset("draft").matte_method).alpha
@@ -252,8 +252,8 @@ def test_cli_greyscale_16bit_and_alpha_files(tmp_path):
 
 
 def test_decompose_takes_the_person_matte_as_its_mask():
-    from relight import quality
-    from relight.runtime import Relighter
+    from relight.network import quality
+    from relight.network.runtime import Relighter
 
     photo = _photo("obama_standing")
     relighter = Relighter(quality.model_path("draft"), threads=1, working_size=quality.preset("draft").working_size)
@@ -278,7 +278,7 @@ def test_the_librarys_default_decompose_uses_the_person_matte():
     import inspect
 
     from evaluation.matte_eval import eval_photos, iou, read_reference
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     assert inspect.signature(Relighter.decompose).parameters["matte"].default == "person"
     relighter = Relighter()
@@ -317,8 +317,8 @@ def test_24_megapixel_photo_with_the_person_matte_stays_under_2_gb(tmp_path):
 
 def test_the_relighters_threads_reach_the_matte():
     # issue 39: `relight image --threads N` opened the matte's networks on every core
-    from relight import quality
-    from relight.runtime import Relighter
+    from relight.network import quality
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(quality.model_path("draft"), threads=1, working_size=quality.preset("draft").working_size)
     before = set(matte._SESSIONS)

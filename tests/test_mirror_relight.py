@@ -3,7 +3,7 @@ the photo relit (issue 37), through the shipped ONNX model and the runtime as a 
 
 The mirrored light: x -> -x in the photo-camera frame (docs/conventions.md) flips the sign of
 the real SH coefficients odd in x, (l, m) = (1, 1), (2, -2), (2, 1), (3, -2), (3, 1), (3, 3),
-(4, -4), (4, -2), (4, 1), (4, 3) at order 4: m > 0 odd, and m < 0 even (relight.tta.mirror_x).
+(4, -4), (4, -2), (4, 1), (4, 3) at order 4: m > 0 odd, and m < 0 even (relight.network.tta.mirror_x).
 A white directional light from 90 degrees mirrors to the one from 270.
 
 Asymmetry: the relative RMS difference over the person (matte > 0.5) between the photo relit and
@@ -18,7 +18,7 @@ Measured on the shipped model (2026-11-27, docs/EVALUATION.md "Issue 37"; photos
   the failure the issue describes. The bound asserted is the measured worst case plus a margin, so
   that it catches a change for the worse; it is NOT the goal.
 - averaged with its run on the mirrored crop (Balanced since 2026-11-27, and the first of Best's
-  augmentations: relight.tta, the one code path): at most 0.0007 over 0/90/180/270 degrees
+  augmentations: relight.network.tta, the one code path): at most 0.0007 over 0/90/180/270 degrees
   (0.013 with the astronaut at 512 px). The average is equivariant by construction (the mirrored
   run of the mirrored photo is the first run, mirrored); what is left comes from resampling the
   crop and the full-resolution detail, so the tolerance is 0.02.
@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from relight import matte as segmenter
-from relight import photo as photo_io
-from relight import quality, tta
-from relight.light import directional_light
-from relight.resample import resize_linear
-from relight.runtime import Relighter
+from relight.person import matte as segmenter
+from relight.files import photo as photo_io
+from relight.network import quality, tta
+from relight.lighting.light import directional_light
+from relight.network.resample import resize_linear
+from relight.network.runtime import Relighter
 
 ROOT = Path(__file__).resolve().parent.parent
 PHOTOS = (ROOT / "relight" / "data" / "examples" / "astronaut.jpg",

@@ -1,4 +1,4 @@
-"""model.capture: photo-like capture of training inputs (numbers from the maths of each step)."""
+"""model.samples.capture: photo-like capture of training inputs (numbers from the maths of each step)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from model import capture
-from relight import presets
+from model.samples import capture
+from relight.lighting import presets
 from relight.colour import LUMINANCE_WEIGHTS
 
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, data_augment, data_crops, data_splits
-from relight.box import Box
-from model.synthetic import GLOSS, write_analytic_dataset
-from relight import presets
+from model.samples import data, data_augment, data_crops, data_splits
+from relight.person.box import Box
+from model.samples.synthetic import GLOSS, write_analytic_dataset
+from relight.lighting import presets
 from relight.colour import LUMINANCE_WEIGHTS
-from relight.prt import to_network_input
+from relight.network.prt import to_network_input
 
 HELD_OUT = frozenset(presets.HELD_OUT)
 
@@ -177,7 +177,7 @@ def test_tinted_samples_stay_physically_consistent(scenes):
 
 def test_reference_radiance_of_extra_lights():
     rng = np.random.default_rng(0)
-    from relight import sh
+    from relight.lighting import sh
 
     base = np.random.default_rng(1).normal(size=(9, 3)) * 0.3
     base[0] += 3.0  # a positive mean light
@@ -194,8 +194,8 @@ def test_mixed_lights_are_new_lights_at_the_reference_radiance(scenes):
     """random_mixed_light: at the reference radiance, a mix of its two lights (a sum of turned
     and tilted lights keeps the weights' DC), not either alone, seeded; with light_mix=1 the
     bank lights are mixes named by both maps, and the PRT image under them is exact."""
-    from relight import sh
-    from relight.light import sh_light
+    from relight.lighting import sh
+    from relight.lighting.light import sh_light
 
     first, second = sh_light("sunset", 4), sh_light("studio", 4)
     lights = [data_augment.random_mixed_light(first, second, np.random.default_rng(s)) for s in range(6)]
@@ -241,7 +241,7 @@ def test_missing_dataset_is_a_clear_error(tmp_path):
 
 
 def test_mirror_signs_match_the_sh_basis_and_keep_shading():
-    from relight import sh
+    from relight.lighting import sh
 
     rng = np.random.default_rng(0)
     dirs = rng.normal(size=(50, 3))

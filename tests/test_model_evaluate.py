@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from model import evaluate, geometry_diagnostics, metrics, pair_metrics, predictor
+from model import evaluate
+from model.scoring import geometry_diagnostics, metrics, pair_metrics, predictor
 
 
 def _sample(seed=0, n=9, h=4, w=5):
@@ -106,8 +107,8 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     """Ours + an ONNX baseline of the same order + a safetensors baseline of order 2, one run:
     every baseline's row equals that model's own row when it is evaluated alone."""
     from export.random_model import export_random_model, random_relightnet
-    from model.checkpoint import save_model
-    from model.synthetic import write_analytic_dataset
+    from model.training.checkpoint import save_model
+    from model.samples.synthetic import write_analytic_dataset
 
     data = tmp_path / "data"
     write_analytic_dataset(data, n_scenes=2, size=32, order=4, lights=("studio", "city", "venice"))
@@ -184,7 +185,7 @@ def _photos(folder):
 
 def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(random_onnx, tmp_path, capsys):
     from model import evaluate_photos as ep
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     photos = _photos(tmp_path / "photos")
     out = tmp_path / "out"
@@ -208,7 +209,7 @@ def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(ra
     # the number is what the table says: max(0, albedo * (T . L) + E . L) with the predicted L (the
     # runtime clamps negative light), against the photo at working resolution, weighted by the
     # matte (here the file's alpha)
-    from relight import photo as photo_io
+    from relight.files import photo as photo_io
 
     image, mask = photo_io.read_photo(photos / "b.png")
     dec = Relighter(random_onnx, threads=1, working_size=32).decompose(image, mask=mask)
@@ -222,7 +223,7 @@ def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(ra
 
 def test_evaluate_photos_cli_errors_and_presets(random_onnx, tmp_path, capsys):
     from model import evaluate_photos as ep
-    from relight import presets
+    from relight.lighting import presets
 
     assert not set(ep.SHEET_PRESETS) & presets.HELD_OUT  # never show an evaluation light
     (tmp_path / "empty").mkdir()
@@ -279,7 +280,7 @@ def test_interior_mask_drops_partly_covered_pixels():
 
 def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
     from export.random_model import export_random_model
-    from relight.session import ModelSession
+    from relight.network.session import ModelSession
 
     path, _, _ = export_random_model(tmp_path / "m.onnx", seed=1, sh_order=2, width=4, depth=2)
     x = np.random.default_rng(0).uniform(-1, 1, (1, 3, 32, 32)).astype(np.float32)
@@ -301,8 +302,8 @@ def test_without_out_the_reports_go_to_a_run_folder_not_evaluation(tmp_path, mon
     """Issue 40: the default --out was ./evaluation, which from a checkout is the evaluation/
     package's own folder (untracked reports beside its modules)."""
     from export.random_model import random_relightnet
-    from model.checkpoint import save_model
-    from model.synthetic import write_analytic_dataset
+    from model.training.checkpoint import save_model
+    from model.samples.synthetic import write_analytic_dataset
 
     data = tmp_path / "data"
     write_analytic_dataset(data, n_scenes=2, size=32, order=2, lights=("studio", "city"))

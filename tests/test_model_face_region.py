@@ -1,4 +1,4 @@
-"""The face-region metric of model.evaluate (issue 37, model/face_region.py): on small synthetic
+"""The face-region metric of model.evaluate (issue 37, model/scoring/face_region.py): on small synthetic
 arrays with known answers, and end to end on analytic scenes given a head mask."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from model import face_region, metrics
-from relight import dataset
+from model.scoring import face_region, metrics
+from relight.files import dataset
 
 
 def test_face_weight_is_the_metric_weight_where_the_head_mask_passes_half():
@@ -89,13 +89,13 @@ def test_evaluate_reports_the_face_rows_measured_over_the_head_mask(tmp_path, on
     cropped head mask times the interior weight, pair by pair."""
     from export.random_model import random_relightnet
     from model import evaluate
-    from model.checkpoint import save_model
-    from model.data import EvaluationPairs
-    from model.data_splits import find_scenes, held_out_light_names
-    from model.pair_metrics import baseline_identity, with_metric_weight
+    from model.training.checkpoint import save_model
+    from model.samples.data import EvaluationPairs
+    from model.samples.data_splits import find_scenes, held_out_light_names
+    from model.scoring.pair_metrics import baseline_identity, with_metric_weight
 
     data = tmp_path / "data"
-    paths = __import__("model.synthetic", fromlist=["x"]).write_analytic_dataset(
+    paths = __import__("model.samples.synthetic", fromlist=["x"]).write_analytic_dataset(
         data, n_scenes=2, size=32, order=4, lights=("studio", "city", "venice"))
     for p in paths:
         head = _with_head(p, slice(0, 16))

@@ -1,4 +1,4 @@
-"""The geometry-first model (model.geometry): outputs derived by physics, training on
+"""The geometry-first model (model.networks.geometry): outputs derived by physics, training on
 the analytic dataset, checkpoint and ONNX round trips, the runtime unchanged, the
 training pack, and the geometry rows of the evaluation."""
 
@@ -10,12 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, data_crops, data_splits, geometry_diagnostics, pair_metrics, physics, train
-from model.checkpoint import load_model, save_model
-from model.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
-from model.synthetic import write_analytic_dataset
-from relight import presets
-from relight.light import sh_light
+from model.samples import data, data_crops, data_splits
+from model.scoring import geometry_diagnostics, pair_metrics
+from model.networks import physics
+from model import train
+from model.training.checkpoint import load_model, save_model
+from model.networks.geometry import GEOMETRY_LOSS_WEIGHTS, GeometryNet, geometry_losses, mean_luminance
+from model.samples.synthetic import write_analytic_dataset
+from relight.lighting import presets
+from relight.lighting.light import sh_light
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -144,7 +147,7 @@ def test_pack_holds_the_same_crops_as_the_scene_files(dataset, tmp_path):
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_onnx_export_matches_torch_and_the_runtime_relights_with_it(tmp_path):
     from export.onnx_export import export_onnx, max_abs_diff, onnx_outputs, torch_outputs
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     net = _net(2)
     path, digest = export_onnx(net, tmp_path / "geo.onnx")
@@ -234,7 +237,7 @@ def test_geometry_metrics_are_zero_for_the_truth_and_measure_a_turned_normal(dat
     assert m["normal_median_deg"] < 0.05 and m["visibility_l1"] < 1e-6 and m["light_rel_l2"] == 0.0
     # a transport turned 90 degrees about Z reads as normals 90 degrees off where they
     # are horizontal; every angle is within [0, 180]
-    from relight import sh_rotation
+    from relight.lighting import sh_rotation
 
     turn = sh_rotation.rotation_matrix(sh_rotation.z_rotation(90.0), 4)
     turned = np.einsum("kn,nhw->khw", turn, sample["transport"])

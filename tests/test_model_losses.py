@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from model.losses import LossWeights, log_loss, masked_l1, relight_losses
+from model.training.losses import LossWeights, log_loss, masked_l1, relight_losses
 
 # masked means divide by sum(alpha) * C + 1e-8 with sum(alpha) * C >= 1 here, so the
 # computed values differ from the exact ones by at most ~1e-8 relative (+ float32 round-off ~1e-7)

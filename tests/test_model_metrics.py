@@ -1,11 +1,11 @@
-"""model.metrics against hand-computed values; finite for zeros and huge values; clear errors."""
+"""model.scoring.metrics against hand-computed values; finite for zeros and huge values; clear errors."""
 
 import math
 
 import numpy as np
 import pytest
 
-from model import metrics
+from model.scoring import metrics
 
 
 def _pair():

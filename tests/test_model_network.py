@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from model.checkpoint import load_model, read_metadata, save_model
-from model.checkpoint import CONFIG_KEYS
-from model.network import ARCH_DEFAULTS, PAPER_CONFIG, PRESETS, RelightNet
+from model.training.checkpoint import load_model, read_metadata, save_model
+from model.training.checkpoint import CONFIG_KEYS
+from model.networks.network import ARCH_DEFAULTS, PAPER_CONFIG, PRESETS, RelightNet
 
 TINY = dict(width=4, depth=2)
 # the paper's heavy layout (two generators per signed map, wide decoders, two
@@ -181,7 +181,7 @@ def test_config_rebuilds_every_layout_and_records_every_key():
         rebuilt = RelightNet(**model.config())
         shapes = {k: v.shape for k, v in model.state_dict().items()}
         assert {k: v.shape for k, v in rebuilt.state_dict().items()} == shapes
-    # every layout key is recorded, and model.checkpoint accepts all of them
+    # every layout key is recorded, and model.training.checkpoint accepts all of them
     assert set(ARCH_DEFAULTS) <= set(RelightNet().config()) <= set(CONFIG_KEYS)
     assert RelightNet(**PRESETS["default"]).config() == RelightNet().config()
     with pytest.raises(ValueError, match="full_res_convs"):

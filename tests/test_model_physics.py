@@ -1,4 +1,4 @@
-"""model.physics: the torch physics of the geometry-first model (SH lobe transport,
+"""model.networks.physics: the torch physics of the geometry-first model (SH lobe transport,
 visibility, light fit, photo-consistent albedo) against the core's numpy maths and
 the farm's ray-cast bake."""
 
@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from farm import bake
-from model import physics
-from relight import colour, prt, sh
+from farm.rendering import bake
+from model.networks import physics
+from relight import colour
+from relight.network import prt
+from relight.lighting import sh
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -38,7 +40,7 @@ def test_lobe_transport_equals_lambert_transport_times_visibility():
     assert np.abs(t.permute(0, 2, 3, 1).numpy() - expected).max() < 1e-12
     # and the inverse maps recover what went in
     assert np.abs(physics.visibility_from_transport(t).numpy() - vis.transpose(0, 3, 1, 2)).max() < 1e-12
-    from model.geometry_diagnostics import transport_normal  # the evaluation reads normals off any model's T so
+    from model.scoring.geometry_diagnostics import transport_normal  # the evaluation reads normals off any model's T so
 
     back = np.stack([transport_normal(t[i].numpy()) for i in range(2)])
     assert np.abs(back - normals).max() < 1e-6
@@ -108,7 +110,7 @@ def test_fit_light_recovers_the_true_light_in_the_directions_the_pixels_see():
     fitted = physics.fit_light(T, albedo, photo, weight, torch.zeros_like(light), ridge=ridge)
     residual = albedo * torch.einsum("bnhw,bnc->bchw", T, fitted) - photo
     # The ridge optimum costs no more than the true light does: |A x - b|^2 <= lam |L_c|^2
-    # (the prior is 0), with lam = ridge * trace(A^T A) / n (model.physics.fit_light).
+    # (the prior is 0), with lam = ridge * trace(A^T A) / n (model.networks.physics.fit_light).
     design = (T[:, None] * albedo[:, :, None]).reshape(3, 25, -1)          # [3, n, P]
     lam = ridge * (design ** 2).sum(dim=(1, 2)) / 25
     bound = torch.sqrt(lam * (light[0] ** 2).sum(dim=0))

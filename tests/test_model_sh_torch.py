@@ -1,11 +1,12 @@
-"""model.sh_torch equals relight's numpy rendering layer and SH ops."""
+"""model.networks.sh_torch equals relight's numpy rendering layer and SH ops."""
 
 import numpy as np
 import pytest
 import torch
 
-from model import sh_torch
-from relight import prt, sh, sh_rotation
+from model.networks import sh_torch
+from relight.network import prt
+from relight.lighting import sh, sh_rotation
 
 # float32 torch vs float64 numpy: products of O(1) values summed over n <= 25 terms;
 # float32 relative round-off ~6e-8 per op, so 1e-5 relative / 1e-5 absolute is ample

@@ -6,12 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from model import data, data_splits, evaluate, train, train_data, train_module
-from model.checkpoint import load_model
-from model.losses import LossWeights, relight_losses
-from model.network import RelightNet
-from model.synthetic import write_analytic_dataset
-from relight import presets
+from model.samples import data, data_splits
+from model import evaluate, train
+from model.training import train_data, train_module
+from model.training.checkpoint import load_model
+from model.training.losses import LossWeights, relight_losses
+from model.networks.network import RelightNet
+from model.samples.synthetic import write_analytic_dataset
+from relight.lighting import presets
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +205,7 @@ def test_preset_layout_and_init_from_weights(dataset, tmp_path, capsys):
 
 
 def test_photo_like_capture_is_off_by_default_and_can_be_turned_on(monkeypatch, tmp_path):
-    """--capture reaches TrainingScenes (model/capture.py); the default trains on the rendered input."""
+    """--capture reaches TrainingScenes (model/samples/capture.py); the default trains on the rendered input."""
     seen = {}
 
     class Stop(Exception):

@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from relight import prt, refine
+from relight.network import prt, refine
 
 
 def test_the_graph_and_the_runtime_share_one_albedo_rule_and_its_constants():
     torch = pytest.importorskip("torch")
-    from model import physics
+    from model.networks import physics
 
     rng = np.random.default_rng(0)
     photo = rng.uniform(0.0, 1.0, (2, 3, 9, 7))
@@ -34,10 +34,10 @@ def test_a_geometry_model_decomposes_a_photo_once_and_its_albedo_follows_from_th
     import onnx
 
     from export.onnx_export import export_onnx, read_metadata, save_atomic, set_metadata
-    from model.geometry import GeometryNet
-    from relight import level, tta
-    from relight.decomposition import Decomposition
-    from relight.runtime import Relighter
+    from model.networks.geometry import GeometryNet
+    from relight.network import level, tta
+    from relight.network.decomposition import Decomposition
+    from relight.network.runtime import Relighter
 
     torch.manual_seed(3)
     path, _ = export_onnx(GeometryNet(sh_order=4, width=4, depth=2, decoder_width=4).eval(), tmp_path / "tiny.onnx")

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from relight import photo as ph
+from relight.files import photo as ph
 from relight.colour import srgb_decode, srgb_encode
-from relight.exr import read_exr, write_exr
+from relight.files.exr import read_exr, write_exr
 
 
 def _encode_png16(values: np.ndarray, filters: list[int]) -> bytes:
@@ -299,12 +299,12 @@ def _idat_stream(path) -> tuple[dict, bytes]:
 @pytest.mark.parametrize("engine", ["installed", "zlib"])
 @pytest.mark.parametrize("shape", [(1, 1), (2, 7), (255, 3), (256, 5), (257, 4), (700, 33)])
 def test_the_fast_png_writer_is_a_valid_png_of_the_rounded_codes(tmp_path, monkeypatch, engine, shape):
-    """Issue 40: the PNG writer is relight.png_encoder's (table sRGB encode, Up filter, bands deflated
+    """Issue 40: the PNG writer is relight.files.png_encoder's (table sRGB encode, Up filter, bands deflated
     on threads, ISA-L when installed): a strict zlib inflate (its Adler-32 checked) of the bands
     joined gives the Up-filtered rows of the codes, which Pillow decodes, metadata included."""
     import zlib
 
-    from relight import png_encoder
+    from relight.files import png_encoder
 
     if engine == "zlib":
         monkeypatch.setattr(png_encoder, "deflate_module", lambda: (zlib, 1, zlib.Z_RLE))
@@ -329,7 +329,7 @@ def test_the_fast_png_writer_is_a_valid_png_of_the_rounded_codes(tmp_path, monke
 
 
 def test_a_nan_in_a_late_band_leaves_no_png(tmp_path):
-    from relight import png_encoder
+    from relight.files import png_encoder
 
     lin = np.full((png_encoder.BAND_ROWS * 3, 4, 3), 0.5, np.float32)
     lin[-1, -1, 0] = np.nan

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from fuzz_support import accepted_share, record
-from relight import photo as ph
-from relight.exr import write_exr
+from relight.files import photo as ph
+from relight.files.exr import write_exr
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

@@ -1,10 +1,12 @@
-"""relight.prt (rendering layer, network input) and relight.colour."""
+"""relight.network.prt (rendering layer, network input) and relight.colour."""
 
 import numpy as np
 import pytest
 from numpy.polynomial.legendre import leggauss
 
-from relight import colour, prt, sh
+from relight import colour
+from relight.network import prt
+from relight.lighting import sh
 
 RNG = np.random.default_rng(7)
 

@@ -1,4 +1,4 @@
-"""relight/quality.py: the one Draft/Balanced/Best table that the CLI, the runtime and the
+"""relight/network/quality.py: the one Draft/Balanced/Best table that the CLI, the runtime and the
 add-on read, and its model lookup."""
 
 from __future__ import annotations
@@ -8,13 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from relight import matte, models, quality
+from relight.person import matte
+from relight import models
+from relight.network import quality
 
 
 def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
-    from blender_addon import quality as addon_quality
+    from blender_addon.logic import quality as addon_quality
     from relight.cli import build_parser
-    from relight.runtime import DEFAULT_WORKING_SIZE
+    from relight.network.runtime import DEFAULT_WORKING_SIZE
 
     assert [p.key for p in quality.PRESETS] == ["draft", "balanced", "best"]
     assert DEFAULT_WORKING_SIZE == quality.preset(quality.DEFAULT).working_size
@@ -43,7 +45,7 @@ def test_each_preset_runs_the_network_as_its_description_says(model):
     128 px and again on the mirrored crop, Best up to six runs at 144 px (mirrored, and at 0.75x and
     1.25x: 108 and 180 px), two when the mirrored run agrees with the first; the person segmenter
     Draft's quicker one, the others' the ensemble."""
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     rng = np.random.default_rng(0)
     photo = (0.2 + 0.6 * rng.random((300, 200, 3))).astype(np.float32)
@@ -104,7 +106,7 @@ def test_docs_runtime_states_the_working_sizes_the_code_has():
     import re
     from pathlib import Path
 
-    from relight.runtime import DEFAULT_WORKING_SIZE
+    from relight.network.runtime import DEFAULT_WORKING_SIZE
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "runtime.md").read_text(encoding="utf-8")
     assert re.search(r"## Loading: `Relighter\(.*working_size=(\d+)\)`", text).group(1) == str(DEFAULT_WORKING_SIZE)

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from relight import quality, sh
+from relight.network import quality
+from relight.lighting import sh
 from relight.cli import main
-from relight.decomposition import ORDER_TOLERANCE, Decomposition
-from relight.runtime import Relighter
-from relight.video_io import decode_srgb
+from relight.network.decomposition import ORDER_TOLERANCE, Decomposition
+from relight.network.runtime import Relighter
+from relight.files.video_io import decode_srgb
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "farm_clip.npz"
@@ -104,8 +105,8 @@ def test_refinement_lowers_its_objective_and_keeps_the_relit_error_on_farm_frame
     release it changes it by -0.17 dB on average (its light is already closer to what the
     gradients say; the presets no longer refine, docs/TRADEOFFS.md). The bound: within
     0.5 dB either way on average, 3x that measured change."""
-    from model import metrics
-    from model.metrics import interior_weight
+    from model.scoring import metrics
+    from model.scoring.metrics import interior_weight
 
     frames, truth, alpha, light = farm_frames
     relighter = Relighter(threads=2)
@@ -201,7 +202,7 @@ def test_preset_rule_follows_a_brute_force_front():
 
 def test_the_rules_balanced_is_the_shipped_one_and_runs_bests_first_augmentation():
     """Balanced (issue 37): the network at its trained size averaged with its run on the mirrored
-    crop, which is Best's first augmentation (one code path, relight.tta); Draft the network once."""
+    crop, which is Best's first augmentation (one code path, relight.network.tta); Draft the network once."""
     bq = _bench_quality()
     balanced, best = quality.preset("balanced"), quality.preset("best")
     assert (balanced.working_size, balanced.augment) == (bq.BALANCED.working_size, bq.BALANCED.augment)
@@ -248,7 +249,7 @@ def test_an_ensemble_averages_the_other_networks_answers_on_the_same_crop(tmp_pa
     import torch
 
     from export.onnx_export import export_onnx, read_metadata
-    from model.geometry import GeometryNet
+    from model.networks.geometry import GeometryNet
     from relight import models
 
     registry = tmp_path / "models"
@@ -277,7 +278,7 @@ def test_an_ensemble_averages_the_other_networks_answers_on_the_same_crop(tmp_pa
     assert both.choices["ensemble"] == ["other"]
     np.testing.assert_allclose(both.light, (alone.light + theirs.light) / 2, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(both.transport, (alone.transport + theirs.transport) / 2, rtol=1e-5, atol=1e-6)
-    # the shipped network's level prior corrects the average, once (relight.level)
+    # the shipped network's level prior corrects the average, once (relight.network.level)
     levelled = main_net.decompose(photo, mask=mask, working_size=64, ensemble=("other",))
     gains = main_net.level_prior.gains(both.transport, both.light, both.alpha)
     np.testing.assert_allclose(levelled.light, both.light / gains[None, :], rtol=1e-5, atol=1e-6)

@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from relight.dataset import read_scene  # noqa: E402
+from relight.files.dataset import read_scene  # noqa: E402
 
 REAL_ARGS = ["--scenes", "2", "--seed", "11", "--res", "32", "--lights", "1", "--samples", "4",
              "--no-denoise", "--order", "2", "--directions", "64", "--recycle", "1", "--no-progress"]
@@ -36,7 +36,7 @@ def _inside_namespace(work: Path) -> dict:
     import ray
 
     from farm import cli
-    from farm.ray_executor import remove_dead_workers_tmp, run_on_ray
+    from farm.execution.ray_executor import remove_dead_workers_tmp, run_on_ray
 
     # Ray's session files go to a short private folder (its socket paths must stay < 108 bytes).
     ray_tmp = tempfile.mkdtemp(prefix="ray_")
@@ -126,7 +126,7 @@ def test_ray_missing_is_one_clear_error(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err.splitlines() == [
         "farm: error: --ray needs Ray: pip install 'fullbody-relight[distributed]' (or pip install ray)"]
     assert not (tmp_path / "out").exists()
-    probe = subprocess.run([sys.executable, "-c", "import sys, farm.cli, farm.executors; "
+    probe = subprocess.run([sys.executable, "-c", "import sys, farm.cli, farm.execution.executors; "
                             "print('ray' in sys.modules)"], cwd=REPO, capture_output=True, text=True)
     assert probe.stdout.strip() == "False"
 

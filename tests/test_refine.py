@@ -1,4 +1,4 @@
-"""Per-photo refinement of the light (relight.refine) and test-time augmentation (relight.tta)."""
+"""Per-photo refinement of the light (relight.network.refine) and test-time augmentation (relight.network.tta)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from relight import refine as rf
-from relight import sh, sh_rotation, tta
+from relight.network import refine as rf
+from relight.lighting import sh, sh_rotation
+from relight.network import tta
 
 from refine_support import ORDER, lobe_light, synthetic
 
@@ -146,7 +147,7 @@ def test_augment_refuses_bad_augmentations():
 
 
 class _Answers:
-    """A stand-in network for relight.tta.augment: every run answers the same transport (on
+    """A stand-in network for relight.network.tta.augment: every run answers the same transport (on
     its own grid, flipped for a mirrored crop so that it is the same scene) and `light`."""
 
     def __init__(self, d, light):
@@ -154,7 +155,7 @@ class _Answers:
 
     def run_crop(self, crop, matte):
         self.calls += 1
-        from relight.resample import resize_linear
+        from relight.network.resample import resize_linear
 
         h, w = crop.shape[:2]
         t = self.d.transport if (h, w) == self.d.working_size else resize_linear(self.d.transport, h, w)
@@ -207,7 +208,7 @@ def test_consistent_albedo_along_the_soft_matte_edge_is_the_photo_over_its_shadi
     np.testing.assert_allclose(albedo[edge], np.broadcast_to(colour / 0.5, albedo[edge].shape), rtol=1e-5)
     # the masked input's rule is far off there: at alpha 0.5 it sees about (0.5 sRGB of the
     # colour + 0.25) decoded, 0.07 against 0.05 in linear red
-    from relight.prt import to_network_input
+    from relight.network.prt import to_network_input
 
     masked = rf.albedo_from_input(to_network_input(photo, alpha), alpha, transport, light)
     half = alpha == 0.5

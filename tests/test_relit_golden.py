@@ -85,8 +85,8 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 
 
 def compute_mattes(threads: int = 1) -> dict[str, np.ndarray]:
-    from relight.matte import person_matte
-    from relight.photo import read_photo
+    from relight.person.matte import person_matte
+    from relight.files.photo import read_photo
 
     out = {}
     for name in PHOTOS:
@@ -99,10 +99,10 @@ def compute_mattes(threads: int = 1) -> dict[str, np.ndarray]:
 
 def compute(mattes: dict[str, np.ndarray], threads: int = 1) -> dict[str, np.ndarray]:
     """{name: array} of the outputs compared, with `mattes` as the masks."""
-    from relight import light
-    from relight.photo import read_photo
-    from relight.quality import preset
-    from relight.runtime import Relighter
+    from relight.lighting import light
+    from relight.files.photo import read_photo
+    from relight.network.quality import preset
+    from relight.network.runtime import Relighter
 
     r = Relighter(threads=threads, working_size=preset("balanced").working_size)
     decs = {}

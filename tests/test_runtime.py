@@ -8,13 +8,15 @@ import numpy as np
 import pytest
 
 from export.random_model import export_random_model
-from relight import composite, models, sh
-from relight.exr import write_exr
-from relight.prt import to_network_input
-from relight.decomposition import DETAIL_EPS, DETAIL_MAX
-from relight.light import LightCache, sh_light
-from relight.resample import bilinear_rows
-from relight.runtime import Relighter
+from relight.network import composite
+from relight import models
+from relight.lighting import sh
+from relight.files.exr import write_exr
+from relight.network.prt import to_network_input
+from relight.network.decomposition import DETAIL_EPS, DETAIL_MAX
+from relight.lighting.light import LightCache, sh_light
+from relight.network.resample import bilinear_rows
+from relight.network.runtime import Relighter
 
 ORDER = 4
 N = (ORDER + 1) ** 2
@@ -157,7 +159,7 @@ def test_hdr_map_light_is_projected_and_normalized(relighter, tmp_path):
     norm = sh_light(path, ORDER, cache=cache)
     assert sh.mean_luminance(norm) == pytest.approx(0.8, rel=1e-9)
     with pytest.raises(ValueError, match="SH coefficients"):
-        d.relight(path)  # the runtime takes coefficients only: relight.light resolves files
+        d.relight(path)  # the runtime takes coefficients only: relight.lighting.light resolves files
     # the cache notices a changed file
     write_exr(path, {c: np.full((h, w), 2 * value, np.float32) for c in "RGB"})
     np.testing.assert_allclose(sh_light(path, ORDER, normalize=False, cache=cache), 2 * raw, rtol=1e-6)
@@ -313,7 +315,7 @@ def test_bad_light_source(kwargs, message):
 
 
 def test_bad_session_options(model_path):
-    from relight.session import cores_available
+    from relight.network.session import cores_available
 
     cores = cores_available()
     for threads in (0, -1, cores + 1, 1.5, True, "2"):  # bounded like `relight image --threads`
@@ -330,8 +332,8 @@ def test_sessions_do_not_spin_between_runs(model_path):
     """Every session the runtime opens (the network's and the segmenters') has onnxruntime's
     busy-waiting off: its pool threads would otherwise take the cores from the numpy work
     between runs (docs/TRADEOFFS.md measures what it cost)."""
-    from relight import matte
-    from relight.session import SPINNING_KEY
+    from relight.person import matte
+    from relight.network.session import SPINNING_KEY
 
     sessions = [Relighter(model_path, threads=1).session] + \
         [matte._session(kind) for kind in ("selfie", "detector", "pose")]
@@ -343,7 +345,7 @@ def test_runtime_modules_import_neither_torch_nor_bpy_nor_onnx():
     import subprocess
     import sys
 
-    code = ("import sys, relight.runtime, relight.photo, relight.cli_image, relight.models, relight.cli; "
+    code = ("import sys, relight.network.runtime, relight.files.photo, relight.command.cli_image, relight.models, relight.cli; "
             "relight.cli.build_parser(); "
             "print(sorted(m for m in ('torch', 'bpy', 'onnx', 'onnxconverter_common') if m in sys.modules))")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -440,8 +442,8 @@ def test_albedo_layer_carries_the_photos_full_resolution_texture():
     """Resampled crop: the albedo layer is the full-resolution photo times the upsampled
     quotient albedo / photo of working resolution, so under a smooth shading S it is the
     textured photo / S, which plain upsampling of the working albedo would blur away."""
-    from relight.decomposition import Decomposition
-    from relight.resample import resize_linear
+    from relight.network.decomposition import Decomposition
+    from relight.network.resample import resize_linear
 
     H, W, h, w = 64, 96, 16, 24
     rng = np.random.default_rng(3)

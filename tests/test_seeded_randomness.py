@@ -1,5 +1,5 @@
 """A static ban on unseeded randomness where data is made: farm/ (a scene depends only on
-its seed and index), and model/data*.py, model/capture.py and model/train_data.py (a
+its seed and index), and model/data*.py, model/samples/capture.py and model/training/train_data.py (a
 training sample and its order only on (seed, epoch, index)).
 
 Read from the source with `ast` (nothing is imported or run): every call that draws from
@@ -33,8 +33,8 @@ ENTROPY = {"os.urandom", "uuid.uuid1", "uuid.uuid4"}
 
 def scanned_files() -> list[Path]:
     model = ROOT / "model"
-    return (sorted((ROOT / "farm").rglob("*.py")) + sorted(model.glob("data*.py"))
-            + [model / "capture.py", model / "train_data.py"])
+    return (sorted((ROOT / "farm").rglob("*.py")) + sorted(model.rglob("data*.py"))
+            + [model / "samples" / "capture.py", model / "training" / "train_data.py"])
 
 
 def _aliases(tree: ast.AST) -> dict[str, str]:

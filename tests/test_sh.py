@@ -1,4 +1,4 @@
-"""relight.sh and relight.sh_projection: basis, quadrature, projection, convolution, exposure."""
+"""relight.lighting.sh and relight.lighting.sh_projection: basis, quadrature, projection, convolution, exposure."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from numpy.polynomial.legendre import leggauss
 from scipy.special import eval_legendre, sph_harm_y
 
-from relight import sh, sh_projection
+from relight.lighting import sh, sh_projection
 
 RNG = np.random.default_rng(1234)
 
@@ -383,8 +383,8 @@ def test_projection_error_converges_at_second_order():
 def test_a_light_is_scaled_once_and_every_rotation_keeps_the_scale():
     # issue 39: SHLight finds the scale to the reference once; normalizing again after each
     # rotation (as before) gives the same coefficients bit for bit (a Z rotation keeps band 0)
-    from relight.light import SHLight
-    from relight.sh_rotation import rotation_matrix, z_rotation
+    from relight.lighting.light import SHLight
+    from relight.lighting.sh_rotation import rotation_matrix, z_rotation
 
     base = RNG.random((25, 3)) + 0.1
     light = SHLight(base, sh.REFERENCE_LUMINANCE)

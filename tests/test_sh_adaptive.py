@@ -1,11 +1,11 @@
-"""Adaptive SH order (relight.sh_adaptive): the smallest order whose irradiance energy holds 99%."""
+"""Adaptive SH order (relight.lighting.sh_adaptive): the smallest order whose irradiance energy holds 99%."""
 
 import math
 
 import numpy as np
 import pytest
 
-from relight import sh, sh_adaptive, sh_projection
+from relight.lighting import sh, sh_adaptive, sh_projection
 
 
 def _coeffs_with_bands(order, band_values):
@@ -54,7 +54,7 @@ def test_threshold_picks_the_first_order_reaching_it():
 def test_real_map_order_is_the_smallest_that_reaches_the_fraction():
     """On a real map each chosen order holds the fraction and the one below it does not;
     the whole energy needs band 8 (A_8 != 0 and the map has band-8 content)."""
-    from relight import envmap, presets
+    from relight.lighting import envmap, presets
 
     env = envmap.load_equirect(presets.preset_path("sunset"))
     c = sh_projection.project_equirect(env.pixels, 8)

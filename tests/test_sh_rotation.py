@@ -1,4 +1,4 @@
-"""relight.sh_rotation: exactness, composition, equivariance with map rotation."""
+"""relight.lighting.sh_rotation: exactness, composition, equivariance with map rotation."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relight import sh, sh_projection, sh_rotation
+from relight.lighting import sh, sh_projection, sh_rotation
 
 RNG = np.random.default_rng(99)
 

@@ -3,13 +3,13 @@
 The farm renders a few small scenes lit only by the held-out maps
 (`--light-pool heldout`, never seen in training). For every ordered pair of
 a scene's lights (a, b), the registered default model decomposes the
-path-traced image under a through relight.runtime (as a user would run it,
+path-traced image under a through relight.network.runtime (as a user would run it,
 with the GT alpha as the mask) and relights it with light b's SH
 coefficients from the sidecar, which are in the photo-camera frame the
 network uses (docs/conventions.md, docs/dataset.md). The relit person is
 compared with Cycles' image under b: PSNR over the person's fully covered
 pixels (GT alpha > 0.999, as model/evaluate.py's default: edge pixels mix in
-each light's own background), linear, peak 1 (model/metrics.py). Its mean over the pairs must beat the
+each light's own background), linear, peak 1 (model/scoring/metrics.py). Its mean over the pairs must beat the
 identity baseline (image a as is) and the exposure-matched identity
 (image a times L00_b / L00_a per channel) by the measured margins below.
 
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # The scenes: deterministic for a seed (same bodies, poses, lights, samples).
 SCENES, SEED, RES, LIGHTS, SAMPLES, ORDER = 3, 20250, 128, 2, 16, 4
-# The runtime's working size: the default quality preset's, as a user gets it (relight/quality.py).
+# The runtime's working size: the default quality preset's, as a user gets it (relight/network/quality.py).
 WORKING_SIZE = 128
 
 # measured: geometry.onnx (sha256 982994b24958): mean PSNR model 18.49 dB, identity 13.91 dB,
@@ -81,7 +81,7 @@ def render_scenes(folder: Path) -> list[Path]:
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"farm failed ({done.returncode}): {' '.join(cmd[1:])}\n{done.stderr[-2000:]}")
-    from relight import dataset
+    from relight.files import dataset
 
     paths = dataset.list_finished_scenes(folder)
     if len(paths) != SCENES:
@@ -98,8 +98,8 @@ def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
 
     relight_pair(scene, a, b) -> linear [H, W, 3]: the scene's image under a relit to light b.
     """
-    from model import metrics
-    from relight import dataset
+    from model.scoring import metrics
+    from relight.files import dataset
 
     rows = []
     for path in scene_paths:
@@ -125,9 +125,9 @@ def pair_psnrs(relight_pair, scene_paths: list[Path]) -> list[dict]:
 def normal_errors(model_path: Path, scene_paths: list[Path]) -> list[float]:
     """Median angle (degrees) per scene and light between the normals the model's transport
     implies (T's band-1 direction) and the farm's normal pass, over fully covered pixels."""
-    from model import metrics
-    from relight import dataset
-    from relight.runtime import Relighter
+    from model.scoring import metrics
+    from relight.files import dataset
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(model_path, working_size=WORKING_SIZE)
     out = []
@@ -148,7 +148,7 @@ def normal_errors(model_path: Path, scene_paths: list[Path]) -> list[float]:
 
 def model_relighter(model_path: Path):
     """relight_pair for pair_psnrs: the runtime's decompose (GT alpha as the mask) + relight."""
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(model_path, working_size=WORKING_SIZE)
 
@@ -235,7 +235,7 @@ def test_guard_passes_the_true_decomposition(scenes):
     """The harness itself: the scene's own albedo and transport (GT), relit by the runtime with
     light b's sidecar coefficients, must clear the guard. This proves the frames, SH order and
     compositing line up, so a failing model is the model's fault, not the harness's."""
-    from relight.runtime import Decomposition
+    from relight.network.runtime import Decomposition
 
     def relight_pair(scene, a, b):
         h, w = scene.resolution
@@ -297,7 +297,7 @@ def main(argv=None) -> int:
     except (ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    from relight.fileio import file_sha256
+    from relight.files.fileio import file_sha256
 
     m = means(rows)
     print(table(rows, model.name))

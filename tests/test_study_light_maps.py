@@ -58,9 +58,9 @@ def test_seen_scenes_split_by_whether_the_input_map_was_trained_on(tmp_path):
 
 
 def test_colour_error_regressed_on_the_lights_own_colour_reads_a_grey_estimate_as_slope_one(tmp_path):
-    from model.metrics import colour_cast_deg
-    from model.synthetic import write_analytic_dataset
-    from relight.dataset import light_map_name, read_sidecar
+    from model.scoring.metrics import colour_cast_deg
+    from model.samples.synthetic import write_analytic_dataset
+    from relight.files.dataset import light_map_name, read_sidecar
 
     data = tmp_path / "data"
     write_analytic_dataset(data, n_scenes=3, size=16, order=2, lights=("studio", "sunset", "venice"))

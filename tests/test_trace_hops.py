@@ -26,7 +26,7 @@ def test_counts_are_stable_and_name_modules_by_file():
         # the hop list starts at the command's entry point and reads the photo on its own thread
         assert lines[0].startswith("wrote ") and lines[1].startswith("cli.main -> cli.build_parser")
         assert "photo.read_photo" in res.stdout and "[relight-read_0]" in res.stdout
-        assert "calls of relight/sh.py:validate_coeffs" in res.stdout
+        assert "calls of relight/lighting/sh.py:validate_coeffs" in res.stdout
     assert counts[0] == counts[1] and len(counts[0]) == 2 and int(counts[0][0].split()[-1]) > 50
 
 

@@ -93,7 +93,7 @@ def test_sections_replace_their_block_and_keep_the_rest():
 
 @pytest.fixture(scope="module")
 def analytic(tmp_path_factory):
-    from model.synthetic import write_analytic_dataset
+    from model.samples.synthetic import write_analytic_dataset
 
     folder = tmp_path_factory.mktemp("analytic")
     write_analytic_dataset(folder, n_scenes=3, size=32, order=4)
@@ -101,8 +101,8 @@ def analytic(tmp_path_factory):
 
 
 def test_sh_order_error_matches_the_analytic_answer(analytic):
-    from model.synthetic import GLOSS
-    from relight.dataset import list_finished_scenes, read_scene
+    from model.samples.synthetic import GLOSS
+    from relight.files.dataset import list_finished_scenes, read_scene
 
     scenes = [read_scene(p) for p in list_finished_scenes(analytic)]
     for s in scenes:

@@ -1,4 +1,4 @@
-"""Per-vertex transport bake (farm/bake.py): analytic cases, robustness, and Cycles agreement."""
+"""Per-vertex transport bake (farm/rendering/bake.py): analytic cases, robustness, and Cycles agreement."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from farm import bake
-from relight import prt, sh, sh_projection, sh_rotation
+from farm.rendering import bake
+from relight.network import prt
+from relight.lighting import sh, sh_projection, sh_rotation
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -211,7 +212,7 @@ def _cycles_sphere_scene(tmp_path, meshes, order, directions, materials=None, re
     The camera frame is then the world frame (rows right=X, forward=Y, up=Z).
     """
     bpy = pytest.importorskip("bpy")
-    from farm import blender_scene, passes
+    from farm.rendering import blender_scene, passes
 
     scene = blender_scene.reset_scene()
     passes.configure_film(scene, (resolution, resolution))
@@ -263,7 +264,7 @@ def test_cycles_under_one_sh_basis_function_matches_baked_transport(tmp_path, k)
     twice the noise plus the bound.
     """
     from cycles_support import sh_world
-    from farm import passes
+    from farm.rendering import passes
 
     sphere = icosphere(4, radius=0.5) + (LAMBERT_WHITE,)
     blocker = icosphere(3, radius=0.35, centre=(0.75, 0.1, 0.2)) + (LAMBERT_WHITE,)
@@ -289,9 +290,9 @@ def test_cycles_under_one_sh_basis_function_matches_baked_transport(tmp_path, k)
 
 
 def _hdr_scene(tmp_path, material, rotation_deg):
-    from farm import blender_scene, passes
-    from relight import presets
-    from relight.envmap import load_equirect
+    from farm.rendering import blender_scene, passes
+    from relight.lighting import presets
+    from relight.lighting.envmap import load_equirect
 
     sphere = icosphere(4, radius=0.6) + (material,)
     order = 8
@@ -355,8 +356,8 @@ def test_convex_diffuse_sphere_path_traced_equals_albedo_times_shading(tmp_path)
     The map is turned by 70 degrees; the opposite turn must fail by far,
     which pins the sign of the world rotation.
     """
-    from relight import presets
-    from relight.envmap import load_equirect
+    from relight.lighting import presets
+    from relight.lighting.envmap import load_equirect
 
     albedo = np.array([0.8, 0.5, 0.3])
     material = dict(LAMBERT_WHITE, **{"Base Color": (*albedo, 1.0)})
@@ -394,7 +395,7 @@ def test_specular_sphere_departs_from_albedo_times_shading(tmp_path):
 def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
     """The farm option reaches Cycles: OIDN with that guide prefilter, a finite image."""
     from cycles_support import sh_world
-    from farm import passes
+    from farm.rendering import passes
 
     sphere = icosphere(2, radius=0.5) + (LAMBERT_WHITE,)
     scene, _, _ = _cycles_sphere_scene(tmp_path, [sphere], 1, 64, resolution=16)
@@ -408,7 +409,7 @@ def test_path_traced_pass_uses_the_asked_denoise_prefilter(tmp_path, prefilter):
 def test_each_light_gets_a_fresh_world_with_an_importance_map_scaled_to_its_resolution(tmp_path):
     """Cycles reads the map settings only when it first syncs a World, so each light
     needs its own World; the old one is freed (no pile-up over a worker's scenes)."""
-    from farm import blender_scene
+    from farm.rendering import blender_scene
     import bpy
 
     sphere = icosphere(1, radius=0.5) + (LAMBERT_WHITE,)

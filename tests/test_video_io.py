@@ -1,4 +1,4 @@
-"""relight.video_io: video files and frame folders in and out, and how bad input fails."""
+"""relight.files.video_io: video files and frame folders in and out, and how bad input fails."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from PIL import Image
 
 from clip_support import write_video
 from relight.colour import srgb_decode, srgb_encode
-from relight.video_io import ClipInfo, FrameFolder, decode_srgb, frame_number, open_clip
-from relight.video_out import FrameFolderWriter, VideoWriter, encode_srgb8
+from relight.files.video_io import ClipInfo, FrameFolder, decode_srgb, frame_number, open_clip
+from relight.files.video_out import FrameFolderWriter, VideoWriter, encode_srgb8
 
 
 def _frames(n, h=36, w=48, seed=0):

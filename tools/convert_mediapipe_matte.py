@@ -1,4 +1,4 @@
-"""Convert MediaPipe's person networks (TFLite) to ONNX: the person matte of relight/matte.py.
+"""Convert MediaPipe's person networks (TFLite) to ONNX: the person matte of relight/person/matte.py.
 
 Not run by CI or the tests: the shipped results are relight/models/person_matte_*.onnx,
 recorded with their SHA-256 in relight/models/models.json. To reproduce them, in a
@@ -17,7 +17,7 @@ scratch virtual environment (never the project's: mediapipe pins numpy<2 and pro
         --output Identity_2:mask --sigmoid --fp16-weights \
         --out relight/models/person_matte_pose_segmentation.onnx
 
-The face mesh's landmark network (relight/face_mesh.py, issue 37; the wheel's short-range face
+The face mesh's landmark network (relight/network/face_mesh.py, issue 37; the wheel's short-range face
 detector converts the same way, --output regressors:boxes --output classificators:scores
 --signed-input, within 1.1e-3 of the TFLite reference, but is not shipped: the first crop comes
 from the person matte's head):

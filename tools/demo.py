@@ -64,10 +64,10 @@ def faces_sheet(model: Path, quality: str = "balanced") -> Path:
     """out/demo/faces_sheet.png: per photo, a row of the photo relit (input, a white directional
     light from FACE_DIRECTIONS, FACE_PRESETS) and a row of the same cut to its face box."""
     from evaluation import sheet
-    from relight import photo as photo_io
-    from relight import quality as presets
-    from relight.light import directional_light, sh_light
-    from relight.runtime import Relighter
+    from relight.files import photo as photo_io
+    from relight.network import quality as presets
+    from relight.lighting.light import directional_light, sh_light
+    from relight.network.runtime import Relighter
 
     preset = presets.preset(quality)
     relighter = Relighter(model, working_size=preset.working_size)
@@ -96,7 +96,9 @@ def relight_photo(model: Path) -> list[Path]:
 
 def relight_farm_scene() -> list[Path]:
     from evaluation import sheet
-    from relight import dataset, light, photo, prt
+    from relight.files import dataset, photo
+    from relight.lighting import light
+    from relight.network import prt
 
     scenes = OUT / "scenes"
     cmd = [sys.executable, "-m", "farm", "--out", str(scenes), "--scenes", "1", "--seed", "7",

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main(argv=None) -> int:
     from model.evaluate_clips import load_clips
     from relight.colour import srgb_encode
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("folder")

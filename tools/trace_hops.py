@@ -27,7 +27,7 @@ The counts are a fresh process's: run again in one process, the command skips wh
 first run cached (onnxruntime sessions, tables) and takes fewer hops.
 
 Modules are named by their file, relative to the folder that holds the `relight` package
-(`relight/photo.py`, or `relight/io/photo.py` after a move), so the tool counts the same
+(`relight/files/photo.py`, or `relight/io/photo.py` after a move), so the tool counts the same
 way after modules move into subpackages. The raw counts (every call, every module change
 of the call sequence) are printed too, for information: they depend on the photo's size;
 `--calls validate_coeffs` counts every call of the matching functions (how often a check ran).

@@ -1,4 +1,4 @@
-"""Why the farm's local pool is not concurrent.futures.ProcessPoolExecutor (farm/executors.py).
+"""Why the farm's local pool is not concurrent.futures.ProcessPoolExecutor (farm/execution/executors.py).
 
     .venv/bin/python benchmarks/studies/process_pool_timeout.py
 

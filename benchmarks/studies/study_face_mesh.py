@@ -1,4 +1,4 @@
-"""Issue 37, the face mesh: how much the face's own mesh (relight.face_mesh, relight.face_relight)
+"""Issue 37, the face mesh: how much the face's own mesh (relight.network.face_mesh, relight.network.face_relight)
 changes the relit faces of the bundled real photos. Not run by the tests.
 
     .venv/bin/python benchmarks/studies/study_face_mesh.py [--quality best] [--out out/face_mesh]
@@ -38,7 +38,7 @@ def psnr(a, b, w) -> float:
 
 
 def grid_of(layer, full: np.ndarray) -> np.ndarray:
-    from relight.resample import resize_linear
+    from relight.network.resample import resize_linear
 
     y0, y1, x0, x1 = layer.box
     return resize_linear(np.ascontiguousarray(full[y0:y1, x0:x1]), *layer.weight.shape)
@@ -66,8 +66,9 @@ def write_crops(folder: Path) -> int:
     ONNX network with the TFLite original on them)."""
     from PIL import Image
 
-    from relight import face_mesh, matte
-    from relight import photo as photo_io
+    from relight.network import face_mesh
+    from relight.person import matte
+    from relight.files import photo as photo_io
     from relight.colour import srgb_encode
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -93,11 +94,11 @@ def main(argv=None) -> int:
         return write_crops(args.crops)
     from PIL import Image
 
-    from relight import face_relight
-    from relight import photo as photo_io
-    from relight import quality
-    from relight.light import directional_light
-    from relight.runtime import Relighter
+    from relight.network import face_relight
+    from relight.files import photo as photo_io
+    from relight.network import quality
+    from relight.lighting.light import directional_light
+    from relight.network.runtime import Relighter
 
     preset = quality.preset(args.quality)
     relighter = Relighter(quality.model_path(preset.key), threads=2, working_size=preset.working_size)

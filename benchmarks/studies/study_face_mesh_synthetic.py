@@ -1,5 +1,5 @@
 """Issue 37, the face mesh on the farm's held-out renders: the relit face (the farm's head mask)
-against the path-traced truth, the network alone, with the face mesh's layer (relight.face_relight),
+against the path-traced truth, the network alone, with the face mesh's layer (relight.network.face_relight),
 and with the truth's normals in the same layer (the ceiling of any face geometry there).
 Not run by the tests.
 
@@ -35,10 +35,10 @@ def main(argv=None) -> int:
     p.add_argument("folder", type=Path)
     p.add_argument("--quality", default="best")
     args = p.parse_args(argv)
-    from relight import face_mesh, face_relight, quality
-    from relight.dataset import read_scene
-    from relight.resample import resize_linear
-    from relight.runtime import Relighter
+    from relight.network import face_mesh, face_relight, quality
+    from relight.files.dataset import read_scene
+    from relight.network.resample import resize_linear
+    from relight.network.runtime import Relighter
 
     preset = quality.preset(args.quality)
     relighter = Relighter(quality.model_path(preset.key), threads=2, working_size=preset.working_size)

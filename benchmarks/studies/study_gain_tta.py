@@ -6,7 +6,7 @@ balances (per-channel gains g: the photo times g is the same person under the li
 Each held-out pair (the runtime protocol of benchmarks/bench_quality.py: 256 px crop, true
 alpha as the mask, 128 px working size) is decomposed once; the network runs again on the
 working crop times each gain, its light divided back by the gain, and the runs are averaged
-as relight.tta averages (transport and light, albedo re-derived), then the level prior. Printed:
+as relight.network.tta averages (transport and light, albedo re-derived), then the level prior. Printed:
 relit PSNR, paired against the single run.
 """
 
@@ -37,8 +37,8 @@ SETS = {  # name: (gains, mirrored as well)
 
 
 def gain_runs(relighter, base, gains, mirrored: bool):
-    """relight.tta runs of the network on base's working crop times each gain (and mirrored)."""
-    from relight import tta
+    """relight.network.tta runs of the network on base's working crop times each gain (and mirrored)."""
+    from relight.network import tta
 
     done = list(tta.runs(relighter, base, ((1.0, True),))) if mirrored else []
     for g in gains:
@@ -59,11 +59,11 @@ def main(argv=None) -> int:
     p.add_argument("--pairs", type=int, default=None)
     p.add_argument("--model", default=str(ROOT / "relight/models/geometry.onnx"))
     args = p.parse_args(argv)
-    from model import metrics
-    from model.data import photo_pairs
-    from relight import tta
-    from relight.level import apply as apply_level
-    from relight.runtime import Relighter
+    from model.scoring import metrics
+    from model.samples.data import photo_pairs
+    from relight.network import tta
+    from relight.network.level import apply as apply_level
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(args.model, threads=2)
     scores = {name: [] for name in SETS}

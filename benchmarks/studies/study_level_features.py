@@ -4,7 +4,7 @@
         --calib data/calib128 --heldout data/heldout256 [--model relight/models/geometry.onnx] \\
         [--quality balanced|best] [--cache /tmp/level_rows.npz]
 
-The shipped LevelPrior (relight.level) regresses each channel's log2 relit gain on two
+The shipped LevelPrior (relight.network.level) regresses each channel's log2 relit gain on two
 numbers of the decomposition: the person's mean fitted shading (its log luminance l and
 colour x_c). This study records more candidate features per pair, and for each pair the
 sufficient statistics of its relit error as a function of per-channel gains
@@ -46,7 +46,7 @@ THUMB = 8  # the appearance features: 8 x 8 matte-weighted means of log albedo, 
 def thumbnails(d) -> np.ndarray:
     """[THUMB * THUMB * 8]: the person's log albedo (3), log shading luminance (1) and log photo (3)
     as matte-weighted means over an 8 x 8 grid of the crop, and the grid's matte coverage (1)."""
-    from relight.resample import resize_linear
+    from relight.network.resample import resize_linear
 
     a = np.asarray(d.alpha, np.float32)[..., None]
     logs = [np.log2(np.maximum(d.albedo, 1e-3)),
@@ -59,9 +59,9 @@ def thumbnails(d) -> np.ndarray:
 
 def pair_row(d, pair):
     """(features [len(FEATURES)], stats [4, 3]) of one decomposition and its pair."""
-    from model.metrics import interior_weight
-    from relight.level import features
-    from relight.sh import mean_luminance
+    from model.scoring.metrics import interior_weight
+    from relight.network.level import features
+    from relight.lighting.sh import mean_luminance
 
     l, x = features(d.transport, d.light, d.alpha)
     light = np.asarray(d.light, np.float64)
@@ -203,7 +203,7 @@ def main(argv=None) -> int:
     p.add_argument("--ridge", type=float, default=0.002)
     p.add_argument("--pairs", type=int, default=None, help="at most this many pairs of each set (a quick look)")
     args = p.parse_args(argv)
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     cache = Path(args.cache) if args.cache else None
     if cache and cache.exists():

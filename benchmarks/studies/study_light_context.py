@@ -10,12 +10,12 @@ the person alone? Same data, same budget, one small light estimator per input:
 
 Each estimator (on 64 px inputs: five stride-2 convolutions, width 32, global pooling, a linear layer to the
 order-4 SH light [25, 3]) is trained from the same seed on the same images (128 px, mirrored
-at random with the light mirrored: relight.tta.mirror_x) to the farm's true light, loss L1 of
+at random with the light mirrored: relight.network.tta.mirror_x) to the farm's true light, loss L1 of
 the coefficients plus L1 of the log DC (colour and level). On the held-out scenes (other
 people and maps) it reports the light's colour error (degrees between true and estimated DC
 RGB), level error (|stops| of the DC luminance), and relit PSNR when that light is the
 photo's light in the shipped network's decomposition (its transport, the albedo made
-photo-consistent with the light: relight.refine.consistent_albedo), beside the network's own
+photo-consistent with the light: relight.network.refine.consistent_albedo), beside the network's own
 light and the true light. Torch, CPU; writes nothing but its table.
 """
 
@@ -43,8 +43,8 @@ INPUT_SIZE = 64  # the estimators' input side: a light is low-frequency, and 4x 
 def encode(image: np.ndarray, alpha: np.ndarray, kind: str) -> np.ndarray:
     """[4, s, s] float32 at INPUT_SIZE: the chosen view of the photo (sRGB-encoded to [-1, 1])
     and the matte."""
-    from relight.prt import to_network_input
-    from relight.resample import resize_linear
+    from relight.network.prt import to_network_input
+    from relight.network.resample import resize_linear
 
     a = alpha[..., 0] if alpha.ndim == 3 else alpha
     image, a = resize_linear(image, INPUT_SIZE, INPUT_SIZE), np.clip(resize_linear(a, INPUT_SIZE, INPUT_SIZE), 0, 1)
@@ -61,9 +61,9 @@ def encode(image: np.ndarray, alpha: np.ndarray, kind: str) -> np.ndarray:
 
 def load(folder: Path, size: int, with_scene: bool = False):
     """(images [N, h, w, 3], alphas [N, h, w], lights [N, 25, 3], scene index per image)."""
-    from model.data_splits import find_scenes
-    from relight.dataset import read_scene
-    from relight.resample import resize_linear
+    from model.samples.data_splits import find_scenes
+    from relight.files.dataset import read_scene
+    from relight.network.resample import resize_linear
 
     images, alphas, lights, owners = [], [], [], []
     for i, path in enumerate(find_scenes(folder)):
@@ -102,7 +102,7 @@ def dc_level_error(est: np.ndarray, true: np.ndarray) -> np.ndarray:
 
 
 def train(torch, kind: str, data, steps: int, batch: int, seed: int):
-    from relight.tta import mirror_x
+    from relight.network.tta import mirror_x
 
     images, alphas, lights, _ = data
     x_all = np.stack([encode(im, a, kind) for im, a in zip(images, alphas)])
@@ -142,12 +142,12 @@ def relit_psnr(heldout_folder: Path, estimates: dict[str, np.ndarray]) -> dict[s
     estimate as the photo's light in the shipped network's decomposition (at 128 px)."""
     import dataclasses
 
-    from model import metrics
-    from model.data_splits import find_scenes
-    from model.metrics import interior_weight
-    from relight.dataset import read_scene
-    from relight.refine import consistent_albedo
-    from relight.runtime import Relighter
+    from model.scoring import metrics
+    from model.samples.data_splits import find_scenes
+    from model.scoring.metrics import interior_weight
+    from relight.files.dataset import read_scene
+    from relight.network.refine import consistent_albedo
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(threads=2)
     scores = {k: [] for k in estimates}
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     test_images, test_alphas, test_lights, _ = load(Path(args.heldout), SIZE)
     print(f"train: {len(data[0])} images of {len(set(data[3]))} scenes ({args.train}); "
           f"held out: {len(test_images)} images ({args.heldout}); {args.steps} steps of {args.batch}\n")
-    from relight.runtime import Relighter
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(threads=args.threads)
     network = np.stack([relighter.decompose(im, mask=a, working_size=SIZE).light

@@ -87,11 +87,11 @@ def rows(args) -> list[dict]:
 
 def colour_against_own_colour(evaluation: Path, data) -> tuple[float, float, float, float]:
     """(slope, intercept, correlation, the lights' mean own colour) of the pairs' light colour error (degrees) on the true input
-    light's own colour (its DC colour's angle from grey, model.metrics.colour_cast_deg): slope 1
+    light's own colour (its DC colour's angle from grey, model.scoring.metrics.colour_cast_deg): slope 1
     and intercept 0 is a light read as grey whatever its colour."""
-    from model.data_splits import find_scenes
-    from model.metrics import colour_cast_deg
-    from relight.dataset import light_map_name, read_sidecar
+    from model.samples.data_splits import find_scenes
+    from model.scoring.metrics import colour_cast_deg
+    from relight.files.dataset import light_map_name, read_sidecar
 
     lights = {}
     for path in find_scenes(data):

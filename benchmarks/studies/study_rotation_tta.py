@@ -5,8 +5,8 @@
 Turning the photo by an angle in the image plane is turning the world about the camera's view
 axis (+Y; image right is +X, up +Z): the network's answer on the turned crop, its transport
 turned back on the pixel grid and the SH of transport and light rotated back
-(relight.sh_rotation), is a second opinion like Best's mirrored and rescaled runs
-(relight.tta). Held-out pairs in the runtime protocol (benchmarks/bench_quality.py: 256 px
+(relight.lighting.sh_rotation), is a second opinion like Best's mirrored and rescaled runs
+(relight.network.tta). Held-out pairs in the runtime protocol (benchmarks/bench_quality.py: 256 px
 crops, true alpha, 128 px), level prior on, paired against the network once.
 """
 
@@ -33,11 +33,12 @@ def about_view_axis(degrees: float) -> np.ndarray:
 
 
 def turned_run(relighter, base, degrees: float, mirrored: bool = False):
-    """A relight.tta run of the network on base's working crop turned by `degrees`
+    """A relight.network.tta run of the network on base's working crop turned by `degrees`
     (counter-clockwise as displayed: scipy.ndimage.rotate's sense), in base's frame."""
     from scipy import ndimage
 
-    from relight import sh_rotation, tta
+    from relight.lighting import sh_rotation
+    from relight.network import tta
 
     small, matte = base.photo_working, base.alpha
     if mirrored:
@@ -61,11 +62,11 @@ def main(argv=None) -> int:
     p.add_argument("--degrees", type=float, default=10.0)
     p.add_argument("--model", default=str(ROOT / "relight/models/geometry.onnx"))
     args = p.parse_args(argv)
-    from model import metrics
-    from model.data import photo_pairs
-    from relight import tta
-    from relight.level import apply as apply_level
-    from relight.runtime import Relighter
+    from model.scoring import metrics
+    from model.samples.data import photo_pairs
+    from relight.network import tta
+    from relight.network.level import apply as apply_level
+    from relight.network.runtime import Relighter
 
     r = Relighter(args.model, threads=2)
     a = args.degrees

@@ -4,16 +4,16 @@
         [--model relight/models/geometry.onnx] [--pairs-per-scene 4]
 
 Skin albedo varies a lot in level between people but little in colour (the farm's skin
-tones: 3.4 degrees mean angle from their mean colour, farm/material_specs.py). So where the
+tones: 3.4 degrees mean angle from their mean colour, farm/synthesis/material_specs.py). So where the
 photo shows skin, the colour of photo / shading there says the light's colour. Each held-out
 scene's skin is found from the farm's buffers (the pixels where the camera sees the unclothed
-body itself: its depth within 2 mm of the rendered surface's, farm/body_pass.py), each photo
+body itself: its depth within 2 mm of the rendered surface's, farm/rendering/body_pass.py), each photo
 (path-traced image, true alpha as the mask) is decomposed at --working-size, and the
 network's light is recoloured per channel, its luminance kept, so that the photo-consistent
 albedo's mean over the skin has: the skin prior's colour (the farm's mean skin colour; a
 product would find the skin with a segmenter), or the true skin albedo's colour (the bound
 of the probe). Also the true mean albedo's colour over the whole person, for scale.
-Relit PSNR and scale-invariant PSNR to the scene's other lights (model.metrics, interior
+Relit PSNR and scale-invariant PSNR to the scene's other lights (model.scoring.metrics, interior
 pixels), and the light's colour error (degrees between DC colours).
 """
 
@@ -35,7 +35,7 @@ SKIN_DEPTH_TOLERANCE = 0.002  # metres: the rendered surface is the body itself
 
 def skin_prior_colour(samples: int = 20000, seed: int = 0) -> np.ndarray:
     """The farm's mean skin colour (linear RGB, luminance 1)."""
-    from farm.material_specs import sample_skin
+    from farm.synthesis.material_specs import sample_skin
 
     rng = np.random.default_rng(seed)
     colours = np.array([sample_skin(rng) for _ in range(samples)])
@@ -48,7 +48,7 @@ def recoloured(d, wanted_colour: np.ndarray, where: np.ndarray):
     has `wanted_colour`'s chromaticity, its luminance kept."""
     import dataclasses
 
-    from relight.refine import consistent_albedo
+    from relight.network.refine import consistent_albedo
 
     own = d.albedo[where].astype(np.float64).mean(axis=0)
     want = wanted_colour / luminance(wanted_colour) * luminance(own)
@@ -69,9 +69,9 @@ def face_disc(photo: np.ndarray, landmarks_model: str, shape) -> np.ndarray | No
 
     import onnxruntime as ort
 
-    from relight import matte
+    from relight.person import matte
     from relight.colour import srgb_encode
-    from relight.resample import area_shrink, sample_points
+    from relight.network.resample import area_shrink, sample_points
 
     small = srgb_encode(area_shrink(photo, matte.GUIDE_SIZE)).astype(np.float32)
     found = matte._detect(matte._session("detector"), small)
@@ -111,11 +111,11 @@ def main(argv=None) -> int:
     p.add_argument("--landmarks-model", default=None,
                    help="the pose segmentation network with its landmark output: adds the face probe's rows")
     args = p.parse_args(argv)
-    from model import metrics
-    from model.data_splits import find_scenes
-    from relight.dataset import read_scene
-    from relight.resample import resize_linear
-    from relight.runtime import Relighter
+    from model.scoring import metrics
+    from model.samples.data_splits import find_scenes
+    from relight.files.dataset import read_scene
+    from relight.network.resample import resize_linear
+    from relight.network.runtime import Relighter
 
     prior = skin_prior_colour()
     relighter = Relighter(args.model, threads=args.threads)

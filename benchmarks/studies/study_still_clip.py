@@ -16,7 +16,7 @@ and the stabilised clip measured again: what is left when a part is held is that
 Parts: the segmenter's matte (the network's input, its crop box and the composite's alpha), the
 crop box alone, the composite's matte alone, the network's light estimate, the level prior's
 gains, the shot's light, the transport, the albedo, the working photo (albedo and detail
-transfer). `--revision REV`: relight/clip.py and relight/clip_maps.py as they were at git
+transfer). `--revision REV`: relight/command/clip.py and relight/command/clip_maps.py as they were at git
 revision REV (e.g. the commit before a change), the rest of the project as it is. `--cli`: also
 the issue's own path, the frames written as PNG and relit by `relight video FRAMES --light studio`
 in a fresh process, the output PNGs read back and measured.
@@ -43,22 +43,22 @@ PARTS = ("matte", "box", "composite matte", "light estimate", "level prior", "sh
 
 
 def load_revision(rev: str) -> None:
-    """relight.clip_maps and relight.clip from git revision `rev`, in place of the working tree's."""
-    import relight
+    """relight.command.clip_maps and relight.command.clip from git revision `rev`, in place of the working tree's."""
+    import relight.command
 
     for name in ("clip_maps", "clip"):
-        source = subprocess.run(["git", "show", f"{rev}:relight/{name}.py"], cwd=REPO, check=True,
+        source = subprocess.run(["git", "show", f"{rev}:relight/command/{name}.py"], cwd=REPO, check=True,
                                 capture_output=True, text=True).stdout
-        module = types.ModuleType(f"relight.{name}")
-        module.__file__ = f"{rev}:relight/{name}.py"
+        module = types.ModuleType(f"relight.command.{name}")
+        module.__file__ = f"{rev}:relight/command/{name}.py"
         sys.modules[module.__name__] = module
         exec(compile(source, module.__file__, "exec"), module.__dict__)
-        setattr(relight, name, module)
+        setattr(relight.command, name, module)
 
 
 def _onto(value: np.ndarray, d0, d) -> np.ndarray:
     """A working-resolution map of decomposition d0 on d's grid."""
-    from relight.clip_maps import grid_axes, sample_separable
+    from relight.command.clip_maps import grid_axes, sample_separable
 
     if tuple(d0.box) == tuple(d.box) and d0.working_size == d.working_size:
         return value
@@ -95,10 +95,10 @@ class _Network:
 
 def held_clip(relighter, light, frames, hold: set, stability: float = 0.5):
     """The frames relit by a ClipRelighter with the parts in `hold` held at the first frame's."""
-    import relight.runtime as runtime
-    from relight.clip import ClipRelighter, _with_mask
-    from relight.matte import person_matte
-    from relight.quality import preset
+    import relight.network.runtime as runtime
+    from relight.command.clip import ClipRelighter, _with_mask
+    from relight.person.matte import person_matte
+    from relight.network.quality import preset
 
     method = preset("balanced").matte_method
 
@@ -157,7 +157,7 @@ def held_clip(relighter, light, frames, hold: set, stability: float = 0.5):
 def cli_ratio(frames, region, source: float) -> float:
     """The issue's path: PNG frames through `relight video --light studio` (Balanced, defaults)."""
     from clip_support import lowpass_flicker, write_frames
-    from relight.photo import read_photo
+    from relight.files.photo import read_photo
 
     with tempfile.TemporaryDirectory() as tmp:
         src = write_frames(Path(tmp) / "in", frames)
@@ -181,9 +181,9 @@ def main(argv=None) -> int:
     if args.revision:
         load_revision(args.revision)
     from clip_support import lowpass_flicker, noisy_still, still_region
-    from relight import quality
-    from relight.light import sh_light
-    from relight.runtime import Relighter
+    from relight.network import quality
+    from relight.lighting.light import sh_light
+    from relight.network.runtime import Relighter
 
     relighter = Relighter(quality.model_path("balanced"), threads=1)
     light = sh_light("studio", relighter.sh_order)

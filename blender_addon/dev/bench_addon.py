@@ -63,8 +63,10 @@ def main(argv=None) -> int:
 
     import bpy  # imported before the add-on modules that need it
 
-    from blender_addon import bl_images, bl_world, engine, light_sources, pixel_buffers, quality
-    from relight import presets
+    from blender_addon.blender import bl_images, bl_world
+    from blender_addon.worker import engine
+    from blender_addon.logic import light_sources, pixel_buffers, quality
+    from relight.lighting import presets
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_addon_"))
     model = Path(args.model) if args.model else _export_default_model(tmp)

@@ -54,7 +54,7 @@ def _inside(zip_path: str, model: str, user_dir: str) -> int:
     print("people found:", settings.people_found)
     out = Path(user_dir) / "layers.exr"
     print("save layers:", sorted(bpy.ops.relight_photo.save_layers(filepath=str(out), image_name=image.name)))
-    from relight.exr import read_exr
+    from relight.files.exr import read_exr
 
     print("EXR channels:", ", ".join(sorted(read_exr(out))))
     return 0

@@ -99,7 +99,7 @@ def main(argv=None) -> int:
         draw.text((6 + i * (tw + 4), 4), label, fill=(230, 230, 230))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    from relight.fileio import atomic_path
+    from relight.files.fileio import atomic_path
 
     with atomic_path(out, ".png") as partial:
         sheet.save(partial, optimize=True)

@@ -14,7 +14,7 @@ import json
 import os
 from pathlib import Path
 
-from relight.fileio import atomic_write_text, file_sha256  # file_sha256 is re-exported
+from relight.files.fileio import atomic_write_text, file_sha256  # file_sha256 is re-exported
 
 REGISTRY_FORMAT = "relight-models/1"
 REGISTRY_PATH = Path(__file__).with_name("models.json")

@@ -1,0 +1,369 @@
+"""The add-on's side of relight.network.runtime: open a model, decompose, relight, save.
+
+Plain Python (no bpy). Keeps one onnxruntime session per model file, and
+the measured network time per (model, working size) so the progress bar of
+the next run can estimate how far along it is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from ..logic import light_sources, pixel_buffers
+
+_RELIGHTERS: dict[tuple, object] = {}
+_SECONDS: dict[tuple, float] = {}   # (model path, working size) -> last network time
+
+
+def open_relighter(model_path: str):
+    """A cached relight.network.runtime.Relighter for the file (reopened when the file changes)."""
+    from relight.network.runtime import Relighter
+
+    p = Path(model_path)
+    if not p.is_file():
+        raise ValueError(f"The model file '{model_path}' does not exist.")
+    st = p.stat()
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    relighter = _RELIGHTERS.get(key)
+    if relighter is None:
+        try:
+            relighter = Relighter(p)
+        except ValueError as exc:
+            raise ValueError(f"The model '{p.name}' cannot be used: {_sentence(exc)}") from None
+        _RELIGHTERS.clear()  # one model in memory at a time
+        _RELIGHTERS[key] = relighter
+    return relighter
+
+
+class Cancelled(Exception):
+    """The user pressed Esc: the work stopped where it was."""
+
+
+class CancelToken:
+    """Shared by the main thread (cancel) and the worker (check); terminates a running inference."""
+
+    def __init__(self):
+        self._event = threading.Event()
+        self._run_options = []
+        self.stopped_inference = False  # True when cancel() ended a network pass while it ran
+
+    def cancel(self) -> None:
+        self._event.set()
+        for options in list(self._run_options):
+            options.terminate = True  # onnxruntime stops the running session.run and raises
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def check(self) -> None:
+        if self._event.is_set():
+            raise Cancelled()
+
+    def run_options(self):
+        import onnxruntime as ort
+
+        options = ort.RunOptions()
+        self._run_options.append(options)
+        if self._event.is_set():
+            options.terminate = True
+        return options
+
+
+def known_sh_order(model_path: str) -> int | None:
+    """The SH order of a model without opening it: an open session's, else the model
+    registry's metadata for a shipped file; None when only opening it would tell."""
+    p = Path(model_path)
+    for (path, _mtime, _size), relighter in _RELIGHTERS.items():
+        if path == str(p.resolve()):
+            return int(relighter.sh_order)
+    from relight import models
+
+    try:
+        registry = models.load_registry(models.REGISTRY_PATH)
+    except (OSError, ValueError):
+        return None
+    for entry in registry.get("models", {}).values():
+        if (models.REGISTRY_PATH.parent / entry["file"]).resolve() == p.resolve():
+            order = entry.get("metadata", {}).get("relight.sh_order")
+            return int(order) if order is not None else None
+    return None
+
+
+def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_size: int,
+              cancel: CancelToken | None = None, augment=(), refine: int = 0,
+              augment_until_agreed: float | None = None, ensemble=(), matte: str = "network",
+              matte_method: str = "ensemble"):
+    """Run the network (the slow step; called on the worker thread): once, or once per
+    augmentation of the quality preset (and per network of its ensemble), and refine the
+    light when it says so.
+
+    Without `mask`, `matte` says where the matte comes from (Relighter.decompose): "network", the
+    relighting network's own alpha (the panel's Network Matte), or "person", the person matte
+    (`matte_method`: its segmenter), as `relight image --light-from` finds the person in the
+    photo whose light it takes.
+
+    With `cancel`, each inference runs with onnxruntime RunOptions that
+    CancelToken.cancel() terminates (relight.network.session.cancellable, on this network and the
+    ensemble's), so Esc stops even a running network pass.
+    """
+    start = time.monotonic()
+    from relight.network.session import cancellable
+
+    networks = [relighter] + [relighter.member(name) for name in ensemble]
+    if cancel is not None:
+        cancel.check()
+    try:
+        # the panel's mask modes decide the matte: AUTO passes the person matte as `mask`,
+        # NETWORK passes None for the network's own alpha; another photo's light, matte="person"
+        with cancellable(networks if cancel is not None else (), cancel.run_options() if cancel else None):
+            decomposition = relighter.decompose(photo, mask=mask, working_size=working_size, matte=matte,
+                                                matte_method=matte_method, augment=augment, refine=refine,
+                                                augment_until_agreed=augment_until_agreed, ensemble=ensemble)
+    except Exception:
+        if cancel is not None and cancel.cancelled:
+            cancel.stopped_inference = True  # onnxruntime gave up the run it was in
+            raise Cancelled() from None
+        raise
+    _SECONDS[(str(relighter.model_path), working_size, tuple(augment), refine, tuple(ensemble))] = \
+        time.monotonic() - start
+    return decomposition
+
+
+NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image Alpha or Other Image, "
+             "or use a photo where a person is clearly visible.")
+
+
+def person_matte(photo: np.ndarray, person: int, method: str = "ensemble") -> tuple[np.ndarray, int]:
+    """(soft alpha [H, W], how many people the photo shows) for person `person`
+    (1 = the largest), from relight.person.matte (`method`: its segmenter); errors in the artist's words."""
+    from relight.person.matte import NoPersonError, PersonIndexError
+    from relight.person.matte import person_matte as find
+
+    try:
+        found = find(photo, person, method=method)
+    except NoPersonError:
+        raise ValueError(NO_PERSON) from None
+    except PersonIndexError as exc:
+        count = exc.count
+        raise ValueError(f"Person {person} is chosen, but the photo shows only {count} "
+                         f"{'person' if count == 1 else 'people'}: choose another in the Person list.") from None
+    return found.alpha, found.count
+
+
+def preview_decomposition(decomposition, long_side: int):
+    """The decomposition over a copy of the photo scaled to `long_side` (a screen), for
+    relighting while a dial moves; None when the photo is not much larger than that.
+
+    Same network outputs (working resolution), so the preview is the full
+    result, only smaller.
+    """
+    from relight.network.decomposition import Decomposition
+    from relight.network.resample import resize_linear
+
+    H, W = decomposition.size
+    if max(H, W) <= 1.25 * long_side:
+        return None
+    s = long_side / max(H, W)
+    h, w = max(1, round(H * s)), max(1, round(W * s))
+    box = decomposition.box.rescaled((H, W), (h, w))
+    # every k-th pixel first (k = half the reduction): the area filter then reads
+    # 1/k^2 of the photo; a preview's slight aliasing is the price of ~10x less work
+    k = max(1, int(min(H / h, W / w) // 2))
+    mask = None
+    if decomposition.mask is not None:
+        mask = np.clip(resize_linear(decomposition.mask[::k, ::k], h, w), 0.0, 1.0)
+    return Decomposition(
+        albedo=decomposition.albedo, transport=decomposition.transport, residual=decomposition.residual,
+        light=decomposition.light, alpha=decomposition.alpha, box=box, working_size=decomposition.working_size,
+        photo=resize_linear(decomposition.photo[::k, ::k], h, w), photo_working=decomposition.photo_working,
+        mask=mask, sh_order=decomposition.sh_order)
+
+
+def coefficients(decomposition, light, rotation_deg: float) -> np.ndarray:
+    """The SH coefficients a relight of `decomposition` takes: `light` (a relight.lighting.light.SHLight,
+    SH coefficients or another photo's Decomposition) at the model's order, turned by
+    rotation_deg about world Z."""
+    from relight.lighting.light import SHLight
+
+    cache = light_sources.light_cache()
+    return SHLight.resolve(light, decomposition.sh_order, cache=cache).at(rotation_deg, cache)
+
+
+def relit_rgba(decomposition, light, rotation_deg: float, exposure_ev: float, strength: float,
+               out: np.ndarray | None = None, orientation: int = 1) -> np.ndarray:
+    """The relit photo blended by `strength`, as a buffer in Blender's layout (worker-safe).
+
+    Composited straight into the buffer (RGB of RGBA, bottom row first): no full-size
+    RGB image besides it (288 MB at 24 MP). `orientation`: the photo file's EXIF orientation;
+    the decomposition is upright, the buffer holds it as the file stores it (as Blender shows it)."""
+    h, w = decomposition.size
+    rgba = pixel_buffers.BUFFERS.take(h * w * 4) if out is None else out
+    view = pixel_buffers.blender_view(rgba, (h, w), orientation)
+    decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev,
+                          out=view[..., :3])
+    view[..., 3] = 1.0
+    pixel_buffers.blend_into(view[..., :3], decomposition.photo, strength)
+    return rgba
+
+
+# ------------------------------------------------------------------ saved decompositions
+
+SAVE_FORMAT = "relight-photo-decomposition/1"
+_HALF = ("albedo", "transport", "residual", "photo_working")  # fp16: ample for 8-bit photos and light
+
+
+def save_decomposition(path: str | os.PathLike, decomposition, meta: dict, preview=None) -> Path:
+    """Write the decomposition (network outputs at working resolution, no photo; the
+    preview's screen-sized photo when given) as a compressed .npz, atomically; `meta`
+    (plain values) is stored with it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {name: getattr(decomposition, name).astype(np.float16 if name in _HALF else np.float32)
+              for name in (*_HALF, "alpha", "light")}
+    info = dict(meta, format=SAVE_FORMAT, box=list(decomposition.box),
+                working_size=list(decomposition.working_size), sh_order=int(decomposition.sh_order))
+    if preview is not None:
+        # the screen-sized photo (and mask) too: reopening shows a relit preview
+        # and the dials work before the full photo has been read again
+        arrays["preview_photo"] = preview.photo.astype(np.float16)
+        if preview.mask is not None:
+            arrays["preview_mask"] = preview.mask.astype(np.float16)
+        info["preview_box"] = list(preview.box)
+    from relight.files.fileio import atomic_path
+
+    with atomic_path(path, ".npz") as tmp:
+        write_npz(tmp, dict(meta=np.array(json.dumps(info)), **arrays))
+    return path
+
+
+def write_npz(path, arrays: dict) -> None:
+    """The file np.savez_compressed writes (np.load reads it), with the zip closed on every way out.
+
+    numpy 1.x (bpy 4.2 to 5.0's) leaves its ZipFile open when a write fails; on a full disk its
+    __del__ fails again, and Python prints "Exception ignored in ZipFile.__del__ ... [Errno 28]"
+    once per file. Here the first error is the one raised, and the file is let go of."""
+    import zipfile
+
+    from numpy.lib import format as npy_format
+
+    archive = zipfile.ZipFile(path, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True)
+    try:
+        for name, value in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                npy_format.write_array(member, np.asanyarray(value), allow_pickle=False)
+    except BaseException:
+        try:
+            archive.close()  # it lets go of the file even when its last write fails too
+        except (OSError, ValueError):
+            pass  # the disk is still full: the error raised below says so
+        raise
+    archive.close()
+
+
+def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:
+    """(arrays as float32, meta) of a saved decomposition; ValueError when unreadable."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            arrays = {k: data[k].astype(np.float32) for k in data.files if k != "meta"}
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"The saved relight '{Path(path).name}' cannot be read ({_sentence(exc)})") from None
+    if meta.get("format") != SAVE_FORMAT:
+        raise ValueError(f"The saved relight '{Path(path).name}' is from another version of the add-on.")
+    return arrays, meta
+
+
+def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None,
+                          box: tuple | None = None):
+    """A relight.network.decomposition.Decomposition from saved arrays over the (re-read) photo."""
+    from relight.network.decomposition import Decomposition
+
+    return Decomposition(albedo=arrays["albedo"], transport=arrays["transport"], residual=arrays["residual"],
+                         light=arrays["light"], alpha=arrays["alpha"], box=tuple(box or meta["box"]),
+                         working_size=tuple(meta["working_size"]), photo=photo,
+                         photo_working=arrays["photo_working"], mask=mask, sh_order=int(meta["sh_order"]))
+
+
+def saved_preview(arrays: dict, meta: dict):
+    """The preview decomposition kept by save_decomposition, or None."""
+    if "preview_photo" not in arrays:
+        return None
+    return rebuild_decomposition(arrays, meta, np.ascontiguousarray(arrays["preview_photo"]),
+                                 arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
+
+
+def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0,
+                     augment_until_agreed: float | None = None, ensemble=()) -> float | None:
+    """How long the last run of this model at this size (and test-time work) took, if there was one."""
+    return _SECONDS.get((str(Path(model_path)), working_size, tuple(augment), refine, tuple(ensemble)))
+
+
+def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:
+    """The photo relit, linear [H, W, 3]: the person composited over the untouched background."""
+    return decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev)
+
+
+class LayerMaps(Mapping):
+    """albedo, shading, residual [H, W, 3] under the target light and alpha [H, W], each made
+    when it is asked for and not kept: relight.files.photo.write_layers_exr copies each into its
+    channels, so one full-size map is alive at a time (288 MB at 24 MP, not 960 for all four)."""
+
+    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float):
+        from relight.network.decomposition import LAYER_NAMES
+
+        self._names = LAYER_NAMES
+        self._decomposition, self._exposure = decomposition, exposure_ev
+        self._coeffs = coefficients(decomposition, light, rotation_deg)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._names:
+            raise KeyError(name)
+        d = self._decomposition
+        if name == "residual" and not d.has_residual:  # E is zero (the geometry model): E . L' is zero
+            return np.zeros((*d.size, 3), np.float32)
+        return d.layer(name, self._coeffs, self._exposure)
+
+    def __iter__(self):
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+
+def save_layers(path: str, relit: np.ndarray, layer_maps: Mapping) -> Path:
+    """Multi-layer EXR (Blender's render-layer naming), written atomically; compressed by
+    OpenEXR's threads, one a core (it compresses on one thread by default: 14.5 s of a 24 MP
+    photo's 16 s Save Layers on this 2-core machine)."""
+    from relight.files.photo import write_layers_exr
+    from relight.network.session import cores_available
+
+    import OpenEXR
+
+    if getattr(OpenEXR, "global_thread_count", lambda: 1)() == 0:
+        OpenEXR.set_global_thread_count(cores_available())
+    # as it is: a contiguous copy of a 24 MP relit photo is 288 MB (the writer copies channels it
+    # does not find contiguous; work.save_layers_work hands it planes)
+    return write_layers_exr(path, np.asarray(relit, dtype=np.float32), layer_maps)
+
+
+def user_error(exc: BaseException | None) -> Exception:
+    """A worker-thread exception as a one-sentence ValueError for self.report."""
+    if isinstance(exc, ValueError):
+        return ValueError(_sentence(exc))
+    if isinstance(exc, MemoryError):
+        return ValueError("Out of memory while running the network: choose a lower quality.")
+    return ValueError(f"The network failed ({type(exc).__name__}: {_sentence(exc)})")
+
+
+def _sentence(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    text = lines[0] if lines else type(exc).__name__
+    return text if text.endswith(".") else text + "."

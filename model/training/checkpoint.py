@@ -1,0 +1,89 @@
+"""Save and load RelightNet weights as safetensors + a JSON config (no pickle).
+
+The config travels twice: inside the safetensors header metadata (so one file
+is enough) and as a `<stem>.json` sidecar for people and tools to read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from model.networks.network import RelightNet
+from relight.files.fileio import atomic_path, atomic_write_text
+
+FORMAT = "relightnet/1"
+CONFIG_KEYS = ("sh_order", "width", "depth", "with_residual", "with_matte", "decomposition", "tstar",
+               "decoder_width", "full_res_convs", "shared_parts", "separable")
+
+
+def save_model(model: RelightNet, path: str | os.PathLike, extra: dict | None = None) -> Path:
+    """Write `path` (.safetensors) and its `.json` sidecar atomically; return the weights path."""
+    path = Path(path)
+    if path.suffix != ".safetensors":
+        raise ValueError(f"save_model: path must end in .safetensors, got {path}")
+    meta = {"format": FORMAT, "config": model.config(), **(extra or {})}
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
+    header = {"relightnet": json.dumps(meta, sort_keys=True)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".safetensors") as tmp:
+        save_file(tensors, str(tmp), metadata=header)
+    sidecar = path.with_suffix(".json")
+    text = json.dumps(meta, indent=2, sort_keys=True) + "\n"
+    atomic_write_text(sidecar, text)
+    return path
+
+
+def read_metadata(path: str | os.PathLike) -> dict:
+    """The JSON metadata stored in a checkpoint's safetensors header."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"checkpoint not found: {path}")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            header = f.metadata() or {}
+    except Exception as exc:  # safetensors raises its own error types on corrupt files
+        raise ValueError(f"not a safetensors checkpoint: {path} ({exc})") from None
+    if "relightnet" not in header:
+        raise ValueError(f"{path}: safetensors file has no RelightNet config")
+    meta = json.loads(header["relightnet"])
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: unknown checkpoint format {meta.get('format')!r}")
+    return meta
+
+
+def build_network(config: dict) -> torch.nn.Module:
+    """The network a checkpoint config describes: GeometryNet when config["arch"] is
+    "geometry", else RelightNet (checkpoints from before the geometry-first model
+    have no "arch")."""
+    from model.networks.geometry import ARCH as GEOMETRY, GeometryNet
+
+    config = dict(config)
+    if config.pop("arch", None) == GEOMETRY:
+        return GeometryNet(**config)
+    unknown = set(config) - set(CONFIG_KEYS)
+    if unknown:
+        raise ValueError(f"unknown config keys {sorted(unknown)}")
+    return RelightNet(**config)
+
+
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> torch.nn.Module:
+    """Rebuild the network from a checkpoint written by save_model, in eval mode."""
+    meta = read_metadata(path)
+    try:
+        model = build_network(meta["config"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    from safetensors.torch import load_file
+
+    state = load_file(str(path), device=str(device))
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise ValueError(f"{path}: weights do not match config (missing {missing[:3]}, "
+                         f"unexpected {unexpected[:3]})")
+    return model.to(device).eval()

@@ -1,0 +1,404 @@
+"""`relight video`: relight the person in a clip, frame by frame, stable over time.
+
+    relight video INPUT (--light HDR_OR_PRESET | --light-from PHOTO) [--rotate DEG] [--exposure EV]
+                  [--no-normalize] --out OUTPUT [--format png|exr] [--layers] [--fps RATE]
+                  [--stability 0..1] [--filter ema|flow] [--resume]
+                  [--matte person|network] [--person N] [--model PATH] [--quality draft|balanced|best]
+                  [--threads N] [--max-pixels N]
+
+INPUT is a video file (.mp4 .mov .m4v .mkv .webm .avi) or a folder of numbered
+frames (PNG/JPEG/TIFF/EXR; a frame's alpha channel is its person mask); OUTPUT a
+video file (.mp4 .mov .m4v .mkv .webm: the input's frame rate, size and audio)
+or a folder of frames (PNG, or EXR with linear values). The light and photo
+options work as in `relight image`; relight.command.clip keeps the light, maps and matte
+steady (--stability 0: every frame on its own). A frame without a person is
+written unchanged (and listed). Frames go to a folder atomically, one whole
+file each; a video is written to a temporary file that replaces OUTPUT only
+when complete. --resume continues an interrupted job, skipping the frames
+already written and giving exactly the frames an uninterrupted run gives (a
+video output keeps its frames in OUTPUT.frames/ until it is encoded). Ctrl-C
+stops after the frame in progress is dropped. Exit 0 done, 1 the job failed
+(disk full, ...), 2 bad input, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import signal
+import sys
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+EXIT_FAILED = 1
+EXIT_INTERRUPTED = 130
+CHECKPOINT_EVERY = 24   # frames between saved filter states (a resume re-runs at most this many)
+JOB_FILE = ".relight-video.json"
+STATE_FILE = ".relight-video-state.npz"
+WORK_SUFFIX = ".frames"  # OUTPUT.mp4.frames/: a resumable video job's frames
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the `video` sub-command to the `relight` command's subparsers."""
+    from relight.command.cli_args import finite_float
+    from relight.command.cli_image import add_relight_parser
+    from relight.command.clip import DEFAULT_STABILITY, FILTER_MODES
+
+    p = add_relight_parser(subparsers, "video", help="relight the person in a video or a folder of frames",
+                           description=__doc__.split("\n\n")[0], source="input",
+                           source_help="video file or folder of numbered frames")
+    # the shared --threads counts frames analysed at once here (each network on one thread)
+    p._option_string_actions["--threads"].help = ("frames analysed at once, each network on one onnxruntime "
+                                                  "thread (default: the cores available)")
+    p.add_argument("--out", required=True,
+                   help="output video (.mp4 .mov .m4v .mkv .webm) or folder of frames")
+    p.add_argument("--format", choices=("png", "exr"), default=None,
+                   help="frames written to a folder: png (8-bit sRGB) or exr (linear); default exr for EXR "
+                        "input frames, else png")
+    p.add_argument("--layers", action="store_true",
+                   help="EXR frames with the layers for Blender (Relit, Albedo, Shading, Residual, Alpha)")
+    p.add_argument("--fps", type=_fps, default=None,
+                   help="frame rate of a folder of frames (default 24; a video keeps its own)")
+    p.add_argument("--stability", type=finite_float(0.0, 1.0, what="stability"), default=DEFAULT_STABILITY,
+                   help=f"0: every frame on its own; 1: the longest smoothing (more lag); default {DEFAULT_STABILITY}")
+    p.add_argument("--filter", choices=FILTER_MODES, default="ema",
+                   help="how the maps follow motion: ema (default) or flow (OpenCV's DIS flow; needs "
+                        "opencv-python-headless)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted job with the same settings")
+    p.set_defaults(func=run_video)
+    return p
+
+
+def _fps(text: str) -> Fraction:
+    from relight.files.video_io import MAX_FPS
+
+    try:
+        value = Fraction(text)
+    except (ValueError, ZeroDivisionError):
+        raise argparse.ArgumentTypeError(f"invalid frame rate: {text!r} (e.g. 24, 29.97, 30000/1001)") from None
+    if not 0 < value <= MAX_FPS:
+        raise argparse.ArgumentTypeError(f"frame rate must be in (0, {MAX_FPS}], got {text}")
+    return value
+
+
+def _plan(args, info):
+    """(kind "video" | "frames", output path, frames folder or None, frame format)."""
+    from relight.command.cli_output import check_folder_name, check_not_an_input, light_inputs
+    from relight.files.fileio import same_file
+    from relight.files.video_out import OUTPUT_VIDEO_SUFFIXES
+
+    out = Path(args.out)
+    source = Path(args.input)
+    if source.is_dir() and out.exists() and same_file(out, source):
+        raise ValueError("--out must differ from the input folder")
+    check_not_an_input(out, {"input": source, **light_inputs(args)})
+    if out.suffix.lower() in OUTPUT_VIDEO_SUFFIXES:
+        if args.layers or args.format is not None:
+            raise ValueError("--layers and --format apply to a folder of frames, not to a video output")
+        if not out.parent.is_dir():
+            raise ValueError(f"output folder does not exist: {out.parent}")
+        if out.is_dir():
+            raise ValueError(f"--out {out} is a folder")
+        work = out.with_name(out.name + WORK_SUFFIX) if args.resume else None
+        return "video", out, work, "png"
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder (a video output ends in "
+                         f"{', '.join(OUTPUT_VIDEO_SUFFIXES)})")
+    check_folder_name(out, f"videos {' '.join(OUTPUT_VIDEO_SUFFIXES)}, or a folder of PNG or EXR frames")
+    if not out.parent.is_dir():
+        raise ValueError(f"output folder does not exist: {out.parent}")
+    fmt = args.format or ("exr" if args.layers or (info.kind == "frames" and _exr_frames(source)) else "png")
+    if args.layers and fmt != "exr":
+        raise ValueError("--layers writes multi-layer EXR frames: leave --format out or give --format exr")
+    return "frames", out, out, fmt
+
+
+def _exr_frames(folder: Path) -> bool:
+    return any(p.suffix.lower() == ".exr" for p in folder.iterdir())
+
+
+def _fingerprint(args, info, relighter) -> dict:
+    """What decides the frames: a resumed job must have the same."""
+    return {"input": str(Path(args.input).resolve()), "frames": info.frames, "size": [info.width, info.height],
+            "light": args.light, "light_from": args.light_from and str(Path(args.light_from).resolve()),
+            "rotate": args.rotate, "exposure": args.exposure, "normalize": args.normalize,
+            "model": relighter.sha256, "working_size": relighter.working_size, "matte": args.matte,
+            "person": args.person, "stability": args.stability, "filter": args.filter,
+            "format": args.format, "layers": args.layers}
+
+
+class _Frames:
+    """The output frames of the job: a folder writer plus the resume bookkeeping beside them
+    (JOB_FILE: the settings, and the frame count once the job is complete; STATE_FILE: the
+    filter state at the last checkpoint)."""
+
+    def __init__(self, folder: Path, names, fmt: str, fingerprint: dict, resume: bool, video: bool = False):
+        import json
+
+        from relight.files.video_out import FrameFolderWriter
+
+        self.folder = folder
+        self.writer = FrameFolderWriter(folder, fmt, names, video_codes=video)
+        self.fingerprint = fingerprint
+        self.created = not folder.exists()
+        folder.mkdir(parents=True, exist_ok=True)
+        self.done = self.writer.written()
+        job = folder / JOB_FILE
+        self.had_job = job.is_file()
+        if self.done and not resume:
+            raise ValueError(f"{folder} already holds {len(self.done)} frames of this clip: --resume continues "
+                             "that job, or choose another output")
+        self.start, self.state, self.complete = 0, None, None
+        if resume and job.is_file():
+            before = json.loads(job.read_text(encoding="utf-8"))
+            self.complete = before.pop("complete_frames", None)
+            changed = sorted(k for k in set(before) | set(fingerprint) if before.get(k) != fingerprint.get(k))
+            if changed:
+                raise ValueError(f"--resume: the frames in {folder} were made with other settings "
+                                 f"({', '.join(changed)} differ): rerun them with those, or use another output")
+            state_path = folder / STATE_FILE
+            if state_path.is_file():
+                with np.load(state_path) as saved:
+                    state = {k: saved[k] for k in saved.files}
+                self.start = int(state.pop("next_frame"))
+                self.state = state
+        from relight.files.fileio import atomic_write_json
+
+        atomic_write_json(job, fingerprint)
+
+    def checkpoint(self, next_frame: int, state: dict) -> None:
+        """Save the filter state after frame next_frame - 1 (every frame before it is written)."""
+        from relight.files.fileio import atomic_path
+
+        with atomic_path(self.folder / STATE_FILE, ".npz") as tmp:
+            np.savez_compressed(tmp, next_frame=np.int64(next_frame), **state)
+
+    def discard_if_empty(self) -> None:
+        """The job failed before any frame was written: remove what it made (its settings, the
+        folder if it made it), so a refused input leaves nothing."""
+        if self.writer.written():
+            return
+        if not self.had_job:
+            (self.folder / JOB_FILE).unlink(missing_ok=True)
+            (self.folder / STATE_FILE).unlink(missing_ok=True)
+        if self.created:
+            try:
+                self.folder.rmdir()
+            except OSError:
+                pass  # something else is in it now: not ours to remove
+
+    def finish(self, frames: int) -> None:
+        """The job is complete: its settings stay (a later --resume finds nothing to do), the state goes."""
+        from relight.files.fileio import atomic_write_json
+
+        atomic_write_json(self.folder / JOB_FILE, {**self.fingerprint, "complete_frames": frames})
+        (self.folder / STATE_FILE).unlink(missing_ok=True)
+
+
+def _empty_layers(frame: np.ndarray) -> dict:
+    zeros = np.zeros_like(frame)
+    return {"albedo": zeros, "shading": zeros, "residual": zeros, "alpha": np.zeros(frame.shape[:2], np.float32)}
+
+
+def _terminate_as_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _on_sigterm(handler):
+    """Set SIGTERM's handler (main thread only: elsewhere Python cannot); returns the previous one."""
+    import threading
+
+    if handler is None or threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
+
+
+def run_video(args) -> int:
+    """Entry point of `relight video` (argparse namespace from register())."""
+    from relight.command.cli_output import claim_output
+    from relight.files.video_io import open_clip
+
+    if args.mask is not None:
+        raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
+                         "matte find the person in each frame")
+    if args.refine:
+        raise ValueError("--refine applies to photos (relight image, relight light): a clip's light is the shot's, "
+                         "held steady over its frames (--stability)")
+    clip = open_clip(args.input, args.fps, args.max_pixels)
+    info = clip.info
+    kind, out, folder, fmt = _plan(args, info)
+    with claim_output(out, "relight video", folders=[folder] if folder is not None else []):
+        return _run(args, clip, info, kind, out, folder, fmt)
+
+
+def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) -> int:
+    """run_video once it holds the output's lock."""
+    from relight.network import quality
+    from relight.command.cli_image import open_relighter, target_light
+    from relight.command.clip import ClipRelighter
+    from relight.network.session import cores_available
+    from relight.files.video_io import frame_spans
+    from relight.files.video_out import VideoWriter
+
+    # frames are analysed `workers` at once, each network on one thread: on few cores this beats
+    # onnxruntime's intra-op threads on these small inputs (docs/BENCHMARKS.md)
+    workers = args.threads or cores_available()
+    relighter = open_relighter(argparse.Namespace(**{**vars(args), "threads": 1}))
+    light = target_light(args, relighter)
+    preset = quality.preset(args.quality)
+    runner = ClipRelighter(relighter, light, args.exposure, matte=args.matte, person=args.person,
+                           stability=args.stability, mode=args.filter, threads=1,
+                           matte_method=preset.matte_method, augment=preset.augment)
+    if args.filter == "flow":
+        from relight.command.clip_maps import dis_flow
+
+        dis_flow(np.zeros((8, 8), np.float32), np.zeros((8, 8), np.float32))  # OpenCV missing: fail now
+    names = info.names if info.kind == "frames" and kind == "frames" else None  # None: frame_000001, ...
+    frames = None
+    if folder is not None:
+        frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume, video=kind == "video")
+        if frames.complete is not None and len(frames.done) >= frames.complete and kind == "frames":
+            frames.finish(frames.complete)
+            print(f"all {frames.complete} frames are already in {out}")
+            return 0
+        if frames.state is not None:
+            runner.load_state(frames.state)
+    video = None
+    previous = _on_sigterm(_terminate_as_interrupt)
+    try:
+        if kind == "video" and folder is None:
+            video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
+        done, written, nobody, clamped = _loop(clip, runner, frames, video, args, info, workers)
+        if video is not None:
+            video.close()
+            video = None
+        elif kind == "video":
+            _encode_folder(frames, info, out)
+        else:
+            frames.finish(frames.start + done)
+    except KeyboardInterrupt:
+        if video is not None:
+            video.abort()
+        where = f"whole frames are in {folder}; rerun with --resume to continue" if folder is not None else \
+            f"no video written (with --resume an interrupted video job keeps its frames in {out}{WORK_SUFFIX})"
+        print(f"relight video: interrupted: {where}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except OSError as exc:
+        if video is not None:
+            video.abort()
+        full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        todo = "free space" if full else "make the output writable"
+        kept = f"; the frames written are whole: {todo} and rerun with --resume" if folder is not None else \
+            f"; no video written: {todo} and rerun"
+        print(f"relight video: error: {'output disk full' if full else 'cannot write'} ({exc}){kept}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    except BaseException as exc:
+        if video is not None:
+            video.abort()
+        if frames is not None and isinstance(exc, (ValueError, MemoryError)):
+            frames.discard_if_empty()  # refused input: leave nothing
+        raise
+    finally:
+        _on_sigterm(previous)
+    if nobody:
+        print(f"relight video: no person in frames {frame_spans(nobody)}: written unchanged", file=sys.stderr)
+    if clamped > 0.01:
+        print(f"relight video: warning: negative light (SH ringing) clamped to 0 on up to {clamped:.1%} of the "
+              "person", file=sys.stderr)
+    kept = len(frames.done) if frames is not None else 0
+    print(f"relit {written} frames into {out}" + (f" ({kept} were there already)" if kept else ""))
+    return 0
+
+
+def _loop(clip, runner, frames, video, args, info, workers: int):
+    """Relight every frame from the resume point: `workers` frames analysed at once (matte and
+    network, ClipRelighter.analyse), finished and written in order; (frames processed, frames
+    written, frames without a person, largest clamped share)."""
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    from relight.command.cli_output import Progress
+    from relight.files.video_io import frame_spans, prefetch
+
+    start = frames.start if frames is not None else 0
+    bar = Progress(info.frames, command="relight video", unit="frame", initial=start)
+    nobody, clamped, count, written, last = [], 0.0, 0, 0, start - 1
+    committed = None  # (next frame, the filter state once every frame before it is written)
+
+    def emit(frame, analysis):
+        nonlocal clamped, count, written, last, committed
+        index = frame.index
+        skip = frames is not None and index in frames.done
+        result = runner.finish(analysis, layers=args.layers and not skip)
+        if not result.person:
+            nobody.append(index)
+            bar.set_postfix(no_person=len(nobody))
+        clamped = max(clamped, result.clamped)
+        if frames is not None:
+            if not skip:
+                layers = (result.layers or _empty_layers(result.image)) if args.layers else None
+                frames.writer.write(index, result.image, layers, frame.codes, result.changed)
+                written += 1
+            # a snapshot (the filters replace their arrays, never change them in place): an
+            # interrupt during the next frame's finish() or write() must not save that frame's state
+            committed = (index + 1, runner.state())
+            if (index + 1) % CHECKPOINT_EVERY == 0:
+                frames.checkpoint(*committed)
+        else:
+            video.write(result.image, frame.codes, result.changed)
+            written += 1
+        count, last = count + 1, index
+        bar.update(1)
+
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="relight-analyse")
+    pending: deque = deque()
+    try:
+        for frame in prefetch(clip.frames(start)):
+            pending.append((frame, pool.submit(runner.analyse, frame.image, frame.alpha)))
+            if len(pending) > workers:
+                frame, future = pending.popleft()
+                emit(frame, future.result())
+        while pending:
+            frame, future = pending.popleft()
+            emit(frame, future.result())
+    except KeyboardInterrupt:
+        if frames is not None and committed is not None:
+            try:
+                frames.checkpoint(*committed)
+            except OSError:
+                pass  # a full disk: the last checkpoint stands, the resume re-runs a few more frames
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        bar.close()
+    if frames is not None:  # every frame of the clip must now be there (a resume may have started late)
+        total = len(frames.writer.names) if frames.writer.names is not None else last + 1
+        missing = [i for i in range(total) if not frames.writer.done(i)]
+        if missing:
+            raise ValueError(f"{args.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
+                             f"ended after {last + 1} frames)")
+    return count, written, nobody, clamped
+
+
+def _encode_folder(frames, info, out: Path) -> None:
+    """The resumable video job's frames (OUTPUT.frames/) into OUTPUT; the folder goes once it is."""
+    import shutil
+
+    from relight.files.video_io import FrameFolder
+    from relight.files.video_out import VideoWriter
+
+    from PIL import Image
+
+    video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
+    try:
+        for path in FrameFolder(frames.folder, info.fps).files:
+            with Image.open(path) as im:  # the codes the direct path would have encoded
+                video.write_codes(np.asarray(im.convert("RGB")))
+    except BaseException:
+        video.abort()
+        raise
+    video.close()
+    shutil.rmtree(frames.folder)

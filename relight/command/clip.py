@@ -1,0 +1,385 @@
+"""Relight a clip frame by frame, stable from one frame to the next (docs/video.md).
+
+    clip = ClipRelighter(Relighter(...), sh_light("studio", 4), stability=0.5)
+    for frame in frames:                      # linear float32 [H, W, 3], in order
+        result = clip.relight(frame)          # FrameResult: .image, .person, .cut, .light ...
+
+Each frame is relit as `relight image` relights a photo, except that what should
+not change within a shot is held or smoothed over its frames:
+
+* **cuts**: a frame whose colour histogram differs from the previous one's by more
+  than CUT_THRESHOLD (total variation) starts a new shot, and every state below
+  starts afresh; so does a frame without a person (it is passed through unchanged);
+* **light**: the photo's light, which the geometry-first model fits per frame, is
+  the mean of the per-frame estimates over the shot's last 1 + (LIGHT_WINDOW - 1) x
+  stability frames, and the albedo is re-derived from the frame under that light
+  (the model's own formula, relight.network.refine.consistent_albedo), so a noisy fit no
+  longer flickers the brightness;
+* **maps**: the transport (and residual; and the albedo of models that are not
+  photo-consistent) and the person matte are smoothed over frames where the photo
+  agrees with the previous frame (relight.command.clip_maps); the detail transfer uses each
+  frame's own photo, so texture stays sharp;
+* **a still picture** (clip_maps.Stillness: the frame's blocks against the picture the
+  held state belongs to) holds more: the matte where the picture is still, the maps and the
+  light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
+  x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
+  keeps the previous grid (_on_held_grid). A still shot with sensor noise relit frame by frame
+  moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
+  (docs/video.md, "A still shot").
+
+`stability` in [0, 1] sets the windows: 0 is independent per-frame processing
+(exactly `relight image` on each frame), 1 the longest windows (most lag when the
+light or the body changes). The whole state is a dict of arrays (state(),
+load_state()) so an interrupted job resumes exactly where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from relight.person.box import Box
+from relight.command.clip_maps import (
+    FILTER_MODES, MapSmoother, MatteSmoother, Stillness, grid_axes, grid_grey, history_weight, sample_separable,
+)
+from relight.network.decomposition import Decomposition
+from relight.network.refine import consistent_albedo
+
+__all__ = ["ClipRelighter", "FrameResult", "CutDetector", "ShotLight", "DEFAULT_STABILITY",
+           "FILTER_MODES"]
+
+DEFAULT_STABILITY = 0.5
+MAP_WINDOW = 9          # frames: the maps' and the matte's effective EMA window at stability 1
+# frames: the light's window at stability 1. Measured (docs/video.md): on a person turning in place
+# the network's estimate follows the body's view; a whole-shot mean cost 0.95 dB on that clip, 9
+# frames 0.4 dB, 5 frames (stability 0.5) 0.2 dB, for flicker within 0.2 points of the whole shot's
+LIGHT_WINDOW = 9
+# frames: the maps' and the matte's window at stability 1 where the picture is still (clip_maps.Stillness):
+# there the network's answers differ by the photo's noise alone, which MAP_WINDOW left flickering (docs/video.md)
+STILL_WINDOW = 257
+# share of the person that must be still before its light and maps are held, and the share from which
+# they are fully held (still_weight): a still shot with sigma 2/255 noise measured 99.3 %, the farm clip
+# of a person turning in place 80-85 % (93 % once)
+STILL_PERSON = (0.9, 0.98)
+CUT_THRESHOLD = 0.35    # histogram total variation between consecutive frames that starts a new shot
+CUT_BINS = 8            # per channel, of the sRGB thumbnail's joint histogram
+CUT_THUMB = 96          # px: longest side of the thumbnail the histogram counts
+
+
+@dataclass
+class FrameResult:
+    image: np.ndarray                 # the relit frame, linear float32 [H, W, 3] (the input when no person)
+    person: bool                      # False: nobody found, the frame passed through unchanged
+    cut: bool                         # this frame starts a new shot
+    light: np.ndarray | None = None   # the network's estimate of this frame's light [n, 3]
+    shot_light: np.ndarray | None = None  # the light the frame was decomposed under (smoothed)
+    clamped: float = 0.0              # share of the person's pixels whose negative light was clamped
+    layers: dict | None = None        # Decomposition.layers() when asked for
+    changed: tuple | None = None      # (y0, y1, x0, x1): outside it the image is the input bit for bit
+
+
+@dataclass
+class Analysis:
+    """One frame as ClipRelighter.analyse leaves it for finish()."""
+
+    frame: np.ndarray
+    histogram: np.ndarray
+    decomposition: Decomposition | None   # None: no person in the frame
+    smooth_matte: bool = False            # the mask is the segmenter's: smoothed over frames in finish()
+    matte_box: Box | None = None          # the segmenter's matte's box
+
+
+def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
+    """`d` with another full-resolution matte (the smoothed one), its working-resolution alpha
+    resampled from it as decompose() does."""
+    from relight.network.resample import resize_linear
+
+    y0, y1, x0, x1 = d.box
+    h, w = d.working_size
+    alpha = np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0).astype(np.float32)
+    return Decomposition(albedo=d.albedo, transport=d.transport, residual=d.residual, light=d.light, alpha=alpha,
+                         box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working,
+                         mask=mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
+
+
+def _regridded(d: Decomposition, box: Box, size: tuple) -> Decomposition:
+    """`d` on another grid of its photo (the crop `box` resized to `size`): the network's maps
+    resampled bilinearly (edge values held past the old crop), the working photo cut and
+    resized again from the frame as decompose() does."""
+    from relight.network.resample import resize_linear
+
+    gy, gx = grid_axes(d.box, d.working_size, box, size)
+    h, w = d.working_size
+    gy, gx = np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)
+    parts = [d.albedo, d.transport, d.residual, d.alpha[..., None]]
+    if d.network_alpha is not None:
+        parts.append(d.network_alpha[..., None])
+    out, _ = sample_separable(np.concatenate(parts, axis=2), gy, gx)
+    n = d.transport.shape[2]
+    split = np.cumsum([3, n, n, 1])
+    albedo, transport, residual, alpha = (np.ascontiguousarray(a) for a in np.split(out, split, axis=2)[:4])
+    network_alpha = np.ascontiguousarray(out[..., -1]) if d.network_alpha is not None else None
+    y0, y1, x0, x1 = box
+    photo_working = resize_linear(d.photo[y0:y1, x0:x1], *size)
+    return Decomposition(albedo=albedo, transport=transport, residual=residual, light=d.light, alpha=alpha[..., 0],
+                         box=box, working_size=tuple(size), photo=d.photo, photo_working=photo_working,
+                         mask=d.mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=network_alpha)
+
+
+class CutDetector:
+    """A new shot where consecutive frames' colour histograms differ by more than the threshold."""
+
+    def __init__(self, threshold: float = CUT_THRESHOLD):
+        self.threshold = float(threshold)
+        self.previous: np.ndarray | None = None
+
+    @staticmethod
+    def histogram(frame: np.ndarray) -> np.ndarray:
+        from relight.colour import srgb_encode
+
+        step = max(1, max(frame.shape[:2]) // CUT_THUMB)
+        thumb = srgb_encode(np.ascontiguousarray(frame[::step, ::step]))
+        codes = np.minimum((thumb * CUT_BINS).astype(np.intp), CUT_BINS - 1)
+        joint = (codes[..., 0] * CUT_BINS + codes[..., 1]) * CUT_BINS + codes[..., 2]
+        counts = np.bincount(joint.ravel(), minlength=CUT_BINS ** 3).astype(np.float64)
+        return counts / counts.sum()
+
+    def update_histogram(self, hist: np.ndarray) -> bool:
+        """True when the frame of histogram `hist` starts a new shot (the first frame does): its
+        total variation from the previous frame's exceeds the threshold."""
+        d = 1.0 if self.previous is None else 0.5 * float(np.abs(hist - self.previous).sum())
+        self.previous = hist
+        return d > self.threshold
+
+
+class ShotLight:
+    """The mean of the per-frame light estimates over the shot's last `window` frames; while the
+    person is still, held: the previous light weighted by `hold` x how still (still_weight)."""
+
+    def __init__(self, window: int, hold: float = 0.0):
+        self.lights: deque = deque(maxlen=max(1, int(window)))
+        self.hold = float(hold)
+        self.held: np.ndarray | None = None  # the last light given
+
+    def reset(self) -> None:
+        self.lights.clear()
+        self.held = None
+
+    def update(self, light: np.ndarray, still: float = 0.0) -> np.ndarray:
+        """The shot's light after this frame's estimate `light`; `still`: the person's stillness
+        in [0, 1] (still_weight)."""
+        self.lights.append(np.asarray(light, np.float64))
+        mean = np.mean(self.lights, axis=0)
+        k = self.hold * float(still)
+        if self.held is not None and k > 0.0:
+            mean = k * self.held + (1.0 - k) * mean
+        self.held = mean
+        return mean.astype(np.float32)
+
+
+def still_weight(share: float) -> float:
+    """How still the person is, in [0, 1], from the share of them that is still: 0 until
+    STILL_PERSON[0], rising linearly to 1 at STILL_PERSON[1]. The light and the network's maps
+    are the whole person's: they are held only when nearly all of the person did not move."""
+    low, high = STILL_PERSON
+    return min(1.0, max(0.0, (share - low) / (high - low)))
+
+
+class ClipRelighter:
+    """Relights a clip's frames in order (see the module doc).
+
+    relighter: relight.network.runtime.Relighter; light: target SH coefficients [n, 3];
+    exposure_ev: as in Decomposition.relight; matte: "person" (the segmenter) or
+    "network"; person: which person (1 = the largest); stability: 0..1; mode:
+    "ema" or "flow" (relight.command.clip_maps); threads: the segmenter's onnxruntime threads;
+    light_window: frames the light is averaged over (default 1 + (LIGHT_WINDOW - 1) x stability);
+    working_size: the network's working size (default the relighter's own);
+    matte_method, augment: the quality preset's person segmenter and network runs
+    (relight.network.quality.QualityPreset), so that stability 0 is `relight image` on every frame.
+    A preset's light refinement is not applied: a clip's light is the shot's (ShotLight).
+    """
+
+    def __init__(self, relighter, light, exposure_ev: float = 0.0, *, matte: str = "person",
+                 person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
+                 threads: int | None = None, light_window: int | None = None, working_size=None,
+                 matte_method: str = "ensemble", augment=()):
+        # matte and exposure_ev are checked where they are used, by Relighter.decompose and
+        # Decomposition.relight (the command's parser has checked them before)
+        if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability <= 1.0:
+            raise ValueError(f"stability must be a number in [0, 1], got {stability!r}")
+        self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
+        self.matte, self.person, self.threads, self.working_size = matte, person, threads, working_size
+        self.matte_method, self.augment = matte_method, tuple(augment)
+        self.stability = float(stability)
+        history = history_weight(1.0 + self.stability * (MAP_WINDOW - 1))
+        hold = history_weight(1.0 + self.stability * (STILL_WINDOW - 1))
+        self.cuts = CutDetector()
+        if light_window is None:
+            light_window = 1 + round(self.stability * (LIGHT_WINDOW - 1))
+        elif isinstance(light_window, bool) or not isinstance(light_window, int) or light_window < 1:
+            raise ValueError(f"light_window must be a whole number of frames >= 1, got {light_window!r}")
+        self.shot_light = ShotLight(light_window, hold)
+        self.maps = MapSmoother(history, mode, hold)
+        self.matte_filter = MatteSmoother(history, hold)
+        self.stillness = Stillness(hold)
+        config = json.loads(relighter.metadata.get("relight.network_config", "{}") or "{}")
+        # the geometry-first model's albedo is photo / shading under its fitted light: re-derived
+        # under the shot's light (docs/model.md); other models' albedo is smoothed like the maps
+        self.reliable = float(config["reliable"]) if config.get("arch") == "geometry" else None
+
+    def reset(self) -> None:
+        """Forget the shot: the next frame starts afresh (a cut, a frame without a person)."""
+        self.shot_light.reset()
+        self.maps.reset()
+        self.matte_filter.reset()
+        self.stillness.reset()
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything the next frame depends on, as arrays (np.savez-able); load_state() restores it."""
+        lights = list(self.shot_light.lights)
+        out = {"lights": np.stack(lights) if lights else np.zeros((0,))}
+        if self.shot_light.held is not None:
+            out["held_light"] = self.shot_light.held
+        if self.cuts.previous is not None:
+            out["cut_histogram"] = self.cuts.previous
+        if self.matte_filter.previous is not None:
+            out["matte"] = self.matte_filter.previous
+            if self.matte_filter.box is not None:
+                out["matte_box"] = np.asarray(self.matte_filter.box)
+        if self.stillness.reference is not None:
+            out["still_reference"] = self.stillness.reference
+            out["still_block"] = np.asarray(self.stillness.block)
+        maps = self.maps.state
+        if maps is not None:
+            out.update({"maps_box": np.asarray(maps["box"]), "maps_size": np.asarray(maps["size"]),
+                        "maps_grey": maps["grey"], "maps_alpha": maps["alpha"]})
+            out.update({f"map_{k}": v for k, v in maps["maps"].items()})
+        return out
+
+    def load_state(self, state: dict) -> None:
+        """Continue from a state() (of a ClipRelighter with the same settings)."""
+        self.reset()
+        self.cuts.previous = state.get("cut_histogram")
+        for light in state["lights"]:
+            self.shot_light.lights.append(np.asarray(light, np.float64))
+        if "held_light" in state:  # (a state saved before it was kept: the window's mean holds)
+            self.shot_light.held = np.asarray(state["held_light"], np.float64)
+        elif len(self.shot_light.lights):
+            self.shot_light.held = np.mean(self.shot_light.lights, axis=0)
+        self.matte_filter.previous = state.get("matte")
+        self.matte_filter.box = Box(*(int(v) for v in state["matte_box"])) if "matte_box" in state else None
+        if "still_reference" in state:  # (a state saved before it was kept: judged afresh)
+            self.stillness.reference = np.array(state["still_reference"], np.float32)
+            self.stillness.block = int(state["still_block"])
+        if "maps_box" in state:
+            self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
+                               "size": tuple(int(v) for v in state["maps_size"]),
+                               "grey": state["maps_grey"], "alpha": state["maps_alpha"],
+                               "maps": {k[4:]: v for k, v in state.items() if k.startswith("map_")}}
+
+    def analyse(self, frame: np.ndarray, mask: np.ndarray | None = None) -> "Analysis":
+        """What does not depend on other frames: the person matte, the network's decomposition
+        and the frame's histogram. Thread-safe: a job analyses several frames at once, then
+        finish()es them in order. `mask` ([H, W] in [0, 1]): the frame's own person mask (its
+        alpha channel), used as it is instead of the matte."""
+        from relight.person.matte import NoPersonError, person_matte
+
+        histogram = self.cuts.histogram(frame)
+        smooth_matte, matte_box = False, None
+        if mask is not None and not np.any(mask > 0):  # the frame's own alpha marks nobody
+            return Analysis(frame, histogram, None)
+        if mask is None and self.matte == "person":
+            try:
+                found = person_matte(frame, self.person, threads=self.threads, method=self.matte_method)
+            except NoPersonError:
+                return Analysis(frame, histogram, None)
+            mask, smooth_matte, matte_box = found.alpha, self.stability > 0, found.box
+        d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person,
+                                     matte_method=self.matte_method, augment=self.augment)
+        return Analysis(frame, histogram, d, smooth_matte, matte_box)
+
+    def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:
+        """The analysed frame relit, in clip order (the temporal state advances by one frame).
+        `layers`: also Decomposition.layers() of the frame (None when it has no person)."""
+        cut = self.cuts.update_histogram(analysis.histogram)
+        if cut:
+            self.reset()
+        d = analysis.decomposition
+        if d is None:
+            self.reset()
+            return FrameResult(analysis.frame, False, cut)
+        estimate = np.asarray(d.light, np.float32)
+        shot_light = estimate
+        if self.stability > 0:
+            held = self.maps.state
+            self.stillness.update(analysis.frame, d.box if held is None else d.box.union(Box(*held["box"])))
+            if d.mask is not None:
+                person_still = still_weight(self.stillness.share(d.mask))
+            else:  # the network's matte: on its grid
+                grid = self.stillness.on_grid(d.box, d.working_size)
+                person_still = still_weight(float((grid * d.alpha).sum() / max(float(d.alpha.sum()), 1e-6)))
+            if person_still > 0.0:
+                d = self._on_held_grid(d, analysis.matte_box)
+            if analysis.smooth_matte:
+                d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box, self.stillness.at))
+            shot_light = self.shot_light.update(estimate, person_still)
+            # the network's answer at a pixel depends on the whole crop: its maps are held where the
+            # picture is still only as far as the whole person is
+            still = self.stillness.on_grid(d.box, d.working_size) * np.float32(person_still)
+            d = self._stabilised(d, shot_light, still)
+        image = d.relight(self.light, self.exposure_ev)
+        stats = d.last_stats
+        return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
+                           d.layers(self.light, self.exposure_ev) if layers else None, d.box)
+
+    def relight(self, frame: np.ndarray, mask: np.ndarray | None = None, layers: bool = False) -> FrameResult:
+        """The next frame (linear float32 [H, W, 3]) relit: finish(analyse(frame, mask))."""
+        return self.finish(self.analyse(frame, mask), layers)
+
+    def _on_held_grid(self, d: Decomposition, matte_box) -> Decomposition:
+        """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
+        only (finish() asks when the person is still): the person (the matte's box) inside the
+        previous crop, which lies within this frame's own crop grown by its margin. A crop box that
+        flicks by a pixel or two resamples a textured photo differently each frame, which the detail
+        transfer and the albedo carry into the relit person (docs/video.md); the network's smooth
+        maps are resampled onto the held grid instead."""
+        from relight.network.runtime import CROP_MARGIN
+
+        held = self.maps.state
+        if held is None or d.mask is None or tuple(held["box"]) == tuple(d.box):
+            return d
+        box = Box(*held["box"])
+        person = Box(*matte_box) if matte_box is not None else Box.around(d.mask)
+        if person is None:
+            return d
+        pad = int(np.ceil(CROP_MARGIN * max(person.height, person.width)))
+        outer = d.box.grown(pad, *d.size)
+        inside = lambda a, b: a[0] >= b[0] and a[1] <= b[1] and a[2] >= b[2] and a[3] <= b[3]
+        if not (inside(person, box) and inside(box, outer)):
+            return d
+        return _regridded(d, box, held["size"])
+
+    def _stabilised(self, d: Decomposition, shot_light: np.ndarray, still: np.ndarray) -> Decomposition:
+        """The frame's decomposition with smoothed maps, under the shot's light."""
+        maps = {"transport": d.transport}
+        if self.reliable is None:  # the geometry-first model's E is 0 (docs/model.md): nothing to smooth
+            maps["residual"] = d.residual
+            maps["albedo"] = d.albedo
+        if d.mask is None:  # the network's own matte: smoothed with the maps
+            maps["alpha"] = d.alpha[..., None]
+        grey = grid_grey(d.photo_working)
+        smooth = self.maps.update(d.box, d.working_size, grey, d.alpha, maps, still)
+        transport = smooth["transport"]
+        alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
+        if self.reliable is not None:
+            albedo = consistent_albedo(d, transport, shot_light.astype(np.float32), self.reliable)
+        else:
+            albedo = smooth["albedo"]
+        return Decomposition(
+            albedo=albedo, transport=transport, residual=smooth.get("residual", d.residual), light=shot_light,
+            alpha=alpha,
+            box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working, mask=d.mask,
+            sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)

@@ -1,0 +1,380 @@
+"""Scene files: the farm writes them, the model reads them (docs/ARCHITECTURE.md).
+
+A dataset folder holds scene_NNNNNN.exr + scene_NNNNNN.json pairs. The EXR
+is written first, the JSON last, both atomically: a scene is finished exactly
+when its JSON exists and names the EXR's SHA-256.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from relight.files.exr import read_exr, write_exr
+from relight.files.fileio import atomic_write_text, file_sha256
+from relight.lighting.sh import num_coeffs
+
+__all__ = [
+    "FORMAT",
+    "Scene",
+    "scene_stem",
+    "write_scene",
+    "read_scene",
+    "read_sidecar",
+    "traced_lights",
+    "has_transport",
+    "light_map_name",
+    "list_finished_scenes",
+    "transport_channel_names",
+    "file_sha256",
+]
+
+FORMAT = "relight-scene/1"
+_STEM_RE = re.compile(r"^scene_(\d{6,})$")
+# grouped input name -> EXR channel suffixes
+_GEOMETRY = {
+    "alpha": ("A",),
+    "albedo": ("R", "G", "B"),
+    "normal": ("X", "Y", "Z"),
+    "material": ("R", "G", "B"),
+    "depth": ("Z",),
+}
+# optional: the unclothed body under the clothes and hair, seen by the same camera (farm "body" pass)
+_BODY = {
+    "body_normal": ("X", "Y", "Z"),
+    "body_alpha": ("A",),
+    "body_depth": ("Z",),
+}
+# optional: the farm's head mask (issue 37), the share of the pixel's person that is the head's
+# skin or the face's details (eyes, lips, brows); absent in scenes made before it
+_LABELS = {"head": ("A",)}
+_PER_LIGHT = ("image", "shading", "prt")
+_RGB = ("R", "G", "B")
+
+
+@dataclass
+class Scene:
+    """One finished scene. Arrays are float32 [H, W, C]; absent passes are None.
+
+    `images`, `shading`, `prt` are lists indexed by light K (or None);
+    `lights` is the JSON's light list with `sh`/`sh8` as float64 arrays.
+    """
+
+    index: int
+    exr_path: Path
+    json_path: Path
+    meta: dict
+    alpha: np.ndarray
+    albedo: np.ndarray
+    normal: np.ndarray
+    material: np.ndarray
+    depth: np.ndarray
+    transport: np.ndarray | None = None
+    images: list[np.ndarray] | None = None
+    shading: list[np.ndarray] | None = None
+    prt: list[np.ndarray] | None = None
+    lights: list[dict] = field(default_factory=list)
+    body_normal: np.ndarray | None = None  # [H, W, 3] unit, camera frame; 0 where the body is not seen
+    body_alpha: np.ndarray | None = None   # [H, W, 1] coverage of the unclothed body
+    body_depth: np.ndarray | None = None   # [H, W, 1] metres along the view axis; 0 off the body
+    head: np.ndarray | None = None         # [H, W, 1] head mask in [0, 1] (farm scenes since issue 37)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return tuple(self.alpha.shape[:2])
+
+    @property
+    def sh_order(self) -> int:
+        return int(self.meta["sh_order"])
+
+
+def scene_stem(folder, index: int) -> Path:
+    """folder / scene_NNNNNN (no extension)."""
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+        raise ValueError(f"scene index must be a non-negative integer, got {index!r}")
+    return Path(folder) / f"scene_{int(index):06d}"
+
+
+def transport_channel_names(n: int) -> list[str]:
+    """transport.00 .. transport.(n-1), zero-padded to at least two digits."""
+    width = max(2, len(str(n - 1)))
+    return [f"transport.{k:0{width}d}" for k in range(n)]
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"scene metadata value of type {type(obj).__name__} is not JSON-serialisable")
+
+
+def _as_planes(name: str, arr, n_planes: int, hw) -> list[np.ndarray]:
+    a = np.asarray(arr)
+    if n_planes == 1 and a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[2] != n_planes:
+        raise ValueError(f"scene channel {name!r} must have shape [H, W, {n_planes}], got {a.shape}")
+    if hw is not None and a.shape[:2] != hw:
+        raise ValueError(f"scene channel {name!r} is {a.shape[:2]}, expected {hw}")
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ValueError(f"scene channel {name!r} must be floating point, got {a.dtype}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"scene channel {name!r} contains NaN or Inf")
+    return [a[..., i] for i in range(n_planes)]
+
+
+def _light_key(name: str):
+    """'image.L3' -> ('image', 3); None when the name is not a per-light pass."""
+    m = re.fullmatch(r"(image|shading|prt)\.L(\d+)", name)
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
+    """Write scene_NNNNNN.exr then scene_NNNNNN.json; returns their paths.
+
+    `channels` is grouped by pass, each [H, W, C] (or [H, W] for one plane):
+    alpha (1), albedo (3), normal (3), material (3), depth (1) always;
+    transport ((sh_order+1)^2) optionally; image.LK / shading.LK / prt.LK (3)
+    for lights K = 0..len(meta["lights"])-1 optionally; body_normal (3),
+    body_alpha (1), body_depth (1) optionally, all three or none; head (1, the head mask)
+    optionally. `meta` needs `index`,
+    `sh_order`, `lights`; other keys (seed, camera, body, pose, appearance,
+    passes, versions, timings) are stored as given. This function fills
+    `format`, `resolution`, `channels`, `exr_sha256`.
+    """
+    stem = Path(path_stem)
+    if stem.suffix in (".exr", ".json"):
+        stem = stem.with_suffix("")
+    m = _STEM_RE.match(stem.name)
+    if not m:
+        raise ValueError(f"scene path must end in scene_NNNNNN, got {stem.name!r}")
+    if not isinstance(meta, dict):
+        raise ValueError("scene metadata must be a dict")
+    for key in ("index", "sh_order", "lights"):
+        if key not in meta:
+            raise ValueError(f"scene metadata lacks {key!r}")
+    if int(meta["index"]) != int(m.group(1)):
+        raise ValueError(f"scene metadata index {meta['index']} != file name {stem.name}")
+    order = int(meta["sh_order"])
+    n = num_coeffs(order)
+    lights = meta["lights"]
+    if not isinstance(lights, list):
+        raise ValueError("scene metadata 'lights' must be a list")
+    for k, light in enumerate(lights):
+        _check_light_meta(light, k, order)
+    if not isinstance(channels, dict):
+        raise ValueError("scene channels must be a dict of pass name -> array")
+
+    planes: dict[str, np.ndarray] = {}
+    hw = None
+    for group, suffixes in _GEOMETRY.items():
+        if group not in channels:
+            raise ValueError(f"scene channels lack the required pass {group!r}")
+        for suffix, plane in zip(suffixes, _as_planes(group, channels[group], len(suffixes), hw)):
+            planes[f"{group}.{suffix}"] = plane
+            hw = plane.shape
+    body = [g for g in _BODY if g in channels]
+    if body and len(body) != len(_BODY):
+        raise ValueError(f"scene body passes must come together ({', '.join(_BODY)}), got {body}")
+    for name, arr in channels.items():
+        if name in _GEOMETRY:
+            continue
+        if name in _BODY or name in _LABELS:
+            sfx = _BODY.get(name) or _LABELS[name]
+            for suffix, plane in zip(sfx, _as_planes(name, arr, len(sfx), hw)):
+                planes[f"{name}.{suffix}"] = plane
+            continue
+        if name == "transport":
+            for cname, plane in zip(transport_channel_names(n), _as_planes(name, arr, n, hw)):
+                planes[cname] = plane
+            continue
+        key = _light_key(name)
+        if key is None:
+            raise ValueError(f"unknown scene pass {name!r}")
+        if key[1] >= len(lights):
+            raise ValueError(f"pass {name!r} names light {key[1]} but meta has {len(lights)} lights")
+        if key[0] in ("shading", "prt") and "transport" not in channels:
+            raise ValueError(f"pass {name!r} needs the transport pass")
+        for suffix, plane in zip(_RGB, _as_planes(name, arr, 3, hw)):
+            planes[f"{name}.{suffix}"] = plane
+    light_passes = [key for key in map(_light_key, channels) if key is not None]
+    for kind in _PER_LIGHT:
+        present = {k for pass_kind, k in light_passes if pass_kind == kind}
+        if present and present != set(range(len(lights))):
+            raise ValueError(f"{kind} passes cover lights {sorted(present)}, expected 0..{len(lights) - 1}")
+
+    exr_path = stem.with_suffix(".exr")
+    json_path = stem.with_suffix(".json")
+    write_exr(exr_path, planes, compression="zip")
+    sidecar = dict(meta)
+    sidecar.update(
+        format=FORMAT,
+        index=int(meta["index"]),
+        sh_order=order,
+        resolution=[int(hw[0]), int(hw[1])],
+        channels=sorted(planes),
+        exr_sha256=file_sha256(exr_path),
+    )
+    try:
+        text = json.dumps(sidecar, default=_json_default, allow_nan=False, indent=1)
+    except ValueError as exc:
+        raise ValueError(f"scene metadata has a non-finite number: {exc}") from None
+    atomic_write_text(json_path, text + "\n")
+    return exr_path, json_path
+
+
+def _check_light_meta(light, k: int, order: int) -> None:
+    if not isinstance(light, dict):
+        raise ValueError(f"light {k} metadata must be a dict")
+    for key, rows in (("sh", num_coeffs(order)), ("sh8", 81)):
+        if key not in light:
+            raise ValueError(f"light {k} metadata lacks {key!r}")
+        a = np.asarray(light[key], dtype=np.float64)
+        if a.shape != (rows, 3):
+            raise ValueError(f"light {k} {key!r} must have shape [{rows}, 3], got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"light {k} {key!r} contains NaN or Inf")
+
+
+def _resolve(path) -> tuple[Path, Path]:
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in (".exr", ".json") else p
+    return stem.with_suffix(".exr"), stem.with_suffix(".json")
+
+
+def read_sidecar(path) -> dict:
+    """The JSON sidecar of a finished scene (path: the stem, its .exr or its .json),
+    checked for its format and required keys; the EXR is not read."""
+    _, json_path = _resolve(path)
+    if not json_path.is_file():
+        raise ValueError(f"scene {json_path.with_suffix('')} is not finished: {json_path.name} is missing")
+    try:
+        meta = json.loads(json_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"scene sidecar {json_path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"scene sidecar {json_path} is not {FORMAT!r}")
+    for key in ("index", "sh_order", "lights", "resolution", "channels", "exr_sha256"):
+        if key not in meta:
+            raise ValueError(f"scene sidecar {json_path} lacks {key!r}")
+    return meta
+
+
+def traced_lights(meta: dict) -> list[int]:
+    """Indices K of the sidecar's lights that have a path-traced image (image.LK)."""
+    return [k for k in range(len(meta["lights"])) if f"image.L{k}.R" in meta["channels"]]
+
+
+def has_transport(meta: dict) -> bool:
+    """True when the scene holds the SH transport pass."""
+    return "transport.00" in meta["channels"]
+
+
+def light_map_name(light: dict) -> str:
+    """The HDR map a sidecar light came from, lower case: its `name` (the farm's names tell
+    maps apart, e.g. "forest" and "blender:forest"; its `source` is only the kind, "blender",
+    "bundled" or "sky"), else its `source` file's stem."""
+    name = light.get("name")
+    if isinstance(name, str) and name:
+        return name.lower()
+    source = light.get("source")
+    return Path(source).stem.split(".")[0].lower() if isinstance(source, str) else ""
+
+
+def read_scene(path, *, verify_hash: bool = True) -> Scene:
+    """Read and validate a finished scene (path: the stem, its .exr or its .json).
+
+    ValueError when the scene is unfinished (no JSON), the EXR is missing or
+    does not match the JSON's SHA-256, or channels/shapes disagree with the JSON.
+    """
+    exr_path, json_path = _resolve(path)
+    meta = read_sidecar(json_path)
+    if not exr_path.is_file():
+        raise ValueError(f"scene {json_path.name} names a missing EXR {exr_path.name}")
+    if verify_hash:
+        digest = file_sha256(exr_path)
+        if digest != meta["exr_sha256"]:
+            raise ValueError(
+                f"scene EXR {exr_path.name} does not match its sidecar (sha256 {digest[:12]}... "
+                f"!= {str(meta['exr_sha256'])[:12]}...): partial or modified file"
+            )
+    order = int(meta["sh_order"])
+    n = num_coeffs(order)
+    lights = meta["lights"]
+    for k, light in enumerate(lights):
+        _check_light_meta(light, k, order)
+    try:
+        planes = read_exr(exr_path)
+    except ValueError as exc:
+        raise ValueError(f"scene EXR {exr_path.name} is unreadable: {exc}") from None
+    if sorted(planes) != sorted(meta["channels"]):
+        missing = sorted(set(meta["channels"]) - set(planes))
+        extra = sorted(set(planes) - set(meta["channels"]))
+        raise ValueError(f"scene EXR {exr_path.name} channels differ from sidecar: missing {missing}, extra {extra}")
+    hw = tuple(meta["resolution"])
+    for name, plane in planes.items():
+        if plane.shape != hw:
+            raise ValueError(f"scene channel {name} is {plane.shape}, sidecar says {hw}")
+
+    def stack(names):
+        missing = [c for c in names if c not in planes]
+        if missing:
+            raise ValueError(f"scene EXR {exr_path.name} lacks channels {missing}")
+        return np.stack([planes[c] for c in names], axis=-1)
+
+    geometry = {g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _GEOMETRY.items()}
+    if any(c.startswith("body_") for c in planes):
+        geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _BODY.items()})
+    geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _LABELS.items() if f"{g}.{sfx[0]}" in planes})
+    tnames = transport_channel_names(n)
+    has_transport = any(c.startswith("transport.") for c in planes)
+    transport = stack(tnames) if has_transport else None
+    if has_transport and sum(c.startswith("transport.") for c in planes) != n:
+        raise ValueError(f"scene EXR {exr_path.name} has the wrong number of transport channels for order {order}")
+    per_light = {}
+    for kind in _PER_LIGHT:
+        if any(c.startswith(kind + ".L") for c in planes):
+            per_light[kind] = [stack([f"{kind}.L{k}.{s}" for s in _RGB]) for k in range(len(lights))]
+        else:
+            per_light[kind] = None
+    parsed_lights = []
+    for light in lights:
+        entry = dict(light)
+        entry["sh"] = np.asarray(light["sh"], dtype=np.float64)
+        entry["sh8"] = np.asarray(light["sh8"], dtype=np.float64)
+        parsed_lights.append(entry)
+    return Scene(
+        index=int(meta["index"]),
+        exr_path=exr_path,
+        json_path=json_path,
+        meta=meta,
+        transport=transport,
+        images=per_light["image"],
+        shading=per_light["shading"],
+        prt=per_light["prt"],
+        lights=parsed_lights,
+        **geometry,
+    )
+
+
+def list_finished_scenes(folder) -> list[Path]:
+    """Sidecar paths of finished scenes (JSON and EXR both present), by index.
+
+    Cheap: does not hash the EXRs (read_scene does).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"dataset folder does not exist: {folder}")
+    found = []
+    for json_path in folder.glob("scene_*.json"):
+        m = _STEM_RE.match(json_path.stem)
+        if m and json_path.with_suffix(".exr").is_file():
+            found.append((int(m.group(1)), json_path))
+    return [p for _, p in sorted(found)]

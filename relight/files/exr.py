@@ -1,0 +1,237 @@
+"""OpenEXR read/write (OpenEXR >= 3.3 Python API), all parts, atomic writes.
+
+The library prints its own diagnostics on the process's stdout and stderr
+(C-level, past Python's sys.stderr); every call into it runs with both file
+descriptors captured, and what it said goes into the one ValueError/OSError
+raised for a file that is refused.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import io
+import os
+import sys
+import tempfile
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from relight.files.fileio import atomic_path
+
+__all__ = ["read_exr", "write_exr", "exr_size", "library_output_captured"]
+
+_COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
+
+
+def _openexr():
+    import OpenEXR  # imported lazily: only I/O needs it
+
+    return OpenEXR
+
+
+_CAPTURE_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one capture at a time
+
+
+def _flush_c_stdio() -> None:
+    """fflush(NULL): C and C++ (synced) stdio buffers out to their fds now."""
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, TypeError, AttributeError):  # no C runtime reachable this way (Windows)
+        pass
+
+
+@contextmanager
+def library_output_captured():
+    """Point fds 1 and 2 at a temporary file for the duration; yields a list that
+    holds, afterwards, the non-empty lines a C library wrote there.
+
+    C stdio buffers are flushed before the fds are restored, so nothing the
+    library wrote escapes later; sys.stdout is swapped for a buffer too (the
+    binding prints through it). Python's own pending output is flushed first
+    so it is not captured by mistake.
+    """
+    lines: list[str] = []
+    with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (AttributeError, ValueError, OSError):
+                pass
+        saved = []
+        try:
+            for fd in (1, 2):
+                saved.append((fd, os.dup(fd)))
+                os.dup2(sink.fileno(), fd)
+        except OSError:  # no fd 1/2 to borrow (closed): run without capture
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+            yield lines
+            return
+        python_stdout, sys.stdout = sys.stdout, io.StringIO()  # the binding's own prints go through it
+        try:
+            yield lines
+        finally:
+            printed, sys.stdout = sys.stdout.getvalue(), python_stdout
+            _flush_c_stdio()
+            for fd, copy in saved:
+                os.dup2(copy, fd)
+                os.close(copy)
+            sink.seek(0)
+            text = sink.read(1 << 16).decode("utf-8", errors="replace") + "\n" + printed
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
+
+
+def _said(lines: list[str]) -> str:
+    """The library's first message, shortened for a one-line error."""
+    if not lines:
+        return ""
+    first = lines[0] if len(lines[0]) <= 200 else lines[0][:197] + "..."
+    return f" ({first})"
+
+
+def exr_size(path) -> tuple[int, int]:
+    """(width, height) of the largest data window over all parts, from the header only."""
+    path = Path(path)
+    OpenEXR = _openexr()
+    with library_output_captured() as said:
+        try:
+            f = OpenEXR.File(str(path), header_only=True)
+            windows = []
+            for part in f.parts:
+                (x0, y0), (x1, y1) = part.header["dataWindow"]
+                windows.append((int(x1) - int(x0) + 1, int(y1) - int(y0) + 1))
+            failure = None
+        except Exception as exc:  # OpenEXR raises RuntimeError and others for corrupt headers
+            if isinstance(exc, MemoryError):
+                raise
+            failure = f"{type(exc).__name__}: {exc}"
+    if failure is not None:
+        raise ValueError(f"{path}: not a readable EXR ({failure}){_said(said)}")
+    if not windows:
+        raise ValueError(f"{path}: EXR has no parts")
+    return max(w for w, _ in windows), max(h for _, h in windows)
+
+
+def read_exr(path) -> dict[str, np.ndarray]:
+    """Every channel of every part, as {name: [H, W] array}.
+
+    Half and float channels come back as float32, uint as uint32. In a
+    multi-part file (Blender 5 writes one part per pass, e.g.
+    "ViewLayer.Combined") a channel is named "<part>.<channel>" unless its
+    name already starts with the part name. Raises FileNotFoundError for a
+    missing file and ValueError for one that is not a readable EXR, including
+    one the library complained about while reading (damaged pixel data).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"EXR file not found: {path}")
+    OpenEXR = _openexr()
+    with library_output_captured() as said:
+        channels, failure = _read_channels(OpenEXR, path)
+    if failure is not None:
+        raise ValueError(f"{failure}{_said(said)}")
+    if said:
+        raise ValueError(f"cannot read EXR {path}: damaged data{_said(said)}")
+    if not channels:
+        raise ValueError(f"EXR {path} has no channels")
+    return channels
+
+
+def _read_channels(OpenEXR, path: Path) -> tuple[dict[str, np.ndarray], str | None]:
+    """(channels, None) or ({}, one-line reason); runs with the library's output captured."""
+    channels: dict[str, np.ndarray] = {}
+    try:
+        f = OpenEXR.File(str(path), separate_channels=True)
+        parts = list(f.parts)
+        channels: dict[str, np.ndarray] = {}
+        for part in parts:
+            part_name = part.name() if callable(part.name) else part.name
+            prefix = part_name if len(parts) > 1 and part_name else ""
+            for name, channel in part.channels.items():
+                if prefix and not name.startswith(prefix + "."):
+                    key = f"{prefix}.{name}"
+                else:
+                    key = name
+                if key in channels:
+                    return {}, f"EXR {path} has two channels named {key!r}"
+                pixels = np.asarray(channel.pixels)
+                if pixels.dtype != np.uint32:
+                    pixels = pixels.astype(np.float32, copy=False)
+                channels[key] = pixels
+    except Exception as exc:  # OpenEXR raises RuntimeError/others for corrupt data
+        if isinstance(exc, MemoryError):
+            raise
+        return {}, f"cannot read EXR {path}: {exc}"
+    return channels, None
+
+
+def write_exr(
+    path,
+    channels: dict[str, np.ndarray],
+    *,
+    compression: str = "zip",
+    half: bool = False,
+    attributes: dict[str, str] | None = None,
+) -> Path:
+    """Write a single-part scanline EXR atomically (temp file + os.replace).
+
+    `channels` maps names to [H, W] arrays of one common shape; floats are
+    stored as float32 (or float16 when `half`), uint32 stays uint32.
+    `attributes`: string attributes added to the header (e.g. what made the image).
+    """
+    path = Path(path)
+    if compression not in _COMPRESSIONS:
+        raise ValueError(f"EXR compression must be one of {_COMPRESSIONS}, got {compression!r}")
+    if not isinstance(channels, dict) or not channels:
+        raise ValueError("EXR needs at least one channel")
+    shape = None
+    prepared = {}
+    for name, arr in channels.items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"EXR channel names must be non-empty strings, got {name!r}")
+        a = np.asarray(arr)
+        if a.ndim != 2 or a.shape[0] < 1 or a.shape[1] < 1:
+            raise ValueError(f"EXR channel {name!r} must be a 2D [H, W] array, got shape {a.shape}")
+        if shape is None:
+            shape = a.shape
+        elif a.shape != shape:
+            raise ValueError(f"EXR channel {name!r} has shape {a.shape}, others have {shape}")
+        if a.dtype == np.uint32:
+            prepared[name] = np.ascontiguousarray(a)
+        elif np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer):
+            prepared[name] = np.ascontiguousarray(a, dtype=np.float16 if half else np.float32)
+        else:
+            raise ValueError(f"EXR channel {name!r} has unsupported dtype {a.dtype}")
+    OpenEXR = _openexr()
+    codes = {
+        "zip": OpenEXR.ZIP_COMPRESSION,
+        "zips": OpenEXR.ZIPS_COMPRESSION,
+        "piz": OpenEXR.PIZ_COMPRESSION,
+        "none": OpenEXR.NO_COMPRESSION,
+        "rle": OpenEXR.RLE_COMPRESSION,
+        "pxr24": OpenEXR.PXR24_COMPRESSION,
+    }
+    header = {"compression": codes[compression], "type": OpenEXR.scanlineimage}
+    for key, value in (attributes or {}).items():
+        if not isinstance(key, str) or not key or key in header or not isinstance(value, str):
+            raise ValueError(f"EXR attributes must map new names to strings, got {key!r}: {type(value).__name__}")
+        header[key] = value
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"output folder does not exist: {path.parent}")
+    with atomic_path(path, ".exr") as tmp:
+        with library_output_captured() as said:
+            try:
+                with OpenEXR.File(header, prepared) as f:
+                    f.write(str(tmp))
+                failure = None
+            except Exception as exc:  # RuntimeError from the library, e.g. a full disk
+                if isinstance(exc, MemoryError):
+                    raise
+                failure = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if failure is not None:
+            raise OSError(f"cannot write EXR {path}: {failure}{_said(said)}")
+    return path

@@ -1,0 +1,337 @@
+"""Clips in: video files through PyAV, folders of numbered frames through relight.files.photo.
+
+    clip = open_clip("in.mp4")                 # or a folder: frame_0001.png, frame_0002.png, ...
+    clip.info                                  # ClipInfo: size, frame rate, frame count, audio
+    for frame in clip.frames(start=0): ...     # Frame: index, linear float32 [H, W, 3], alpha, codes
+
+Video files (.mp4 .mov .m4v .mkv .webm .avi) are read with PyAV, whose wheels
+carry FFmpeg and its codecs (docs/video.md says why PyAV). Frames are 8-bit
+(10/12-bit sources read through 16 bits), sRGB-encoded like photos, decoded
+with the stream's own YCbCr matrix and range (untagged: BT.709 from 720 lines
+up, else BT.601; limited range); an 8-bit frame keeps its codes beside the
+linear image. A folder of frames is the files whose names end in a number, in
+the number's order; every frame must have the size of the first (checked
+before anything is decoded). Every failure to read is one ValueError naming
+the file. Writing: relight.files.video_out.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from relight.colour import decode_srgb_codes
+
+__all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
+           "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container",
+           "prefetch"]
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi")
+FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff", ".webp", ".bmp")
+DEFAULT_FPS = Fraction(24)   # a folder of frames has no rate of its own
+MAX_FPS = 1000
+_NUMBER = re.compile(r"(\d+)(?!.*\d)")  # the last run of digits in a name
+
+
+class Frame(NamedTuple):
+    """One decoded frame: linear float32 [H, W, 3], the frame's alpha [H, W] (its person mask)
+    or None, and its 8-bit sRGB codes [H, W, 3] when it came from 8-bit codes (video), else None."""
+
+    index: int
+    image: np.ndarray
+    alpha: np.ndarray | None
+    codes: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class ClipInfo:
+    """What a clip is: `frames` is exact for folders, the container's count (or duration x rate)
+    for video files, None when neither is known."""
+
+    path: Path
+    kind: str                 # "video" or "frames"
+    width: int
+    height: int
+    fps: Fraction
+    frames: int | None
+    audio: bool = False
+    names: tuple[str, ...] = field(default=(), repr=False)   # frame file stems (folders)
+    colour: dict = field(default_factory=dict, repr=False)   # video colour tags, copied to the output
+
+
+def frame_spans(indices) -> str:
+    """0-based frame indices as 1-based frame numbers in ranges: '3-5, 9'."""
+    out, run = [], []
+    for i in sorted(indices):
+        if run and i == run[-1] + 1:
+            run.append(i)
+            continue
+        if run:
+            out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
+        run = [i]
+    if run:
+        out.append(f"{run[0] + 1}" if len(run) == 1 else f"{run[0] + 1}-{run[-1] + 1}")
+    return ", ".join(out)
+
+
+def frame_number(name: str) -> int | None:
+    """The number a frame file's stem ends in (its last run of digits), or None."""
+    m = _NUMBER.search(name)
+    return int(m.group(1)) if m else None
+
+
+# a frame's 8- or 16-bit sRGB codes -> linear float32: the one decoder (relight.colour), the photo's too
+decode_srgb = decode_srgb_codes
+
+
+# ------------------------------------------------------------------ folders of frames
+
+
+class FrameFolder:
+    """The numbered frames of a folder, read with relight.files.photo (alpha, when a frame has
+    one, is returned as its mask)."""
+
+    def __init__(self, path, fps: Fraction | None = None, max_pixels: int | None = None, files=None):
+        self.path = Path(path)
+        self.max_pixels = max_pixels
+        if files is None:
+            files = [p for p in self.path.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES
+                     and not p.name.startswith(".")]
+        if not files:
+            raise ValueError(f"{self.path}: no frames ({', '.join(FRAME_SUFFIXES)}) in the folder")
+        numbered = {}
+        for p in files:
+            n = frame_number(p.stem)
+            if n is None:
+                raise ValueError(f"{self.path}: frame {p.name} has no number in its name (frames are "
+                                 "ordered by the number their names end in: frame_0001.png, ...)")
+            if n in numbered:
+                raise ValueError(f"{self.path}: two frames are numbered {n}: {numbered[n].name} and {p.name}")
+            numbered[n] = p
+        self.files = [numbered[n] for n in sorted(numbered)]
+        width, height = self._sizes()
+        self.info = ClipInfo(self.path, "frames", width, height, fps or DEFAULT_FPS, len(self.files),
+                             names=tuple(p.stem for p in self.files))
+
+    @classmethod
+    def from_files(cls, files, fps: Fraction | None = None, max_pixels: int | None = None) -> "FrameFolder":
+        """The clip of these frame files (one folder's image sequence; ordered by their numbers)."""
+        files = [Path(f) for f in files]
+        return cls(files[0].parent if files else Path("."), fps, max_pixels, files)
+
+    def _sizes(self) -> tuple[int, int]:
+        """The size every frame declares, read from headers only; ValueError at the first that differs
+        and when the first is larger than a photo may be (relight.files.image_limits)."""
+        from relight.files.image_limits import check_declared_size
+
+        first = None
+        for p in self.files:
+            size = _declared_size(p)
+            if first is None:
+                check_declared_size(*size, p, max_pixels=self.max_pixels)
+                first = (p, size)
+            elif size != first[1]:
+                raise ValueError(f"{p}: frame is {size[0]}x{size[1]}, but {first[0].name} is "
+                                 f"{first[1][0]}x{first[1][1]}: every frame of a clip must have one size")
+        return first[1]
+
+    def frames(self, start: int = 0):
+        """Frames (linear float32 [H, W, 3], alpha [H, W] or None; codes None) from `start` on."""
+        from relight.files.photo import read_photo
+
+        for index in range(start, len(self.files)):
+            image, alpha = read_photo(self.files[index], self.max_pixels)
+            if image.shape[:2] != (self.info.height, self.info.width):  # a header that lied
+                raise ValueError(f"{self.files[index]}: frame is {image.shape[1]}x{image.shape[0]}, the clip is "
+                                 f"{self.info.width}x{self.info.height}")
+            yield Frame(index, image, alpha, None)
+
+
+def _declared_size(path: Path) -> tuple[int, int]:
+    from relight.files.photo import EXR_MAGIC
+
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic == EXR_MAGIC:
+        from relight.files.exr import exr_size
+
+        return tuple(exr_size(path))
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            # Pillow's DecompressionBombWarning (and EXIF complaints): the size is weighed by our
+            # own check (FrameFolder, relight.files.image_limits), which says what to do
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                size = im.size
+                try:  # a PNG's EXIF may follow its pixels: a truncated file fails when the frame is read
+                    orientation = im.getexif().get(0x0112, 1)  # EXIF rotations that swap the sides
+                except Exception:  # Pillow's many types; the size alone is weighed
+                    orientation = 1
+                return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
+    except Image.DecompressionBombError:  # over twice Pillow's limit: above MAX_PIXELS too
+        from relight.files.image_limits import MAX_PIXELS
+
+        raise ValueError(f"{path}: image is too large (over {2 * Image.MAX_IMAGE_PIXELS:,} pixels; at most "
+                         f"{MAX_PIXELS:,} can be relit): scale the frames down") from None
+    except Exception as exc:  # Pillow's many exception types: one ValueError naming the file
+        if isinstance(exc, MemoryError):
+            raise
+        raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
+
+
+# ------------------------------------------------------------------ video files
+
+
+def import_av():
+    try:
+        import av
+    except ImportError:
+        raise ValueError("reading and writing video files needs PyAV: pip install 'fullbody-relight[video]' "
+                         "(or give a folder of frames)") from None
+    return av
+
+
+def open_container(path: Path):
+    av = import_av()
+    try:
+        return av.open(str(path), mode="r")
+    except (av.error.FFmpegError, UnicodeDecodeError, OSError) as exc:
+        if isinstance(exc, OSError) and not isinstance(exc, av.error.FFmpegError):
+            raise
+        raise ValueError(f"{path}: not a readable video ({exc})") from None
+
+
+class VideoFile:
+    """A video file's first video stream, decoded frame by frame (PyAV, threaded decoding)."""
+
+    def __init__(self, path, max_pixels: int | None = None):
+        from relight.files.image_limits import check_declared_size
+
+        self.path = Path(path)
+        container = open_container(self.path)
+        try:
+            if container.format.name in ("image2", "gif") or container.format.name.endswith("_pipe"):
+                raise ValueError(f"{self.path}: an image, not a video (relight image relights a photo; "
+                                 "relight video takes a video file or a folder of frames)")
+            if not container.streams.video:
+                raise ValueError(f"{self.path}: no video stream in the file")
+            stream = container.streams.video[0]
+            ctx = stream.codec_context
+            width, height = ctx.width, ctx.height
+            check_declared_size(width, height, self.path, max_pixels=max_pixels,
+                                bytes_per_pixel=64)  # a frame in flight through decode, relight, encode
+            fps = stream.average_rate or stream.guessed_rate or stream.base_rate
+            if not fps or not 0 < fps <= MAX_FPS:
+                raise ValueError(f"{self.path}: the video stream has no usable frame rate ({fps})")
+            count = stream.frames or None
+            if count is None and stream.duration is not None and stream.time_base is not None:
+                count = max(1, round(float(stream.duration * stream.time_base * fps)))
+            elif count is None and container.duration:
+                count = max(1, round(container.duration / 1_000_000 * float(fps)))
+            colour = {"colorspace": int(ctx.colorspace), "color_primaries": int(ctx.color_primaries),
+                      "color_trc": int(ctx.color_trc), "color_range": int(ctx.color_range)}
+            self.info = ClipInfo(self.path, "video", width, height, Fraction(fps), count,
+                                 audio=bool(container.streams.audio), colour=colour)
+        finally:
+            container.close()
+
+    def frames(self, start: int = 0):
+        """Frames from `start` on (earlier frames are decoded and dropped: exact whatever the
+        codec's keyframes); 8-bit streams keep their sRGB codes beside the linear image."""
+        av = import_av()
+        container = open_container(self.path)
+        try:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            index = 0
+            try:
+                for frame in container.decode(stream):
+                    if index >= start:
+                        codes = self._codes(frame)
+                        image = decode_srgb(codes)
+                        yield Frame(index, image, None, codes if codes.dtype == np.uint8 else None)
+                    index += 1
+            except av.error.FFmpegError as exc:
+                raise ValueError(f"{self.path}: cannot decode frame {index + 1} ({exc})") from None
+            if index == 0:
+                raise ValueError(f"{self.path}: the video stream holds no frames")
+        finally:
+            container.close()
+
+    def _codes(self, frame) -> np.ndarray:
+        """The frame's sRGB codes [H, W, 3]: uint8, or uint16 for deeper streams."""
+        if (frame.width, frame.height) != (self.info.width, self.info.height):
+            raise ValueError(f"{self.path}: the frame size changes mid-stream ({frame.width}x{frame.height}, "
+                             f"was {self.info.width}x{self.info.height})")
+        deep = frame.format.name.endswith(("10le", "10be", "12le", "12be", "16le", "16be"))
+        space = int(frame.colorspace)
+        kwargs = {}
+        if frame.format.name.startswith("yuv") or frame.format.name.startswith("nv"):
+            if space in (2, 0):  # unspecified (or RGB-coded): the usual guess by height
+                kwargs["src_colorspace"] = "itu709" if frame.height >= 720 else "itu601"
+            kwargs["src_color_range"] = "JPEG" if int(frame.color_range) == 2 or frame.format.name.startswith(
+                "yuvj") else "MPEG"
+        return frame.to_ndarray(format="rgb48le" if deep else "rgb24", **kwargs)
+
+
+def open_clip(path, fps: Fraction | None = None, max_pixels: int | None = None):
+    """A FrameFolder for a folder, a VideoFile for a file; ValueError when it is neither."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such file or folder")
+    if path.is_dir():
+        return FrameFolder(path, fps, max_pixels)
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: file is empty")
+    clip = VideoFile(path, max_pixels)
+    if fps is not None:
+        raise ValueError("--fps applies to a folder of frames; a video file keeps its own frame rate")
+    return clip
+
+
+def prefetch(frames, depth: int = 2):
+    """The frames of an iterator, decoded one or two ahead on a thread (decoding overlaps relighting)."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def produce():
+        try:
+            for item in frames:
+                while not stop.is_set():
+                    try:
+                        q.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(end)
+        except BaseException as exc:  # handed to the consumer, raised there
+            q.put(exc)
+
+    thread = threading.Thread(target=produce, daemon=True, name="relight-decode")
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5)

@@ -1,0 +1,419 @@
+"""What the network saw in one photo, and relighting it: rho * (T . L') + E . L'.
+
+A Decomposition keeps the network's outputs at working resolution over the
+crop around the person. Relighting evaluates the formula (relight.network.prt) over the
+matte's pixels only, clamps it at 0 (negative light is SH ringing,
+docs/conventions.md), and hands it to relight.network.composite, which brings it to the
+photo's resolution over the untouched original. The light is SH coefficients
+[n, 3]: relight.lighting.light turns maps, presets and other photos into them.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from relight.lighting import sh
+from relight.person.box import Box
+from relight.network.composite import ALPHA_FLOOR, DETAIL_EPS, composite
+from relight.network.foreground import foreground, smooth_colours
+from relight.lighting.light import fit_checked
+from relight.person.mask_ops import dilate
+from relight.network.resample import Bilinear
+
+__all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "checked_light",
+           "exposure_scale"]
+
+DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
+# the light's bands past the order a relight uses may move a working-resolution value by at
+# most this (linear; an 8-bit output step is >= 1/255 of white at sRGB's steepest): per request,
+# bands a light does not need are not evaluated (docs/TRADEOFFS.md, "Only what the photo needs")
+ORDER_TOLERANCE = 0.25 / 255
+STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
+LAYER_NAMES = ("albedo", "shading", "residual", "alpha")  # Decomposition.layers(), in this order
+EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is far past any sensor; the one bound (the CLI's and the add-on's)
+
+
+def exposure_scale(exposure_ev) -> float:
+    """2 ** exposure_ev, for a finite exposure within +-EXPOSURE_LIMIT EV (ValueError otherwise)."""
+    try:
+        ev = float(exposure_ev)
+    except (TypeError, ValueError):
+        raise ValueError(f"exposure must be a number of EV stops, got {exposure_ev!r}") from None
+    if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
+        raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
+    return 2.0 ** ev
+
+
+def checked_light(coeffs) -> np.ndarray:
+    """A light given to a Decomposition, checked once: numeric SH coefficients [m, 3] of an SH
+    order, finite, as float64 (ValueError otherwise)."""
+    if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
+        raise ValueError(f"light must be SH coefficients [n, 3] (relight.lighting.light.sh_light makes them from a "
+                         f"map, preset or photo), got {type(coeffs).__name__}")
+    arr = np.asarray(coeffs)
+    if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
+    return sh.validate_coeffs(arr)
+
+
+@dataclass(frozen=True)
+class RelightStats:
+    """Negative light clamped to 0 by one relight, counted at working resolution
+    over the matte's pixels (alpha > 0)."""
+
+    clamped: int    # pixels with a channel of albedo * (T . L') + E . L' below 0
+    pixels: int     # pixels of the matte
+    darkest: float  # the most negative channel value before the clamp (0.0 when none)
+    sh_order: int = -1      # the light's order evaluated (bands above moved no value > ORDER_TOLERANCE)
+    residual: bool = True   # whether E . L' was evaluated (False: E is zero on the matte)
+
+    @property
+    def fraction(self) -> float:
+        return self.clamped / self.pixels if self.pixels else 0.0
+
+
+@dataclass
+class Decomposition:
+    """What the network saw in one photo, kept at working resolution.
+
+    albedo [h, w, 3], transport [h, w, n], residual [h, w, n], alpha [h, w]
+    and light [n, 3] belong to the crop `box` (relight.person.box.Box: y0, y1, x0, x1) of the
+    photo resized to `working_size` = (h, w). `photo` is the original (not copied).
+    residual=None: the model has no residual E (its metadata says so): the field then
+    reads as zeros without holding any, and E . L' is never evaluated. Built once per
+    photo; `with_light` gives it another estimate of the photo's light.
+    """
+
+    albedo: np.ndarray
+    transport: np.ndarray
+    residual: np.ndarray
+    light: np.ndarray
+    alpha: np.ndarray
+    box: Box
+    working_size: tuple[int, int]
+    photo: np.ndarray = field(repr=False)
+    photo_working: np.ndarray = field(repr=False)   # the crop at working resolution
+    mask: np.ndarray | None = field(default=None, repr=False)  # user mask (full resolution)
+    sh_order: int = 4
+    person_matte: object = field(default=None, repr=False)  # relight.person.matte.PersonMatte when it gave the mask
+    network_alpha: np.ndarray | None = field(default=None, repr=False)  # the alpha head's [h, w], as it came
+    choices: dict = field(default_factory=dict)  # what the runtime decided for this photo (output metadata)
+
+    def __post_init__(self):
+        self.box = Box(*self.box)
+        h, w = self.working_size
+        n = sh.num_coeffs(self.sh_order)
+        zero_residual = self.residual is None
+        if zero_residual:  # the model has no E (relight.network.session.ModelSession.residual_is_zero): no array
+            self.residual = np.broadcast_to(np.zeros((), np.float32), (h, w, n))  # zeros, no memory
+        # matte pixels grown by one: the bilinear taps of every full-resolution
+        # pixel inside the matte then read relit values, never the zeros around
+        self._matte = np.flatnonzero(dilate(self.alpha > 0, 1).reshape(-1))
+        inside = self.alpha.reshape(-1)[self._matte] > 0  # the grown ring is not the person
+        if zero_residual:
+            self._residual_m, self._has_residual = None, False
+        else:
+            self._residual_m = np.ascontiguousarray(self.residual.reshape(-1, n)[self._matte])
+            self._has_residual = bool(np.any(self._residual_m))
+        self._inside = inside.astype(np.float32)
+        self._inside_count = int(np.count_nonzero(inside))
+        self.last_stats: RelightStats | None = None  # set by every relight (the latest call's)
+        y0, y1, x0, x1 = self.box
+        self._up = Bilinear(y1 - y0, x1 - x0, h, w)
+        self._alpha_prepared = None
+        self._smooth_prepared = None  # relight.network.foreground's smooth colours, prepared on demand
+        self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
+        self._gather()
+
+    def _gather(self) -> None:
+        """The albedo and transport over the matte's pixels, and what each light band can add."""
+        n = sh.num_coeffs(self.sh_order)
+        self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
+        self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
+        # per band l, the largest |T_l(x)| (and |E_l(x)|) over the matte: bounds what the light's
+        # band l can add to any pixel (Cauchy-Schwarz), so a request evaluates only the bands it needs
+        bands = [slice(l * l, (l + 1) * (l + 1)) for l in range(self.sh_order + 1)]
+        reach = np.zeros(len(bands))
+        for part in (self._transport_m, self._residual_m) if self._has_residual else (self._transport_m,):
+            if part.shape[0]:
+                albedo_max = 1.0 if part is self._residual_m else max(float(self._albedo_m.max(initial=0.0)), 0.0)
+                reach += albedo_max * np.array([np.sqrt((part[:, b].astype(np.float64) ** 2).sum(axis=1)).max()
+                                                for b in bands])
+        self._band_reach = reach
+
+    def with_light(self, light: np.ndarray, transport: np.ndarray | None = None,
+                   reliable: float | None = None) -> "Decomposition":
+        """This photo's decomposition under another estimate of its light [n, 3] (and, from
+        relight.network.tta, its transport [h, w, n]): the one step that changes the photo's light. The
+        albedo follows from them by the model's photo-consistent rule
+        (relight.network.refine.consistent_albedo -> relight.network.prt.photo_consistent_albedo, the rule the
+        graph runs; `reliable`: its shading floor, None: relight.network.prt.ALBEDO_RELIABLE). The
+        matte, crop and resamplers are kept, not rebuilt; this object is unchanged."""
+        from relight.network.refine import consistent_albedo
+
+        transport = self.transport if transport is None else transport
+        light = np.asarray(light, np.float32)
+        new = copy.copy(self)
+        new.transport, new.light = transport, light
+        new.albedo = consistent_albedo(self, transport, light, *(() if reliable is None else (reliable,)))
+        new.choices = dict(self.choices)
+        new.last_stats = None
+        new._gather()
+        return new
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(H, W) of the photo."""
+        return self.photo.shape[:2]
+
+    def fit_light(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
+        """The light a relight uses: SH coefficients [m, 3] (checked) cut or zero-padded to the
+        model's order, times 2**exposure_ev, float32. Fitted once per light: asked again for
+        the same coefficients and exposure (the add-on's layers, relight then layers) it
+        returns the same array."""
+        return self._fit_light(checked_light(coeffs), exposure_scale(exposure_ev))
+
+    def _fit_light(self, light: np.ndarray, scale: float) -> np.ndarray:
+        """fit_light of a light already checked (checked_light, or relight.lighting.light's SHLight: finite
+        float64 SH [m, 3]) and an exposure's scale already checked: nothing checked again."""
+        last = self._fitted
+        if last is not None and last[1] == scale and last[0].shape == light.shape and np.array_equal(last[0], light):
+            return last[2]
+        L = (fit_checked(light, sh.num_coeffs(self.sh_order)) * scale).astype(np.float32)
+        L.setflags(write=False)  # shared by every call with this light
+        self._fitted = (light.copy(), scale, L)
+        return L
+
+    def order_needed(self, light: np.ndarray) -> int:
+        """The smallest SH order k whose dropped bands (k+1 .. the model's order) can move no
+        value of this decomposition's relight by more than ORDER_TOLERANCE under `light`
+        [n, 3] (fitted to the model's order, exposure applied)."""
+        bands = np.array([np.linalg.norm(light[l * l:(l + 1) * (l + 1)], axis=0).max()
+                          for l in range(self.sh_order + 1)])
+        tail = np.cumsum((self._band_reach * bands)[::-1])[::-1]  # tail[l]: bands l.. together
+        for k in range(self.sh_order):
+            if tail[k + 1] <= ORDER_TOLERANCE:
+                return k
+        return self.sh_order
+
+    def relight_working(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0) -> np.ndarray:
+        """The relit person at working resolution, [h, w, 3], zero outside the matte:
+        max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
+        Only the light's bands this request needs are evaluated (order_needed, judged on the
+        result times `output_scale`: the exposure a caller applies after), and E . L' only when
+        E is not zero; `last_stats` says which.
+
+        A radiance is >= 0; negative values are SH truncation ringing (or network
+        error), not light: they are set to 0 and counted in `last_stats`
+        (docs/conventions.md, "Ringing and negative light").
+        """
+        return self._relit(self.fit_light(coeffs, exposure_ev), output_scale)
+
+    def _relit(self, L: np.ndarray, output_scale: float) -> np.ndarray:
+        """relight_working under the fitted light L."""
+        h, w = self.working_size
+        order = self.order_needed(L * np.float32(output_scale))
+        n = sh.num_coeffs(order)
+        relit = self._albedo_m * (self._transport_m[:, :n] @ L[:n])
+        if self._has_residual:
+            relit += self._residual_m[:, :n] @ L[:n]
+        # per-pixel minimum as two column minima: relit.min(axis=1) loops 3 values at a time, 30x slower
+        darkest = np.minimum(np.minimum(relit[:, 0], relit[:, 1]), relit[:, 2])
+        np.minimum(darkest, np.float32(0.0), out=darkest)
+        darkest *= self._inside  # only the person's pixels count, not the grown ring
+        self.last_stats = RelightStats(clamped=int(np.count_nonzero(darkest)), pixels=self._inside_count,
+                                       darkest=float(darkest.min(initial=0.0)), sh_order=order,
+                                       residual=self._has_residual)
+        np.maximum(relit, np.float32(0.0), out=relit)
+        if self._matte.size == h * w:  # matte covers the crop: no scatter needed
+            return relit.reshape(h, w, 3)
+        out = np.zeros((h * w, 3), np.float32)
+        out[self._matte] = relit
+        return out.reshape(h, w, 3)
+
+    def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True,
+                out: np.ndarray | None = None) -> np.ndarray:
+        """The photo relit by the SH light `coeffs`, linear float32 [H, W, 3] at full resolution.
+
+        `coeffs`: SH coefficients [m, 3] (cut or zero-padded to the model's order;
+        relight.lighting.light.sh_light makes them from a map, preset or another photo),
+        scaled by 2**exposure_ev. Pixels outside the matte keep their values bit
+        for bit. When the crop was resized for the network, `detail` relights the
+        full-resolution photo by the upsampled quotient relit / photo of working
+        resolution (keeps the photo's fine texture); without it the relit person
+        is just upsampled. The relit person is >= 0 (negative light clamped;
+        `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
+        written and returned instead of a new array (relight.network.composite).
+        """
+        return self._relight(checked_light(coeffs), exposure_scale(exposure_ev), detail, out)
+
+    def _relight(self, light: np.ndarray, scale: float, detail: bool = True,
+                 out: np.ndarray | None = None) -> np.ndarray:
+        """relight() of a light and an exposure's scale (2**EV) already checked (as _fit_light
+        takes them): relight image's path, whose light relight.lighting.light.SHLight checked and whose
+        --exposure its argparse type did."""
+        scale = np.float32(scale)
+        relit = self._relit(self._fit_light(light, 1.0), float(scale))
+        quotient = detail and not self._up.identity
+        if quotient:
+            source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
+            # capped: a bright speck averaged away at working resolution would
+            # otherwise be multiplied by relit / (its dark surroundings)
+            np.clip(source, 0.0, DETAIL_MAX, out=source)
+        else:
+            source = relit
+        # exposure folded into what is upsampled: a power of two for whole EV
+        # steps, so +1 EV still doubles the person exactly
+        source *= scale
+        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale, out)
+
+    def _alpha_strip(self, r0: int, r1: int) -> np.ndarray:
+        y0, _, x0, x1 = self.box
+        if self.mask is not None:
+            return self.mask[y0 + r0:y0 + r1, x0:x1, None]
+        if self._up.identity:
+            return self.alpha[r0:r1, :, None]  # already floored at decomposition
+        if self._alpha_prepared is None:
+            self._alpha_prepared = self._up.prepare(self.alpha[..., None])
+        a = self._up.strip(self._alpha_prepared, r0, r1)  # a fresh array
+        a[a < ALPHA_FLOOR] = 0.0
+        return a
+
+    def full_alpha(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The matte at full resolution [H, W] (zero outside the crop); `out`: see layer()."""
+        out = self._full_out(out, ())
+        y0, y1, x0, x1 = self.box
+        for r0 in range(0, y1 - y0, STRIP_ROWS):
+            r1 = min(r0 + STRIP_ROWS, y1 - y0)
+            out[y0 + r0:y0 + r1, x0:x1] = self._alpha_strip(r0, r1)[..., 0]
+        return out
+
+    def _edge_colour(self, r0: int, r1: int):
+        """Where the matte is soft in the crop's rows r0:r1: (soft [r1 - r0, w] bool, the photo
+        there [k, 3], the person's own colour there [k, 3]); None where it is nowhere soft. An
+        edge pixel of the photo mixes the person with the background, which the albedo layer
+        would otherwise carry into a composite over another background (relight.network.foreground)."""
+        a = self._alpha_strip(r0, r1)[..., 0]
+        soft = (a > 0.0) & (a < 1.0)
+        if not soft.any():
+            return None
+        if self._smooth_prepared is None:
+            self._smooth_prepared = self._up.prepare(smooth_colours(self.photo_working, self.alpha))
+        ys, xs = np.nonzero(soft)
+        y0, _, x0, _ = self.box
+        photo = self.photo[y0 + r0 + ys, x0 + xs]
+        return soft, photo, foreground(photo, a[soft][:, None], self._up.at(self._smooth_prepared, ys + r0, xs))
+
+    def _full_out(self, out: np.ndarray | None, channels: tuple) -> np.ndarray:
+        """A full-size float32 array [H, W, *channels], zero outside the crop (the crop is written
+        next): `out` when given (checked), else a new one."""
+        shape = (*self.size, *channels)
+        if out is None:
+            return np.zeros(shape, np.float32)
+        if out.shape != shape or out.dtype != np.float32:
+            raise ValueError(f"out must be float32 {shape}, got {out.dtype} {out.shape}")
+        y0, y1, x0, x1 = self.box
+        for c in range(channels[0]) if channels else [slice(None)]:
+            o = out[..., c]  # channel by channel: a strided view's inner loops run along the rows
+            o[:y0], o[y1:], o[y0:y1, :x0], o[y0:y1, x1:] = 0.0, 0.0, 0.0, 0.0
+        return out
+
+    def layers(self, coeffs=None, exposure_ev: float = 0.0) -> dict[str, np.ndarray]:
+        """Full-resolution albedo, shading T . L', residual E . L' ([H, W, 3], zero
+        outside the matte) and alpha [H, W]; L' is the SH light `coeffs`, or the
+        photo's own light when None. albedo * shading + residual is the relit
+        person before the clamp at 0 (the layers keep their sign: linear, for
+        compositing). Where the crop was resized for the network, the albedo carries the
+        photo's full-resolution texture by the same detail transfer as relight() (the
+        shading and residual are smooth: upsampled), so the product is relight()'s person
+        up to the order of upsampling, except where the matte is soft: there the albedo is
+        the person's own colour (relight.network.foreground), without the background the photo's edge
+        pixels mix in, so the layers composite over another background without its fringe."""
+        return self._layers(checked_light(self.light if coeffs is None else coeffs), exposure_scale(exposure_ev))
+
+    def _layers(self, light: np.ndarray, scale: float) -> dict[str, np.ndarray]:
+        """layers() of a light and an exposure's scale already checked (as _relight takes them)."""
+        L = self._fit_light(light, scale)
+        return {name: self._layer(name, L) for name in LAYER_NAMES}
+
+    def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
+        """One of layers() at full resolution, alone: a caller that packs each map as it comes
+        holds one full-size map at a time (a 24 MP map is 288 MB). `out` ([H, W, 3], alpha
+        [H, W], float32; a strided view too, e.g. channels of an RGBA buffer): written and
+        returned instead of a new array, so such a caller holds none at all."""
+        if name not in LAYER_NAMES:
+            raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
+        L = None if name in ("alpha", "albedo") else self.fit_light(self.light if coeffs is None else coeffs,
+                                                                     exposure_ev)
+        return self._layer(name, L, out)
+
+    def _layer(self, name: str, L: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+        """layer() under the fitted light L (None for the albedo and alpha)."""
+        if name == "alpha":
+            return self.full_alpha(out)
+        if name == "albedo":
+            if not self._up.identity:  # the photo's own detail, as relight() gives the relit person
+                return self._albedo_detailed(out)
+            values = self._albedo_m
+        elif name == "residual" and not self._has_residual:  # black under every light: no upsampling
+            if out is None:
+                return np.zeros((*self.size, 3), np.float32)
+            out = self._full_out(out, (3,))
+            y0, y1, x0, x1 = self.box
+            for c in range(3):
+                out[y0:y1, x0:x1, c] = 0.0
+            return out
+        else:
+            values = (self._transport_m if name == "shading" else self._residual_m) @ L
+        h, w = self.working_size
+        small = np.zeros((h * w, 3), np.float32)
+        small[self._matte] = values
+        return self._to_full(small.reshape(h, w, 3), out, edge_colour=name == "albedo")
+
+    @property
+    def has_residual(self) -> bool:
+        """False when the residual transport E is zero wherever the matte is (the geometry-first
+        model has none): its layer is black under every light."""
+        return self._has_residual
+
+    def _albedo_detailed(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The albedo layer at full resolution with the photo's fine texture: the full-resolution
+        photo times the upsampled quotient albedo / photo of working resolution (the detail
+        transfer of relight(), so albedo x shading is the relit person as relight() gives it, up to
+        the order of upsampling), capped like it and kept in [0, 1]."""
+        h, w = self.working_size
+        small = np.zeros((h * w, 3), np.float32)
+        photo_m = self.photo_working.reshape(-1, 3)[self._matte]
+        small[self._matte] = np.clip((self._albedo_m + DETAIL_EPS) / (photo_m + DETAIL_EPS), 0.0, DETAIL_MAX)
+        return self._to_full(small.reshape(h, w, 3), out, times_photo=True)
+
+    def _to_full(self, small: np.ndarray, out: np.ndarray | None = None, times_photo: bool = False,
+                 edge_colour: bool = False) -> np.ndarray:
+        """`small` [h, w, C] upsampled into the crop of a full-size array (zero outside it); with
+        `times_photo`, multiplied by the photo + DETAIL_EPS there, the person's own colour
+        (_edge_colour) standing in for the photo's where the matte is soft, and kept in [0, 1]
+        (an albedo); with `edge_colour` (an albedo at the photo's own size), only the latter."""
+        channels = small.shape[2]
+        out = self._full_out(out, (channels,))
+        packed = out.flags.c_contiguous
+        prepared = self._up.prepare(small)
+        y0, y1, x0, x1 = self.box
+        eps = np.float32(DETAIL_EPS)
+        for r0 in range(0, y1 - y0, STRIP_ROWS):
+            r1 = min(r0 + STRIP_ROWS, y1 - y0)
+            strip, target = self._up.strip(prepared, r0, r1), out[y0 + r0:y0 + r1, x0:x1]
+            if times_photo or edge_colour:  # (at the photo's own size the strip is a view of
+                if times_photo:              # `small`, this call's own array: changed in place)
+                    strip *= self.photo[y0 + r0:y0 + r1, x0:x1] + eps
+                edge = self._edge_colour(r0, r1)
+                if edge is not None:  # the photo's colour there exchanged for the person's
+                    soft, photo, person = edge
+                    strip[soft] *= (person + eps) / (photo + eps)
+                np.clip(strip, 0.0, 1.0, out=strip)
+            for c in [slice(None)] if packed else range(channels):
+                target[..., c] = strip[..., c]
+        return out
