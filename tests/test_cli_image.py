@@ -55,7 +55,7 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
 
 def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model, tmp_path, capsys, monkeypatch):
     # issue 39: the light where relight.lighting.light resolves it, --exposure by its argparse type; the
-    # decomposition trusts both (Decomposition._relight / _layers), its public relight checks them
+    # decomposition trusts both (Decomposition.relight_checked / layers_checked), its public relight checks them
     from relight.network import decomposition
     from relight.lighting import sh
 

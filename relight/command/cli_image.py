@@ -181,7 +181,7 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     d = relighter.decompose(image, mask, **decompose_options(args))
     # the light and --exposure were checked at the command's boundary (target_light, their argparse type)
     scale = 2.0 ** args.exposure
-    relit = d._relight(light, scale)
+    relit = d.relight_checked(light, scale)
     stats = d.last_stats
     done = record(args, relighter, d)
     metadata = {"relight": json.dumps(done, sort_keys=True)}
@@ -191,7 +191,7 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
         print(f"relight image: warning: {Path(out_path).name}: negative light (SH ringing) clamped to 0 "
               f"on {stats.fraction:.1%} of the person", file=sys.stderr)
     if args.layers:
-        layers = d._layers(light, scale)
+        layers = d.layers_checked(light, scale)
         return write_layers_exr(out_path, relit, layers, metadata)
     return write_image(out_path, relit, metadata)
 

@@ -249,13 +249,14 @@ class Decomposition:
         `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
         written and returned instead of a new array (relight.network.composite).
         """
-        return self._relight(checked_light(coeffs), exposure_scale(exposure_ev), detail, out)
+        return self.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), detail, out)
 
-    def _relight(self, light: np.ndarray, scale: float, detail: bool = True,
-                 out: np.ndarray | None = None) -> np.ndarray:
-        """relight() of a light and an exposure's scale (2**EV) already checked (as _fit_light
-        takes them): relight image's path, whose light relight.lighting.light.SHLight checked and whose
-        --exposure its argparse type did."""
+    def relight_checked(self, light: np.ndarray, scale: float, detail: bool = True,
+                        out: np.ndarray | None = None) -> np.ndarray:
+        """relight() for a caller that checked the light and the exposure at its own boundary:
+        `light` SH coefficients [m, 3] float64 as checked_light returns them, `scale` = 2**EV
+        (relight image: its light checked once by relight.lighting.light.SHLight, --exposure by
+        its argparse type). Nothing is checked again here."""
         scale = np.float32(scale)
         relit = self._relit(self._fit_light(light, 1.0), float(scale))
         quotient = detail and not self._up.identity
@@ -333,10 +334,10 @@ class Decomposition:
         up to the order of upsampling, except where the matte is soft: there the albedo is
         the person's own colour (relight.network.foreground), without the background the photo's edge
         pixels mix in, so the layers composite over another background without its fringe."""
-        return self._layers(checked_light(self.light if coeffs is None else coeffs), exposure_scale(exposure_ev))
+        return self.layers_checked(checked_light(self.light if coeffs is None else coeffs), exposure_scale(exposure_ev))
 
-    def _layers(self, light: np.ndarray, scale: float) -> dict[str, np.ndarray]:
-        """layers() of a light and an exposure's scale already checked (as _relight takes them)."""
+    def layers_checked(self, light: np.ndarray, scale: float) -> dict[str, np.ndarray]:
+        """layers() of a light and an exposure's scale already checked (as relight_checked takes them)."""
         L = self._fit_light(light, scale)
         return {name: self._layer(name, L) for name in LAYER_NAMES}
 
