@@ -166,13 +166,12 @@ def preview_decomposition(decomposition, long_side: int):
     result, only smaller.
     """
     from relight.network.decomposition import Decomposition
-    from relight.network.resample import resize_linear
+    from relight.network.resample import fit_longest, resize_linear
 
     H, W = decomposition.size
     if max(H, W) <= 1.25 * long_side:
         return None
-    s = long_side / max(H, W)
-    h, w = max(1, round(H * s)), max(1, round(W * s))
+    h, w = fit_longest(H, W, long_side)
     box = decomposition.box.rescaled((H, W), (h, w))
     # every k-th pixel first (k = half the reduction): the area filter then reads
     # 1/k^2 of the photo; a preview's slight aliasing is the price of ~10x less work

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Bilinear", "SourceRows", "area_shrink", "axis_taps", "bilinear_rows", "resize_linear", "sample_points",
-           "upsample_support"]
+__all__ = ["Bilinear", "SourceRows", "area_shrink", "axis_taps", "bilinear_rows", "fit_longest", "resize_linear",
+           "sample_points", "upsample_support"]
 
 
 def axis_taps(n_out: int, n_in: int):
@@ -128,6 +128,12 @@ def bilinear_rows(src: np.ndarray, out_h: int, out_w: int, r0: int = 0, r1: int 
     src = np.asarray(src)
     up = Bilinear(out_h, out_w, src.shape[0], src.shape[1])
     return up.strip(up.prepare(src), r0, out_h if r1 is None else r1)
+
+
+def fit_longest(h: int, w: int, longest: int) -> tuple[int, int]:
+    """(h, w) scaled so the longer side is `longest`, aspect kept, at least 1 px each."""
+    s = longest / max(h, w)
+    return max(1, round(h * s)), max(1, round(w * s))
 
 
 def resize_linear(img: np.ndarray, out_h: int, out_w: int) -> np.ndarray:

@@ -31,7 +31,7 @@ from relight.network.level import METADATA_KEY, LevelPrior, leveled
 from relight.person.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path
 from relight.network.prt import to_network_input
-from relight.network.resample import resize_linear
+from relight.network.resample import fit_longest, resize_linear
 from relight.network.session import ModelSession
 
 __all__ = ["Relighter", "Decomposition", "RelightStats", "MATTE_SOURCES", "check_working_size"]
@@ -62,12 +62,6 @@ def _check_mask(mask, shape) -> np.ndarray:
     if not m.max() > 0:
         raise ValueError("mask is empty (all zero): it marks no person")
     return m
-
-
-def _fit(h: int, w: int, longest: int) -> tuple[int, int]:
-    """(h, w) scaled so the longer side is `longest`, at least 1 px each."""
-    s = longest / max(h, w)
-    return max(1, round(h * s)), max(1, round(w * s))
 
 
 def _with_margin(box: Box, height: int, width: int) -> Box:
@@ -150,7 +144,7 @@ class Relighter(ModelSession):
         """Crop box around the person, from a low-resolution pass of the network's alpha
         head; the whole frame when it finds nobody."""
         H, W = photo.shape[:2]
-        h, w = _fit(H, W, min(FIND_SIZE, self.working_size))
+        h, w = fit_longest(H, W, min(FIND_SIZE, self.working_size))
         alpha = self._run_image(resize_linear(photo, h, w), None)["alpha"][..., 0]
         box = Box.around(alpha, FIND_THRESHOLD)
         if box is None:
@@ -211,7 +205,7 @@ class Relighter(ModelSession):
             photo = check_photo(photo)
             box = self.find_person(photo)
         y0, y1, x0, x1 = box
-        h, w = _fit(y1 - y0, x1 - x0, size)
+        h, w = fit_longest(y1 - y0, x1 - x0, size)
         crop = resize_linear(photo[y0:y1, x0:x1], h, w)
         small_mask = None if mask is None else np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0)
         out = self._run_image(crop, small_mask)

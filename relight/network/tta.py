@@ -18,7 +18,7 @@ import functools
 import numpy as np
 
 from relight.lighting import sh
-from relight.network.resample import resize_linear
+from relight.network.resample import fit_longest, resize_linear
 
 __all__ = ["mirror_x", "average", "averaged", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
 
@@ -68,11 +68,6 @@ class _Run:
         self.transport, self.light, self.sh_order, self.working_size = transport, light, sh_order, working_size
 
 
-def _fit(h: int, w: int, longest: int) -> tuple[int, int]:
-    s = longest / max(h, w)
-    return max(1, round(h * s)), max(1, round(w * s))
-
-
 def augment(relighter, base, augmentations=AUGMENTATIONS, stop_when_agreed: float | None = None):
     """`base` (relighter's decomposition of a photo) averaged with the network's answers on the
     same crop mirrored and/or at other working sizes: [(scale of base's working size,
@@ -99,7 +94,7 @@ def runs(relighter, base, augmentations, stop_when_agreed: float | None = None) 
         matte = None
     done, crops = [], {}
     for scale, mirrored in augmentations:
-        h, w = _fit(y1 - y0, x1 - x0, max(16, round(max(base.working_size) * scale)))
+        h, w = fit_longest(y1 - y0, x1 - x0, max(16, round(max(base.working_size) * scale)))
         if (h, w) not in crops:
             small = base.photo_working if (h, w) == base.working_size else resize_linear(crop, h, w)
             small_matte = resize_linear(matte, h, w) if matte is not None else resize_linear(base.alpha, h, w)
