@@ -3,7 +3,7 @@ held-out set, through the runtime as a user runs it (relight.network.runtime wit
 the true alpha as the mask, like benchmarks/bench_quality.py.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_framing_presets.py --data data/heldout37_hs \\
-        [--presets draft,balanced,best] [--size 256] [--per-scene 4] [--threads 2]
+        [--presets draft,balanced,best] [--size 256] [--per-scene 4] [--threads 2] [--model M.onnx]
 
 Every pair (scene, light a -> light b) is decomposed at the preset's settings and relit to light
 b; scored against the path-traced image b over the interior pixels (model.scoring.metrics) and over the
@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 
-def run(data, presets, size: int, per_scene: int, threads: int) -> list[dict]:
+def run(data, presets, size: int, per_scene: int, threads: int, model=None) -> list[dict]:
     from model.scoring import face_region, metrics
     from model.samples.data import EvaluationPairs
     from model.samples.data_splits import find_scenes, held_out_light_names
@@ -34,7 +34,7 @@ def run(data, presets, size: int, per_scene: int, threads: int) -> list[dict]:
     out = []
     for key in presets:
         preset = quality.preset(key)
-        relighter = Relighter(threads=threads, working_size=preset.working_size)
+        relighter = Relighter(model, threads=threads, working_size=preset.working_size)
         options = preset.decompose_options()
         options.pop("matte_method", None)  # the true alpha is the mask: no segmenter
         scores, t0 = [], time.perf_counter()
@@ -86,8 +86,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=256, help="crop size of the pairs (px) before the runtime resizes")
     p.add_argument("--per-scene", type=int, default=4)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--model", default=None, help="a relighting .onnx (default: the registry's default)")
     a = p.parse_args(argv)
-    print(table(run(a.data, [k.strip() for k in a.presets.split(",")], a.size, a.per_scene, a.threads)))
+    print(table(run(a.data, [k.strip() for k in a.presets.split(",")], a.size, a.per_scene, a.threads, a.model)))
     return 0
 
 

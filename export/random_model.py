@@ -17,7 +17,12 @@ def random_relightnet(seed: int = 0, **config):
     from model.networks.network import RelightNet
 
     torch.manual_seed(seed)
-    net = RelightNet(**config)
+    return random_norm_statistics(RelightNet(**config))
+
+
+def random_norm_statistics(net: torch.nn.Module) -> torch.nn.Module:
+    """`net` in eval mode with every BatchNorm's statistics and affine terms drawn at random (from
+    torch's generator), as training leaves them: what folding them into the convolutions must keep."""
     with torch.no_grad():
         for module in net.modules():
             if isinstance(module, torch.nn.BatchNorm2d):

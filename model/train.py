@@ -23,7 +23,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
-from model.training.checkpoint import load_model, save_model
+from model.training.checkpoint import load_model, read_metadata, save_model
 from model.samples.data_augment import preset_training_lights
 from model.samples.data_crops import DEFAULT_PADDING
 from model.samples.data_splits import first_maps, training_map_names
@@ -107,8 +107,13 @@ def parse_args(argv=None):
     p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
                    help="cosine: decay to 5%% of --lr over --steps after the warm-up")
     p.add_argument("--warmup", type=int, default=0, help="linear warm-up steps")
+    p.add_argument("--schedule-steps", type=int, default=None, metavar="N",
+                   help="the learning-rate schedule's length (default --steps): a run stopped early on its schedule")
     p.add_argument("--init", default=None,
                    help="start from these .safetensors weights (same layout), e.g. a lower-resolution run")
+    p.add_argument("--frozen-norm", action="store_true",
+                   help="BatchNorm keeps its running statistics while training (needed to fine-tune "
+                        "weights recovered from an ONNX graph: python -m export.weights_from_onnx)")
     p.add_argument("--weight-decay", type=float, default=1e-2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--val-fraction", type=float, default=0.1, help="fraction of bodies held out for validation")
@@ -164,7 +169,7 @@ def parse_args(argv=None):
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     for name in ("steps", "batch", "accumulate", "size", "width", "depth", "val_every", "ckpt_every",
-                 "cache_scenes"):
+                 "cache_scenes", "schedule_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.order < 0:
@@ -186,6 +191,9 @@ def train(args) -> Path:
     warnings.filterwarnings("ignore", ".*does not have many workers.*")
     warnings.filterwarnings("ignore", ".*number of training batches.*")
     warnings.filterwarnings("ignore", ".*LeafSpec.*")  # lightning 2.6 vs torch 2.13 internals
+    if args.init and "recovered_from" in read_metadata(args.init) and not args.frozen_norm:
+        raise ValueError(f"--init {args.init}: weights recovered from an ONNX graph carry their BatchNorm "
+                         "folded into the convolutions; train them with --frozen-norm")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     L.seed_everything(args.seed, workers=True, verbose=False)
@@ -211,7 +219,8 @@ def train(args) -> Path:
 
     weights = loss_weights_from_args(args)
     module = RelightModule(build_model_config(args), weights, args.lr, args.weight_decay,
-                           args.lr_schedule, args.warmup, args.steps)
+                           args.lr_schedule, args.warmup, args.schedule_steps or args.steps,
+                           frozen_norm=args.frozen_norm)
     if args.init:
         start = load_model(args.init)
         if start.config() != module.model.config():

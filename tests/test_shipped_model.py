@@ -34,6 +34,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # The scenes: deterministic for a seed (same bodies, poses, lights, samples).
 SCENES, SEED, RES, LIGHTS, SAMPLES, ORDER = 3, 20250, 128, 2, 16, 4
+# issue 37: the same guard on head-and-shoulders photos (the farm's framing), its own seed
+CLOSE_FRAMING, CLOSE_SEED = "head-and-shoulders", 20251
 # The runtime's working size: the default quality preset's, as a user gets it (relight/network/quality.py).
 WORKING_SIZE = 128
 
@@ -53,6 +55,17 @@ MARGIN_OVER_EXPOSURE_MATCHED_DB: float | None = 0.5
 # 33.8 (the 2026-11-21 default) and 36.1 (trained with the first geometry model's 190 scenes and
 # budget). Bound: half way to the nearer, rounded down.
 MAX_MEDIAN_NORMAL_ERROR_DEG: float | None = 27.5
+# Re-measured for the every-framing model (issue 37, sha256 caa9df63d60f, 2026-11-27): 18.34 dB
+# (+4.44 over identity, +2.66 over exposure-matched), normals 20.4 deg; the margins above stand.
+# Head-and-shoulders (`.venv/bin/python tests/test_shipped_model.py --close`), the same rule:
+# every-framing model 24.83 dB, identity 22.58, exposure-matched 25.91 (+2.25 / -1.08 dB; one pair
+# is a map against itself turned 60 degrees, where the exposure-matched photo scores 34 dB);
+# tolerance 1.1 dB (half of +2.25), so margins +1.1 and -2.2. The full-body release it replaced:
+# 22.23 dB (-0.35 / -3.68): it fails both. Normals: 18.9 deg against the release's 41.6; the bound
+# is half way, rounded down.
+CLOSE_MARGIN_OVER_IDENTITY_DB = 1.1
+CLOSE_MARGIN_OVER_EXPOSURE_MATCHED_DB = -2.2
+CLOSE_MAX_MEDIAN_NORMAL_ERROR_DEG = 30.0
 
 
 # ------------------------------------------------------------------ the measurement
@@ -68,15 +81,15 @@ def default_model() -> Path:
     return path
 
 
-def render_scenes(folder: Path) -> list[Path]:
+def render_scenes(folder: Path, framing: str = "full-body", seed: int = SEED) -> list[Path]:
     """The guard's scenes in `folder` (rendered by the farm; finished ones are kept)."""
     import importlib.util
 
     if importlib.util.find_spec("bpy") is None:
         raise RuntimeError("the shipped-model guard renders its scenes with the farm: "
                            "install bpy (pip install -e '.[farm]')")
-    cmd = [sys.executable, "-m", "farm", "--out", str(folder), "--scenes", str(SCENES), "--seed", str(SEED),
-           "--res", str(RES), "--lights", str(LIGHTS), "--samples", str(SAMPLES), "--order", str(ORDER),
+    cmd = [sys.executable, "-m", "farm", "--out", str(folder), "--scenes", str(SCENES), "--seed", str(seed),
+           "--framing", framing, "--res", str(RES), "--lights", str(LIGHTS), "--samples", str(SAMPLES), "--order", str(ORDER),
            "--light-pool", "heldout", "--workers", "1", "--resume", "--no-progress"]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     if done.returncode != 0:
@@ -187,21 +200,31 @@ def shortfalls(rows: list[dict], over_identity: float, over_exposure_matched: fl
 # ------------------------------------------------------------------ the tests
 
 
-@pytest.fixture(scope="module")
-def scenes(tmp_path_factory):
-    """A function returning the rendered scenes (rendered on first call, once per module), so
-    that the guard checks the registry before it spends a minute rendering."""
+def _lazy_scenes(tmp_path_factory, name: str, **framing):
     rendered: list[Path] = []
 
     def get() -> list[Path]:
         if not rendered:
             try:
-                rendered.extend(render_scenes(tmp_path_factory.mktemp("heldout_scenes")))
+                rendered.extend(render_scenes(tmp_path_factory.mktemp(name), **framing))
             except RuntimeError as exc:
                 pytest.fail(str(exc))
         return rendered
 
     return get
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """A function returning the rendered scenes (rendered on first call, once per module), so
+    that the guard checks the registry before it spends a minute rendering."""
+    return _lazy_scenes(tmp_path_factory, "heldout_scenes")
+
+
+@pytest.fixture(scope="module")
+def close_scenes(tmp_path_factory):
+    """The same, framed head-and-shoulders (issue 37)."""
+    return _lazy_scenes(tmp_path_factory, "heldout_close_scenes", framing=CLOSE_FRAMING, seed=CLOSE_SEED)
 
 
 def test_shipped_default_model_beats_identity_on_held_out_lights(scenes):
@@ -218,6 +241,18 @@ def test_shipped_default_model_beats_identity_on_held_out_lights(scenes):
     print(table(rows, model.name))
     problems = shortfalls(rows, MARGIN_OVER_IDENTITY_DB, MARGIN_OVER_EXPOSURE_MATCHED_DB)
     assert not problems, f"{model.name}: " + "; ".join(problems) + "\n" + table(rows, "model")
+
+
+def test_shipped_default_model_relights_head_and_shoulders(close_scenes):
+    """Issue 37: on head-and-shoulders photos the model must beat one exposure change, which the
+    full-body-only release did not do by much (module docstring: the margins and their rule)."""
+    rows = pair_psnrs(model_relighter(default_model()), close_scenes())
+    print(table(rows, "head-and-shoulders"))
+    problems = shortfalls(rows, CLOSE_MARGIN_OVER_IDENTITY_DB, CLOSE_MARGIN_OVER_EXPOSURE_MATCHED_DB)
+    assert not problems, "head-and-shoulders: " + "; ".join(problems) + "\n" + table(rows, "model")
+    errors = normal_errors(default_model(), close_scenes())
+    print("median normal error per image (deg):", ", ".join(f"{e:.1f}" for e in errors))
+    assert float(np.mean(errors)) < CLOSE_MAX_MEDIAN_NORMAL_ERROR_DEG, errors
 
 
 def test_shipped_default_model_predicts_normals(scenes):
@@ -288,11 +323,13 @@ def main(argv=None) -> int:
                                 description="Measure the guard's PSNRs for a model (default: the registered default).")
     p.add_argument("model", nargs="?", help="ONNX model (default: the registry's default)")
     p.add_argument("--scenes-dir", type=Path, help="keep the rendered scenes here (reused when finished)")
+    p.add_argument("--close", action="store_true", help=f"the {CLOSE_FRAMING} scenes (seed {CLOSE_SEED})")
     args = p.parse_args(argv)
     try:
         model = Path(args.model) if args.model else default_model()
         folder = args.scenes_dir or Path(tempfile.mkdtemp(prefix="relight_guard_"))
-        scene_paths = render_scenes(folder)
+        framing = dict(framing=CLOSE_FRAMING, seed=CLOSE_SEED) if args.close else {}
+        scene_paths = render_scenes(folder, **framing)
         rows = pair_psnrs(model_relighter(model), scene_paths)
     except (ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)

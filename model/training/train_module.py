@@ -42,12 +42,24 @@ class RelightModule(L.LightningModule):
     weights by name (model.train.loss_weights_from_args)."""
 
     def __init__(self, model_config: dict, weights: dict, lr: float, weight_decay: float,
-                 schedule: str = "constant", warmup: int = 0, total_steps: int = 1):
+                 schedule: str = "constant", warmup: int = 0, total_steps: int = 1,
+                 frozen_norm: bool = False):
         super().__init__()
         self.save_hyperparameters()  # plain dicts and floats: loadable with weights_only=True
         self.model = build_network(model_config)
         self.geometry = model_config.get("arch") == GEOMETRY
         self.weights = dict(weights) if self.geometry else LossWeights.from_dict(weights)
+
+    def train(self, mode: bool = True):
+        """With `frozen_norm`, BatchNorm keeps its running statistics in training too (weights
+        recovered from an ONNX graph carry their statistics folded into the convolutions:
+        export.weights_from_onnx); its scale and shift still learn."""
+        super().train(mode)
+        if self.hparams.get("frozen_norm"):
+            for m in self.model.modules():
+                if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+                    m.eval()
+        return self
 
     def forward(self, image):
         return self.model(image)
