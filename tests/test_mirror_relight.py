@@ -16,7 +16,10 @@ Measured on the shipped model (2026-11-27, docs/EVALUATION.md "Issue 37"; photos
   astronaut 0.82 / 0.65), 0.13-0.31 under a light from the front or behind. The network is not mirror-equivariant (its convolutions and its training
   do not make it so), and under a side light the relit person differs by most of its own level:
   the failure the issue describes. The bound asserted is the measured worst case plus a margin, so
-  that it catches a change for the worse; it is NOT the goal.
+  that it catches a change for the worse; it is NOT the goal. The every-framing model (issue 37,
+  later the same day) is less asymmetric: 0.22-0.50 from the side (astronaut 0.50 / 0.48),
+  0.11-0.22 from the front or behind; the bounds (0.6 from 90 degrees, 0.2 from 0) are its worst
+  case plus about a fifth, as the release's were.
 - averaged with its run on the mirrored crop (Balanced since 2026-11-27, and the first of Best's
   augmentations: relight.network.tta, the one code path): at most 0.0007 over 0/90/180/270 degrees
   (0.013 with the astronaut at 512 px). The average is equivariant by construction (the mirrored
@@ -43,7 +46,7 @@ PHOTOS = (ROOT / "relight" / "data" / "examples" / "astronaut.jpg",
           ROOT / "relight" / "data" / "examples" / "grace_hopper.jpg",
           ROOT / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg")
 LONGEST = 384  # px: the photos are shrunk first (the network works at 128 px; the test stays quick)
-PLAIN_BOUND = {90.0: 0.9, 0.0: 0.35}  # measured 0.82 / 0.29 at worst (see the docstring): a regression guard
+PLAIN_BOUND = {90.0: 0.6, 0.0: 0.2}  # measured 0.50 / 0.15 at worst (see the docstring): a regression guard
 AUGMENTED_BOUND = 0.02
 
 
