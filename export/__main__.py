@@ -13,30 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-PARITY_TOLERANCE = 1e-4
-
-
-REAL_PHOTO = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples" / "astronaut.jpg"
-
-
-def _real_input(size_multiple: int) -> np.ndarray:
-    """The bundled example photo as the network sees it (relight.network.prt.to_network_input), cropped
-    to a multiple of size_multiple: parity on a real image, not only on noise."""
-    from relight.files.photo import read_photo
-    from relight.network.prt import to_network_input
-
-    linear = read_photo(REAL_PHOTO)[0]
-    h, w = (d - d % size_multiple for d in linear.shape[:2])
-    return to_network_input(linear[:h, :w]).transpose(2, 0, 1)[None].astype(np.float32)
-
-
-def _parity_inputs(size_multiple: int, seed: int = 0) -> list[np.ndarray]:
-    rng = np.random.default_rng(seed)
-    m = size_multiple
-    return [rng.uniform(-1, 1, (1, 3, 4 * m, 3 * m)).astype(np.float32),
-            rng.uniform(-1, 1, (2, 3, 2 * m, 5 * m)).astype(np.float32),
-            _real_input(m)]
-
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m export", description=__doc__.splitlines()[0])
@@ -57,8 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from model.training.checkpoint import load_model, read_metadata as read_ckpt_metadata
 
-        from export.onnx_export import (DEFAULT_TRAINING_DATA, export_onnx, max_abs_diff,
-                                        onnx_outputs, read_metadata, torch_outputs)
+        from export.onnx_export import (DEFAULT_TRAINING_DATA, PARITY_TOLERANCE, REAL_PHOTO, export_onnx,
+                                        fp32_parity, max_abs_diff, onnx_outputs, parity_inputs, read_metadata)
 
         net = load_model(args.weights)
         if args.fp16 and getattr(net, "arch", None) == "geometry":
@@ -69,10 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         ckpt_meta = read_ckpt_metadata(args.weights)
         training = args.training_data or ckpt_meta.get("training_data") or DEFAULT_TRAINING_DATA
         path, digest = export_onnx(net, out, training_data=str(training))
-        worst = 0.0
-        for x in _parity_inputs(net.size_multiple):
-            diff = max_abs_diff(torch_outputs(net, x), onnx_outputs(path, x))
-            worst = max(worst, max(diff.values()))
+        worst = fp32_parity(net, path)
         print(f"wrote {path} (sha256 {digest}); fp32 parity vs torch (2 random inputs and "
               f"{REAL_PHOTO.name}): max abs diff {worst:.3g}")
         if worst > PARITY_TOLERANCE:
@@ -85,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
 
             path16, digest16 = export_fp16(path, out.with_name(out.stem + ".fp16.onnx"))
             err, scale = {}, {}
-            for x in _parity_inputs(net.size_multiple, seed=1):
+            for x in parity_inputs(net.size_multiple, seed=1):
                 ref = onnx_outputs(path, x)
                 for k, v in max_abs_diff(ref, onnx_outputs(path16, x)).items():
                     err[k] = max(err.get(k, 0.0), v)

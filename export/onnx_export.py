@@ -25,6 +25,8 @@ from relight.models import (CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_
 
 OPSET = 17
 DEFAULT_TRAINING_DATA = "unspecified (weights not trained by this package's pipeline)"
+PARITY_TOLERANCE = 1e-4  # fp32 torch vs onnxruntime: summation order only (tests/test_export.py derives it)
+REAL_PHOTO = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples" / "astronaut.jpg"
 
 
 class _FiveOutputs(torch.nn.Module):
@@ -167,3 +169,31 @@ def max_abs_diff(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str
             raise ValueError(f"output {k}: shape {a[k].shape} != {b[k].shape}")
         out[k] = float(np.max(np.abs(a[k].astype(np.float64) - b[k].astype(np.float64))))
     return out
+
+
+def _real_input(size_multiple: int) -> np.ndarray:
+    """The bundled example photo as the network sees it (relight.network.prt.to_network_input), cropped
+    to a multiple of size_multiple: parity on a real image, not only on noise."""
+    from relight.files.photo import read_photo
+    from relight.network.prt import to_network_input
+
+    linear = read_photo(REAL_PHOTO)[0]
+    h, w = (d - d % size_multiple for d in linear.shape[:2])
+    return to_network_input(linear[:h, :w]).transpose(2, 0, 1)[None].astype(np.float32)
+
+
+def parity_inputs(size_multiple: int, seed: int = 0) -> list[np.ndarray]:
+    """Two noise batches of unequal sides and the bundled photo: what torch-vs-graph checks run on."""
+    rng = np.random.default_rng(seed)
+    m = size_multiple
+    return [rng.uniform(-1, 1, (1, 3, 4 * m, 3 * m)).astype(np.float32),
+            rng.uniform(-1, 1, (2, 3, 2 * m, 5 * m)).astype(np.float32),
+            _real_input(m)]
+
+
+def fp32_parity(net, model_path: str | os.PathLike) -> float:
+    """Max |torch - onnxruntime| over the five outputs and parity_inputs: compare with PARITY_TOLERANCE."""
+    worst = 0.0
+    for x in parity_inputs(int(net.size_multiple)):
+        worst = max(worst, max(max_abs_diff(torch_outputs(net, x), onnx_outputs(model_path, x)).values()))
+    return worst

@@ -28,7 +28,7 @@ import onnx
 import torch
 from onnx import numpy_helper
 
-PARITY_TOLERANCE = 1e-4  # the same bound export's own torch-vs-ONNX check uses
+from export.onnx_export import PARITY_TOLERANCE, export_onnx, fp32_parity, read_metadata
 
 
 def _initializer_uses(model: onnx.ModelProto) -> list[tuple[str, int, str]]:
@@ -50,7 +50,6 @@ def _identity_norms(net: torch.nn.Module) -> list[torch.nn.BatchNorm2d]:
 
 def network_from_onnx(path: str | Path) -> torch.nn.Module:
     """The torch network of the graph at `path`, in eval mode, computing what the graph computes."""
-    from export.onnx_export import export_onnx, read_metadata
     from model.training.checkpoint import build_network
 
     try:
@@ -97,17 +96,6 @@ def network_from_onnx(path: str | Path) -> torch.nn.Module:
     return net.eval()
 
 
-def parity(net: torch.nn.Module, path: str | Path) -> float:
-    """Max |torch - onnxruntime| over the five outputs on the bundled photo and on noise."""
-    from export.__main__ import _parity_inputs
-    from export.onnx_export import max_abs_diff, onnx_outputs, torch_outputs
-
-    worst = 0.0
-    for image in _parity_inputs(int(net.size_multiple)):
-        worst = max(worst, max(max_abs_diff(torch_outputs(net, image), onnx_outputs(path, image)).values()))
-    return worst
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m export.weights_from_onnx", description=__doc__.splitlines()[0])
     parser.add_argument("model", help="a relight ONNX graph (relight/models/*.onnx)")
@@ -117,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         from model.training.checkpoint import save_model
 
         net = network_from_onnx(args.model)
-        worst = parity(net, args.model)
+        worst = fp32_parity(net, args.model)
         if not worst <= PARITY_TOLERANCE:
             raise ValueError(f"recovered network differs from the graph by {worst:.3g} (> {PARITY_TOLERANCE})")
         from relight.models import file_sha256
