@@ -183,6 +183,19 @@ def test_compositing_setup_and_world_survive_save_and_reopen(addon, model):
     assert len(bpy.data.worlds) == 1 and len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 1
 
 
+def test_compositing_setup_pressed_again_keeps_the_resolution_percentage(addon, model):
+    """Issue 48: pressed again it reset Resolution % from 50 to 100 (the artist's quick render)."""
+    name = relit_photo(model, addon)
+    render = bpy.context.scene.render
+    render.resolution_percentage = 30  # before the first press: the setup renders the photo at 100 %
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    assert render.resolution_percentage == 100
+    render.resolution_percentage = 50
+    render.resolution_x = 7  # the size is the photo's: set again
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    assert (render.resolution_x, render.resolution_y, render.resolution_percentage) == (W, H, 50)
+
+
 # ------------------------------------------------------------------ a render over the photo
 
 def _cube(location, size):

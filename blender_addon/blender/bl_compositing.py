@@ -36,7 +36,8 @@ def _in_scene(scene, obj) -> None:
 def make_camera(scene, photo, session):
     pid = session.photo_id
     obj = tagged(bpy.data.objects, pid, CAMERA)
-    if obj is None or obj.type != "CAMERA":
+    made = obj is None or obj.type != "CAMERA"
+    if made:
         path = _photo_file(photo)
         # the photo as Blender shows it (stored), the camera rolled to see the upright world so
         setup = photo_light.camera_setup(pixel_buffers.stored_size(session.photo.shape[:2], session.orientation),
@@ -58,7 +59,9 @@ def make_camera(scene, photo, session):
     scene.camera = obj
     height, width = pixel_buffers.stored_size(session.photo.shape[:2], session.orientation)
     render = scene.render
-    render.resolution_x, render.resolution_y, render.resolution_percentage = width, height, 100
+    render.resolution_x, render.resolution_y = width, height
+    if made:  # the artist's Resolution % (a quick render at 50 %) is kept when pressed again
+        render.resolution_percentage = 100
     render.pixel_aspect_x = render.pixel_aspect_y = 1.0
     return obj
 
