@@ -15,15 +15,17 @@ import sys
 import tempfile
 import threading
 from contextlib import contextmanager
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from relight.files.fileio import atomic_path
 
-__all__ = ["read_exr", "write_exr", "exr_size", "library_output_captured"]
+__all__ = ["read_exr", "write_exr", "write_exr_bands", "exr_size", "library_output_captured"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
+_LIBRARY_NAMES = {name: ("NO" if name == "none" else name.upper()) + "_COMPRESSION" for name in _COMPRESSIONS}
 
 
 def _openexr():
@@ -234,4 +236,91 @@ def write_exr(
                 failure = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if failure is not None:
             raise OSError(f"cannot write EXR {path}: {failure}{_said(said)}")
+    return path
+
+
+def _checked_attributes(attributes: dict[str, str] | None, reserved) -> dict[str, str]:
+    for key, value in (attributes or {}).items():
+        if not isinstance(key, str) or not key or key in reserved or not isinstance(value, str) or "\0" in value:
+            raise ValueError(f"EXR attributes must map new names to strings, got {key!r}: {type(value).__name__}")
+    return dict(attributes or {})
+
+
+def write_exr_bands(
+    path,
+    names: Sequence[str],
+    height: int,
+    width: int,
+    bands: Iterable[np.ndarray],
+    *,
+    compression: str = "zip",
+    half: bool = False,
+    attributes: dict[str, str] | None = None,
+) -> Path:
+    """Write a single-part scanline EXR from bands of rows, atomically (temp file + os.replace).
+
+    `bands` yields float arrays [rows, width, len(names)], top band first; channel c
+    of every band is stored as `names[c]`. Bands may have any number of rows >= 1
+    (they need not match the compression's chunk of 16 lines) and must add up to
+    `height`. Only one band is held at a time, so a many-layer image is written
+    without holding the layers whole: each band is compressed and written before
+    the next is drawn. Floats are stored as float32 (float16 when `half`), as
+    write_exr stores them; `attributes` are string attributes added to the header.
+
+    Nothing is left at `path` (an older file there is kept) when a band is wrong
+    (shape, dtype, too many or too few rows), the disk fails (OSError), or `bands`
+    itself raises, which is how a caller cancels a write: the exception propagates.
+
+    The library keeps the GIL while it compresses a band (its band writer is the
+    OpenEXR module's OutputFile): from a worker thread, bands of a few dozen rows
+    keep every stretch the main thread waits short.
+    """
+    path = Path(path)
+    if compression not in _COMPRESSIONS:
+        raise ValueError(f"EXR compression must be one of {_COMPRESSIONS}, got {compression!r}")
+    names = list(names)
+    if not names or any(not isinstance(n, str) or not n or "\0" in n for n in names) or len(set(names)) < len(names):
+        raise ValueError(f"EXR channel names must be distinct non-empty strings, got {names!r}")
+    if any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 for n in (height, width)):
+        raise ValueError(f"EXR size must be positive integers, got {height!r} x {width!r}")
+    import Imath  # shipped with the OpenEXR module
+
+    OpenEXR = _openexr()
+    header = OpenEXR.Header(int(width), int(height))
+    attributes = _checked_attributes(attributes, set(header) | {"type"})
+    pixel = Imath.PixelType(Imath.PixelType.HALF if half else Imath.PixelType.FLOAT)
+    header["channels"] = {name: Imath.Channel(pixel) for name in names}
+    header["compression"] = Imath.Compression(getattr(Imath.Compression, _LIBRARY_NAMES[compression]))
+    for key, value in attributes.items():
+        header[key] = value.encode("utf-8")  # this writer stores bytes as a string attribute
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"output folder does not exist: {path.parent}")
+    dtype = np.float16 if half else np.float32
+    with atomic_path(path, ".exr") as tmp:
+        try:
+            out = OpenEXR.OutputFile(str(tmp), header)
+        except OSError as exc:
+            raise OSError(f"cannot write EXR {path}: {exc}") from None
+        try:
+            done = 0
+            for band in bands:
+                band = np.asarray(band)
+                rows = band.shape[0] if band.ndim == 3 else 0
+                if band.ndim != 3 or rows < 1 or band.shape[1:] != (width, len(names)):
+                    raise ValueError(f"EXR band for {path.name} must be [rows, {width}, {len(names)}], "
+                                     f"got {band.shape}")
+                if not np.issubdtype(band.dtype, np.floating):
+                    raise ValueError(f"EXR band for {path.name} must hold floats, got {band.dtype}")
+                if done + rows > height:
+                    raise ValueError(f"EXR bands for {path.name} hold more than its {height} rows")
+                planes = {name: np.ascontiguousarray(band[..., c], dtype=dtype) for c, name in enumerate(names)}
+                try:
+                    out.writePixels(planes, rows)
+                except OSError as exc:
+                    raise OSError(f"cannot write EXR {path}: {exc}") from None
+                done += rows
+            if done != height:
+                raise ValueError(f"EXR bands for {path.name} hold {done} of its {height} rows")
+        finally:
+            out.close()
     return path
