@@ -182,6 +182,33 @@ def show_in_editors(session: state.PhotoSession, layer: str, windows=None) -> in
     return switched
 
 
+# ------------------------------------------------------------------ renames
+
+_RENAMES = object()  # the message bus owner of the rename subscription (Blender keeps its address: never freed)
+
+
+def on_image_renamed(*_args) -> None:
+    """An image's name was set: a relit photo's outputs take its new name at once."""
+    bl_images.sync_output_names()
+
+
+def follow_renames() -> None:
+    """Subscribe on_image_renamed to every image's name on Blender's message bus. Blender 5 also
+    sends a depsgraph update for a rename (on_depsgraph_update), Blender 4.2 none: its outputs
+    were renamed only at the next dial. A file load clears the subscriptions: made again then."""
+    bpy.msgbus.clear_by_owner(_RENAMES)
+    bpy.msgbus.subscribe_rna(key=(bpy.types.Image, "name"), owner=_RENAMES, args=(), notify=on_image_renamed)
+
+
+@bpy.app.handlers.persistent
+def on_load_follow_renames(*_args) -> None:
+    follow_renames()
+
+
+def stop_following_renames() -> None:
+    bpy.msgbus.clear_by_owner(_RENAMES)
+
+
 # ------------------------------------------------------------------ World edits
 
 _in_handler = False

@@ -401,6 +401,7 @@ _HANDLERS = ((bpy.app.handlers.depsgraph_update_pre, bl_session.on_update_pre),
              (bpy.app.handlers.depsgraph_update_post, bl_dials.on_depsgraph_update),
              (bpy.app.handlers.depsgraph_update_post, bl_session.on_update_post),
              (bpy.app.handlers.load_post, bl_saved.on_load),
+             (bpy.app.handlers.load_post, bl_dials.on_load_follow_renames),
              (bpy.app.handlers.save_post, bl_saved.on_save_post),
              (bpy.app.handlers.undo_post, bl_layers.on_undo_redo),
              (bpy.app.handlers.redo_post, bl_layers.on_undo_redo))
@@ -414,10 +415,12 @@ def register() -> None:
     for handlers, fn in _HANDLERS:
         if fn not in handlers:
             handlers.append(fn)
+    bl_dials.follow_renames()
 
 
 def unregister() -> None:
     bl_saved.wait_for_saves()
+    bl_dials.stop_following_renames()
     for timer in _TIMERS:
         if bpy.app.timers.is_registered(timer):
             bpy.app.timers.unregister(timer)
