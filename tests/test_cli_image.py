@@ -272,6 +272,65 @@ def test_a_second_writer_of_one_output_is_refused_and_kill_9_leftovers_are_clear
     assert sorted(p.name for p in out.iterdir()) == ["p0.png"]
 
 
+def test_an_output_reached_through_a_symlink_shares_the_lock_of_its_real_path(model, tmp_path, capsys):
+    # issue 48: `--out outA` and `--out alias` (alias -> outA) both ran and the folder mixed both lights
+    from fuzz_support import writer_holding
+
+    src = tmp_path / "in"
+    src.mkdir()
+    _save_photo(src / "p0.png")
+    real = tmp_path / "outA"
+    real.mkdir()
+    (tmp_path / "alias").symlink_to(real, target_is_directory=True)
+    (tmp_path / "links").symlink_to(tmp_path, target_is_directory=True)  # an alias of the parent folder
+    _save_photo(tmp_path / "p.png")
+    cases = [(real, [src, "--out", tmp_path / "alias"]),
+             (real, [src, "--out", tmp_path / "links" / "outA"]),
+             (tmp_path / "o.png", [tmp_path / "p.png", "--out", tmp_path / "links" / "o.png"])]
+    for held, argv in cases:
+        with writer_holding(held) as other:
+            code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+            assert code == 2 and err.count("\n") == 1, (argv, err)
+            assert f"(process {other.pid}) is writing" in err and "wait for it" in err, err
+        assert list(real.iterdir()) == [] and not (tmp_path / "o.png").exists()
+
+
+def test_a_planted_symlink_at_the_lock_path_is_refused_and_never_followed(model, tmp_path, capsys):
+    # issue 48: a symlink planted as .o.png.lock was followed: the file it names was truncated
+    # and overwritten with a process id
+    import os
+
+    _save_photo(tmp_path / "p.png")
+    victim = tmp_path / "victim.txt"
+    victim.write_text("the user's data\n")
+    for out in (tmp_path / "o.png", tmp_path / "out"):
+        argv = [tmp_path / "p.png" if out.suffix else _folder_of_one(tmp_path), "--out", out]
+        planted = tmp_path / f".{out.name}.lock"
+        for target in (victim, tmp_path / "nowhere"):  # to a file, and dangling (O_CREAT would make it)
+            planted.symlink_to(target)
+            code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+            assert code == 2 and err.count("\n") == 1, err
+            assert str(planted) in err and "symbolic link" in err, err
+            assert victim.read_text() == "the user's data\n" and not (tmp_path / "nowhere").exists()
+            assert not out.exists() and os.path.islink(planted)  # refused, not removed: the user decides
+            planted.unlink()
+        fifo = tmp_path / f".{out.name}.lock"
+        os.mkfifo(fifo)  # not a regular file: refused too (opening it must not block)
+        code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+        assert code == 2 and str(fifo) in err and "not a regular file" in err, err
+        fifo.unlink()
+        code, _, err = _run(capsys, *argv, "--light", "studio", "--model", model)
+        assert code == 0 and out.exists(), err
+
+
+def _folder_of_one(tmp_path):
+    src = tmp_path / "one"
+    if not src.exists():
+        src.mkdir()
+        _save_photo(src / "p0.png")
+    return src
+
+
 def test_folder_mode_refuses_an_output_named_as_a_file_of_another_format(model, tmp_path, capsys):
     src = tmp_path / "in"
     src.mkdir()

@@ -70,3 +70,54 @@ def test_stale_temps_are_the_atomic_writes_temporaries_only(tmp_path):
     assert [p.name for p in fileio.stale_temps_in(tmp_path)] == [".o.mp4.k9_left_.tmp.mp4",
                                                                  ".o.mp4x.abcdefgh.tmp.mp4",
                                                                  ".other.abcdefgh.tmp.mp4"]
+
+
+def test_every_name_of_one_output_shares_its_lock(tmp_path):
+    # issue 48: `--out outA` and `--out alias` (alias -> outA) each took a lock of its own
+    real = tmp_path / "outA"
+    real.mkdir()
+    (tmp_path / "alias").symlink_to(real, target_is_directory=True)
+    (tmp_path / "up").symlink_to(tmp_path, target_is_directory=True)
+    names = {real: [tmp_path / "alias", tmp_path / "up" / "outA", real / ".." / "outA"],
+             tmp_path / "o.png": [tmp_path / "up" / "o.png", real / ".." / "o.png"]}
+    for output, aliases in names.items():
+        for alias in aliases:
+            assert fileio.lock_path(alias) == fileio.lock_path(output) == tmp_path / f".{output.name}.lock"
+            with fileio.output_lock(output, "relight image"):
+                with pytest.raises(fileio.OutputBusy, match=f"is writing {alias}"):
+                    with fileio.output_lock(alias, "relight video"):
+                        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias", "outA", "up"]  # no lock file left
+
+
+def test_the_lock_never_writes_through_a_link_planted_at_its_path(tmp_path):
+    # issue 48: a symlink planted as .o.png.lock was followed and the file it names truncated
+    out = tmp_path / "o.png"
+    planted = fileio.lock_path(out)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("the user's data\n")
+    for target in (victim, tmp_path / "nowhere"):  # a file, and a dangling link (O_CREAT would make it)
+        planted.symlink_to(target)
+        with pytest.raises(ValueError, match=f"^{planted} is a symbolic link, not the lock file"):
+            with fileio.output_lock(out):
+                pass
+        assert os.path.islink(planted) and not (tmp_path / "nowhere").exists()  # not followed, not removed
+        planted.unlink()
+    assert victim.read_text() == "the user's data\n"
+    # a hard link (or a run killed with -9 leaving its file): locked, then its name replaced by
+    # a file of our own; the other name keeps its bytes
+    os.link(victim, planted)
+    with fileio.output_lock(out, "relight image"):
+        assert planted.read_text() == f"{os.getpid()} relight image\n"
+        assert victim.read_text() == "the user's data\n" and victim.stat().st_nlink == 1
+    assert victim.read_text() == "the user's data\n" and not planted.exists()
+    planted.mkdir()  # not a regular file
+    with pytest.raises(ValueError, match=f"^{planted} is not a regular file"):
+        with fileio.output_lock(out):
+            pass
+    planted.rmdir()
+    os.mkfifo(planted)  # opening it for the lock must not wait for a writer
+    with pytest.raises(ValueError, match=f"^{planted} is not a regular file"):
+        with fileio.output_lock(out):
+            pass
+    assert planted.exists()

@@ -336,3 +336,26 @@ def test_model_named_by_absolute_path_is_checked_against_the_registry(tmp_path, 
                                     "models": {"m": {"file": str(outside), "sha256": "", "metadata": {}}}}))
     with pytest.raises(ValueError, match="records no valid SHA-256"):
         Relighter(outside, registry_path=registry)
+
+
+# ------------------------------------------------------------------ 7. one output by two names (issue 48)
+
+
+def test_relight_video_into_a_folder_by_its_alias_is_refused_while_it_is_written(tmp_path, capsys):
+    """Two runs into one folder, one through a symlink to it: the second waits for nothing and
+    writes nothing (relight image's and relight light's cases: tests/test_cli_image.py,
+    tests/test_light_map.py; the lock: tests/test_fileio.py)."""
+    from clip_support import person_clip, write_frames
+    from fuzz_support import writer_holding
+
+    src = write_frames(tmp_path / "in", person_clip(2))
+    real = tmp_path / "outA"
+    real.mkdir()
+    (tmp_path / "alias").symlink_to(real, target_is_directory=True)
+    with writer_holding(real) as other:
+        code = main(["video", str(src), "--light", "studio", "--out", str(tmp_path / "alias"), "--quality", "draft",
+                     "--threads", "1"])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"another relight run (process {other.pid}) is writing {tmp_path / 'alias'}" in err, err
+    assert list(real.iterdir()) == []

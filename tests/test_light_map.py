@@ -234,6 +234,13 @@ def test_relight_light_refuses_an_output_that_is_its_photo_and_a_second_writer(m
         code, _, err = _run(capsys, photo, "--out", out, "--model", model, "--quality", "draft", "--matte", "network")
         assert code == 2 and f"(process {other.pid}) is writing {out}" in err, err
         assert not out.exists()
+    # issue 48: the same map by another name of its folder shares the lock
+    (tmp_path / "up").symlink_to(tmp_path, target_is_directory=True)
+    with writer_holding(out) as other:
+        code, _, err = _run(capsys, photo, "--out", tmp_path / "up" / "light.exr", "--model", model, "--quality",
+                            "draft", "--matte", "network")
+        assert code == 2 and f"(process {other.pid}) is writing {tmp_path / 'up' / 'light.exr'}" in err, err
+        assert not out.exists()
     code, _, err = _run(capsys, photo, "--out", out, "--model", model, "--quality", "draft", "--matte", "network")
     assert code == 0 and out.is_file(), err
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no lock file left

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -109,8 +110,69 @@ class OutputBusy(ValueError):
 
 
 def lock_path(final) -> Path:
+    """The lock file of output `final`: `.NAME.lock` beside the output's real path (the real
+    folder and, when `final` is a link to a folder, the folder's real name), so that every
+    name of one output (a symlink to it or to a folder above it, `..`) shares one lock."""
     final = Path(final)
-    return final.parent / f".{final.name}.lock"
+    real = Path(os.path.realpath(final)) if final.is_dir() else \
+        Path(os.path.realpath(final.parent)) / final.name
+    return real.parent / f".{real.name}.lock"
+
+
+# opened without following a link, kept from child processes; O_NONBLOCK: opening a FIFO
+# planted at the path does not wait for a writer
+_OPEN_FLAGS = os.O_RDWR | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NONBLOCK", 0)
+
+
+def _open_lock(path: Path) -> tuple[int, bool]:
+    """(fd, created) of the lock file at `path`: a new file (O_EXCL: created by us, so nothing
+    else is ever written), else the regular file there (left by a run killed with -9, or
+    held by a live writer). A symbolic link or anything but a regular file is refused
+    (ValueError naming it): it is never followed, written or removed."""
+    while True:
+        try:
+            return os.open(path, _OPEN_FLAGS | os.O_CREAT | os.O_EXCL, 0o666), True
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write in {path.parent} ({os.strerror(exc.errno)}): "
+                                     "choose an output in a folder you can write to") from None
+        try:
+            fd = os.open(path, _OPEN_FLAGS)
+        except FileNotFoundError:
+            continue  # removed by its holder meanwhile: create it
+        except OSError as exc:
+            _refuse_if_not_a_lock(path)  # O_NOFOLLOW's ELOOP on a link, EISDIR on a folder
+            raise OSError(exc.errno, f"cannot open the lock file {path} ({os.strerror(exc.errno)}): "
+                                     "choose an output in a folder you can write to") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO or a device: opened, never written
+            os.close(fd)
+            _refuse_if_not_a_lock(path)
+            continue  # replaced meanwhile: open it again
+        return fd, False
+
+
+def _refuse_if_not_a_lock(path: Path) -> None:
+    """ValueError naming `path` when a symbolic link or anything but a regular file is there."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(mode):
+        raise ValueError(f"{path} is a symbolic link, not the lock file of relight: remove it "
+                         "(it is not followed), then run again")
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{path} is not a regular file, so not the lock file of relight: remove it, "
+                         "then run again")
+
+
+def _is_at(fd: int, path: Path) -> bool:
+    """Whether the file open as `fd` is the one at `path` (not followed: a link is not it)."""
+    try:
+        here, there = os.fstat(fd), os.lstat(path)
+    except FileNotFoundError:
+        return False
+    return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
 
 
 @contextmanager
@@ -118,19 +180,18 @@ def output_lock(final, what: str = "relight"):
     """Hold the one writer's lock of output `final` (a file or a folder) for the block;
     `what` (the command) is named to a second writer, with this process's id.
 
-    The lock is an flock on `.NAME.lock` beside `final` (on Windows msvcrt's lock of one
-    byte): the kernel drops it when the process ends however it ends (kill -9 included), so
-    a lock is never stale. A second
-    writer gets OutputBusy at once (never waits). The file is removed on release while
-    still locked; a process that opened it just before re-opens the path and locks anew.
+    The lock is an flock on lock_path(final) (on Windows msvcrt's lock of one byte): the
+    kernel drops it when the process ends however it ends (kill -9 included), so a lock is
+    never stale. A second writer gets OutputBusy at once (never waits). The lock file is
+    opened without following links; the holder writes only into a file it created itself
+    (one left by a killed run is locked, then unlinked and made anew), so a link or a hard
+    link planted at the path never reaches another file. A symbolic link or a file that is
+    not regular there is refused with one line naming it. The file is removed on release
+    while still locked; a process that opened it just before re-opens the path and locks anew.
     """
     path = lock_path(final)
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        except OSError as exc:
-            raise OSError(exc.errno, f"cannot write in {path.parent} ({os.strerror(exc.errno)}): "
-                                     "choose an output in a folder you can write to") from None
+        fd, created = _open_lock(path)
         try:
             _try_lock(fd)
         except BlockingIOError:
@@ -139,15 +200,26 @@ def output_lock(final, what: str = "relight"):
             who = f"another {holder or 'relight'} run" + (f" (process {pid})" if pid.isdigit() else "")
             raise OutputBusy(f"{who} is writing {final}: wait for it to finish, or choose another "
                              "output") from None
-        try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
+        if not _is_at(fd, path):
+            os.close(fd)  # the holder removed the file between our open and lock: lock the new one
+            continue
+        if created:
             break
-        os.close(fd)  # the holder removed the file between our open and lock: lock the new one
+        # a file we did not create (a killed run's, or anything planted as one): locked, so no
+        # live writer owns it; its name is removed and a file of our own made in its place
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
+        except PermissionError as exc:
+            if os.name == "nt":  # Windows cannot remove an open file: this one is regular and locked
+                os.ftruncate(fd, 0)
+                break
+            os.close(fd)
+            raise OSError(exc.errno, f"cannot replace the lock file {path} that another run left "
+                                     f"({os.strerror(exc.errno)}): remove it, then run again") from None
+        os.close(fd)
     try:
-        os.ftruncate(fd, 0)
         os.lseek(fd, 0, os.SEEK_SET)
         os.write(fd, f"{os.getpid()} {what}\n".encode("utf-8"))  # who holds it, for the refusal
         yield path
