@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty
 
-from . import bl_images
+from . import bl_images, bl_world
 from ..worker import jobs, state
 from ..logic import output_names, pixel_buffers
 
@@ -168,6 +168,8 @@ _UPDATE = {"began": 0.0, "ended": 0.0, "worlds": set(), "world_seconds": 0.0}
 
 @bpy.app.handlers.persistent
 def on_update_pre(*_args) -> None:
+    if bl_world.baking():  # the updates of our own bake's scene are inside the update that bakes
+        return
     _UPDATE["began"], _UPDATE["worlds"] = time.monotonic(), set(state.WORLDS)
 
 
@@ -175,6 +177,8 @@ def on_update_pre(*_args) -> None:
 def on_update_post(*_args) -> None:
     """Registered after bl_dials.on_depsgraph_update: a World edit's light, read (a procedural
     World baked with Cycles, seconds) by that handler, is inside this update."""
+    if bl_world.baking():
+        return
     now = time.monotonic()
     read_world = bool(set(state.WORLDS) - _UPDATE["worlds"])
     _UPDATE["ended"], _UPDATE["world_seconds"] = now, (now - _UPDATE["began"]) if read_world else 0.0
