@@ -121,3 +121,27 @@ def test_the_lock_never_writes_through_a_link_planted_at_its_path(tmp_path):
         with fileio.output_lock(out):
             pass
     assert planted.exists()
+
+
+def test_a_full_disk_names_the_file_it_was_writing(tmp_path):
+    # issue 48: a full disk while writing a photo was "[Errno 27] File too large", naming no file
+    import errno
+
+    target = tmp_path / "out.png"
+    target.write_bytes(b"previous result")
+    for code in (errno.EFBIG, errno.ENOSPC):
+        with pytest.raises(OSError) as info:
+            with fileio.atomic_path(target, ".png") as tmp:
+                with open(tmp, "wb") as f:
+                    f.write(b"half")
+                    raise OSError(code, os.strerror(code))  # as write() raises it: no file named
+        assert str(info.value) == f"cannot write {target}: {os.strerror(code)}"
+        assert (info.value.errno, info.value.strerror, info.value.filename) == (code, os.strerror(code), str(target))
+        assert target.read_bytes() == b"previous result" and sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+    # a writer's own words, or an error that names its file, pass unchanged
+    for raised in (OSError(errno.ENOSPC, "output disk full while writing o.mp4"),
+                   OSError(errno.EACCES, os.strerror(errno.EACCES), str(tmp_path / "x"))):
+        with pytest.raises(OSError) as info:
+            with fileio.atomic_path(target):
+                raise raised
+        assert info.value is raised

@@ -49,9 +49,30 @@ def atomic_path(final, suffix: str = ""):
     try:
         yield tmp
         os.replace(tmp, final)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        if _names_nothing(exc):  # a full disk's bare "[Errno 28] No space left on device": say which file
+            raise WriteError(exc.errno, exc.strerror, str(final)) from None
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+class WriteError(OSError):
+    """The operating system's error while writing a file, with the file named: str() is
+    "cannot write PATH: its words"; errno, strerror (the words alone) and filename as
+    OSError's, so a caller that words its own message still can."""
+
+    def __str__(self) -> str:
+        return f"cannot write {self.filename}: {self.strerror}"
+
+
+def _names_nothing(exc: OSError) -> bool:
+    """Whether `exc` is the operating system's bare error (its number and words, no file):
+    one a writer raised with its own message, or naming a file, is left as it is."""
+    return exc.filename is None and exc.errno is not None and exc.strerror == os.strerror(exc.errno) \
+        and str(exc) == f"[Errno {exc.errno}] {exc.strerror}"
 
 
 def atomic_write_text(path, text: str) -> Path:
