@@ -331,6 +331,33 @@ def _folder_of_one(tmp_path):
     return src
 
 
+def test_the_cores_refusals_of_a_photo_or_a_map_name_the_file(model, tmp_path, capsys):
+    # issue 48: "photo is too small for a person matte", "light has mean luminance 0" and, for
+    # --light-from, "no person found in the photo" named no file
+    from relight.cli import main
+
+    tiny = _save_photo(tmp_path / "tiny.png", h=20, w=20)
+    noise = _save_photo(tmp_path / "noise.png", h=80, w=60)  # no person in it
+    black = tmp_path / "black.exr"
+    write_exr(black, {c: np.zeros((16, 32), np.float32) for c in "RGB"})
+    out = tmp_path / "o.png"
+    person = ["--matte", "person"]
+    cases = [([tiny, "--light", "studio", *person], f"{tiny}: photo is too small for a person matte (20x20;"),
+             ([noise, "--light", black], f"{black}: light has mean luminance 0 <= 0"),
+             ([noise, "--light-from", noise, *person], f"--light-from {noise}: no person found in the photo"),
+             ([noise, "--light-from", tiny, *person], f"--light-from {tiny}: photo is too small for a person matte"),
+             ([noise, "--light", "studio", *person], f"{noise}: no person found in the photo: give a mask (--mask)")]
+    for argv, said in cases:
+        code, _, err = _run(capsys, *argv, "--model", model, "--out", out)
+        assert code == 2 and err.count("\n") == 1 and err.startswith(f"relight image: error: {said}"), err
+        assert "--light-from" not in argv or "--mask" not in err  # the other photo's option is no advice here
+    code = main(["light", str(tiny), "--out", str(tmp_path / "l.exr"), "--model", model, "--quality", "draft"])
+    err = capsys.readouterr().err
+    assert code == 2 and err == f"relight light: error: {tiny}: photo is too small for a person matte (20x20; " \
+                                "need at least 32 px a side)\n", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["black.exr", "noise.png", "tiny.png"]
+
+
 def test_folder_mode_refuses_an_output_named_as_a_file_of_another_format(model, tmp_path, capsys):
     src = tmp_path / "in"
     src.mkdir()

@@ -197,7 +197,7 @@ def test_cli_no_person_and_bad_choices_exit_2_and_write_nothing(tmp_path, capsys
     out = tmp_path / "out.png"
     assert _run([empty, "--light", "studio", "--out", out]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("relight image: error: no person found in the photo")
+    assert len(err) == 1 and err[0].startswith(f"relight image: error: {empty}: no person found in the photo")
     tiny = tmp_path / "tiny.png"
     Image.fromarray(np.full((20, 30, 3), 90, np.uint8)).save(tiny)
     assert _run([tiny, "--light", "studio", "--out", out]) == 2

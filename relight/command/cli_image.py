@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -200,6 +201,28 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
 NEGATIVE_WARN_FRACTION = 0.01
 
 
+@contextmanager
+def photo_named(path, option: str = ""):
+    """The core's refusals of a photo's content that it raises without knowing the file (no
+    person in it, another person asked for than it shows, too small for the person matte)
+    as one line naming the file: `PATH: the core's words`; `option` names the option that
+    gave the photo (--light-from), whose photo's no-person advice is its own (--mask is the
+    other photo's option)."""
+    from relight.person.linear_photo import PhotoTooSmall
+    from relight.person.matte import NoPersonError, PersonIndexError
+
+    where = f"{option} {path}" if option else str(path)
+    try:
+        yield
+    except NoPersonError as exc:
+        if not option:
+            raise ValueError(f"{where}: {exc}") from exc
+        raise ValueError(f"{where}: no person found in the photo: give a photo where a person is clearly "
+                         "visible, or one whose alpha channel marks the person") from exc
+    except (PersonIndexError, PhotoTooSmall) as exc:
+        raise ValueError(f"{where}: {exc}") from exc
+
+
 def target_light(args, relighter) -> np.ndarray:
     """The SH light of the parsed light options (add_light_options), of the model's order: the
     map or preset, or the light the network estimates in the --light-from photo; resolved once,
@@ -213,7 +236,8 @@ def target_light(args, relighter) -> np.ndarray:
 
         donor, donor_alpha = read_photo(args.light_from, args.max_pixels)
         options = dict(decompose_options(args), person=None)
-        source = relighter.decompose(donor, _marks_person(donor_alpha), **options)
+        with photo_named(args.light_from, "--light-from"):
+            source = relighter.decompose(donor, _marks_person(donor_alpha), **options)
     scale = 2.0 ** args.exposure  # checked by its argparse type (relight.command.cli_args.exposure_ev)
     # --no-normalize: as is; otherwise the default (maps scaled, a --light-from photo's light as it is);
     # sh_light checks the light (finite SH of the order) once
@@ -270,7 +294,8 @@ def run_image(args) -> int:
                 if args.light_from is None else None
             relighter = open_relighter(args)
             light = target_light(args, relighter)
-            written = _process(relighter, source, out, args, args.mask, light, read)
+            with photo_named(source):  # in folder mode each failure's line names its photo
+                written = _process(relighter, source, out, args, args.mask, light, read)
         finally:
             reader.shutdown(wait=False, cancel_futures=True)
         print(f"wrote {written}")

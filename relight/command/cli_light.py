@@ -88,13 +88,14 @@ def run_light(args) -> int:
 
 def _write_light(args, photo: Path, out: Path) -> int:
     """run_light's work once the output is claimed: decompose, split or map the light, write, report."""
-    from relight.command.cli_image import decompose_options, open_relighter, read_photo_and_mask
+    from relight.command.cli_image import decompose_options, open_relighter, photo_named, read_photo_and_mask
     from relight.files.exr import write_exr
     from relight.lighting.light_map import irradiance_error, light_map
 
     relighter = open_relighter(args)
     image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
-    decomposition = relighter.decompose(image, mask, **decompose_options(args))
+    with photo_named(photo):
+        decomposition = relighter.decompose(image, mask, **decompose_options(args))
     if args.lamp_free:
         result = light_map(decomposition.light, args.width)
         pixels, key = result.pixels, None

@@ -193,6 +193,10 @@ class SHLight:
             path = map_file(source)
             base = _cached(cache, ("map", _file_key(path), order),
                            lambda: sh_projection.project_equirect(_pixels(path), order))
+            try:
+                return cls(base, goal)
+            except ValueError as exc:  # a black map: the file (or the preset) named
+                raise ValueError(f"{source}: {exc}") from exc
         elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
             return cls._light(fit_order(source.light, n), normalize, goal)
         elif isinstance(source, EnvMap):

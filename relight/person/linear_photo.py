@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["check_photo"]
+__all__ = ["PhotoTooSmall", "check_photo"]
 
 STRIP_ROWS = 1024  # rows scanned for NaN/Inf at a time: no full-size boolean temporary
+
+
+class PhotoTooSmall(ValueError):
+    """The photo has fewer pixels a side than what it is for needs (a caller that knows the
+    photo's file names it)."""
 
 
 def check_photo(photo, min_side: int = 2, *, finite: bool = True, purpose: str = "") -> np.ndarray:
@@ -29,8 +34,8 @@ def check_photo(photo, min_side: int = 2, *, finite: bool = True, purpose: str =
         raise ValueError(f"photo must be floating-point linear radiance, got dtype {a.dtype} "
                          "(decode 8/16-bit files with relight.files.photo.read_photo)")
     if min(a.shape[:2]) < min_side:
-        raise ValueError(f"photo is too small{' for ' + purpose if purpose else ''} ({a.shape[1]}x{a.shape[0]}; "
-                         f"need at least {min_side} px a side)")
+        raise PhotoTooSmall(f"photo is too small{' for ' + purpose if purpose else ''} ({a.shape[1]}x{a.shape[0]}; "
+                            f"need at least {min_side} px a side)")
     a = a.astype(np.float32, copy=False)
     if finite:
         for r0 in range(0, a.shape[0], STRIP_ROWS):
