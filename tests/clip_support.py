@@ -147,3 +147,36 @@ def lowpass_flicker(frames, region: np.ndarray, block: int | None = None) -> flo
 
     area = blocks(region[..., None].astype(np.float32))[..., 0]
     return flicker(blocks(frames.astype(np.float64)), np.broadcast_to(area, (len(frames), hb, wb)))
+
+
+def grainy_video(path: Path, n: int = 30, fps=24, sigma: float = 8.0, seed: int = 0) -> Path:
+    """A video of the walking person (3 px a frame) with film grain of `sigma` codes, written with
+    PyAV as a camera or an editor writes one: an .mp4 / .mov with its index first (faststart), so
+    that a copy cut short still opens and declares its length; the grain spreads the bytes evenly
+    over the frames (a cut at 60 % of the bytes falls mid-clip, not in the first keyframe)."""
+    from fractions import Fraction
+
+    import av
+
+    from relight.files.video_out import encode_srgb8
+
+    rng = np.random.default_rng(seed)
+    frames = person_clip(n, step=3)
+    options = {"movflags": "faststart"} if Path(path).suffix in (".mp4", ".mov", ".m4v") else {}
+    with av.open(str(path), "w", options=options) as c:
+        v = c.add_stream("libx264", rate=Fraction(fps))
+        v.width, v.height, v.pix_fmt = W, H, "yuv420p"
+        for i, f in enumerate(frames):
+            codes = np.clip(encode_srgb8(f) + rng.normal(0.0, sigma, f.shape), 0, 255).astype(np.uint8)
+            frame = av.VideoFrame.from_ndarray(codes, format="rgb24")
+            frame.pts, frame.time_base = i, 1 / Fraction(fps)
+            c.mux(v.encode(frame))
+        c.mux(v.encode(None))
+    return Path(path)
+
+
+def cut_short(path: Path, fraction: float, to: Path) -> Path:
+    """The first `fraction` of the file's bytes, as an interrupted copy or download leaves it."""
+    data = Path(path).read_bytes()
+    Path(to).write_bytes(data[:int(len(data) * fraction)])
+    return Path(to)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 from fractions import Fraction
 
@@ -178,32 +179,125 @@ def _disk_full(*_a, **_k):
     raise OSError(errno.ENOSPC, "No space left on device")
 
 
+def _frames_fail_from(monkeypatch, failing: int):
+    """The frames' PNG writes (relight's encoder; Pillow's for a resumable video's frames) fail from
+    the `failing`-th on, half-way through, as on a full disk."""
+    from relight.files import png_encoder
+
+    calls = {"n": 0}
+
+    def failing_from(original, opened):
+        def save(target, *a, **k):
+            calls["n"] += 1
+            if calls["n"] >= failing:
+                with opened(target) as f:
+                    f.write(b"\x89PNG partial")
+                _disk_full()
+            return original(target, *a, **k)
+        return save
+
+    keep_open = contextlib.nullcontext
+    monkeypatch.setattr(png_encoder, "write_png_file", failing_from(png_encoder.write_png_file, keep_open))
+    pillow = Image.Image.save
+    monkeypatch.setattr(Image.Image, "save", lambda im, fp, *a, **k: failing_from(
+        lambda target, *b, **c: pillow(im, target, *b, **c), lambda t: open(t, "wb"))(fp, *a, **k))
+
+
 def test_a_full_disk_fails_the_job_with_one_message_and_whole_frames_only(tmp_path, capsys, monkeypatch,
                                                                            clip_frames):
     src = write_frames(tmp_path / "in", clip_frames[:6])
-    from relight.files import png_encoder
-
-    original, calls = png_encoder.write_png_file, {"n": 0}
-
-    def save(f, *a, **k):  # the 4th frame's PNG fails half-way, as a full disk does
-        calls["n"] += 1
-        if calls["n"] == 4:
-            f.write(b"\x89PNG partial")
-            _disk_full()
-        return original(f, *a, **k)
-
-    monkeypatch.setattr(png_encoder, "write_png_file", save)
-    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out")
+    out = tmp_path / "out"
+    with monkeypatch.context() as m:
+        _frames_fail_from(m, 4)
+        code, _, err = _run(capsys, src, "--light", "studio", "--out", out)
     assert code == cli_video.EXIT_FAILED
-    assert err.count("\n") == 1 and "output disk full" in err and "--resume" in err
-    assert sorted(_folder(tmp_path / "out")) == ["f_0001.png", "f_0002.png", "f_0003.png"]
-    assert _leftovers(tmp_path / "out") == []
-    monkeypatch.undo()
-    src_video = write_video(tmp_path / "in.mp4", clip_frames[:4])
-    monkeypatch.setattr(video_out.VideoWriter, "write", _disk_full)
-    code, _, err = _run(capsys, src_video, "--light", "studio", "--out", tmp_path / "o.mp4")
-    assert code == cli_video.EXIT_FAILED and "output disk full" in err
-    assert not (tmp_path / "o.mp4").exists() and _leftovers(tmp_path) == []
+    assert err == (f"relight video: error: output disk full: {out / 'f_0004.png'}; 3 whole frames are in {out}: "
+                   "free space and rerun with --resume\n")
+    assert sorted(_folder(out)) == ["f_0001.png", "f_0002.png", "f_0003.png"]
+    assert _leftovers(out) == []
+
+
+def test_a_full_disk_before_any_frame_leaves_no_folder_and_says_so(tmp_path, capsys, monkeypatch, clip_frames):
+    """Issue 48: the line said the frames written were whole when none was, and the folder kept a
+    settings file describing no frame."""
+    src = write_frames(tmp_path / "in", clip_frames[:3])
+    _frames_fail_from(monkeypatch, 1)
+    for out, extra, said in ((tmp_path / "out", [], "no frame was written"),
+                             (tmp_path / "o.mp4", ["--resume"], "no video or frame written")):
+        code, _, err = _run(capsys, src, "--light", "studio", "--out", out, *extra)
+        frame = (out if not extra else tmp_path / "o.mp4.frames") / ("f_0001.png" if not extra else
+                                                                      "frame_000001.png")
+        assert code == cli_video.EXIT_FAILED
+        assert err == f"relight video: error: output disk full: {frame}; {said}: free space and rerun\n"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+def test_a_full_disk_while_encoding_names_the_video_and_leaves_none(tmp_path, capsys, monkeypatch, clip_frames):
+    """Issue 48: the line was nested ("cannot write ([Errno 28] ...)") and said "make the output writable"."""
+    src = write_video(tmp_path / "in.mp4", clip_frames[:4])
+    out = tmp_path / "o.mp4"
+    real_open = av.open
+
+    class FullDisk:  # an output container whose muxing fails as FFmpeg's does on a full disk
+        def __init__(self, container):
+            self._container = container
+
+        def mux(self, *_):
+            raise av.error.FFmpegError(errno.ENOSPC, "No space left on device")
+
+        def __getattr__(self, name):
+            return getattr(self._container, name)
+
+    monkeypatch.setattr(av, "open", lambda f, mode="r", **k: FullDisk(real_open(f, mode, **k)) if mode == "w"
+                        else real_open(f, mode, **k))
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", out)
+    assert code == cli_video.EXIT_FAILED
+    assert err == f"relight video: error: output disk full: {out}; no video written: free space and rerun\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4"]
+
+
+def test_a_file_size_limit_is_one_line_naming_the_file_and_leaves_nothing(tmp_path, clip_frames):
+    """The issue's own full disk: a subprocess under RLIMIT_FSIZE (its writes past the limit fail
+    with EFBIG, as on a FAT32 disk past 4 GiB), for a video and for a folder of frames."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    from clip_support import REPO
+
+    src = write_video(tmp_path / "in.mp4", clip_frames[:3])
+    limit = 2000  # bytes a file may grow to: the settings file (~600) fits, no frame (~25 KB) or video (~5 KB) does
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    for out, name in ((tmp_path / "o.mp4", tmp_path / "o.mp4"), (tmp_path / "f", tmp_path / "f" / "frame_000001.png")):
+        res = subprocess.run([sys.executable, "-m", "relight.cli", "video", str(src), "--light", "studio", "--out",
+                              str(out), "--quality", "draft", "--threads", "1"], cwd=REPO, capture_output=True,
+                             text=True, preexec_fn=small_disk, timeout=300)
+        assert res.returncode == cli_video.EXIT_FAILED and res.stdout == "", res.stderr
+        assert res.stderr.startswith(f"relight video: error: file too large for the file system or the process's "
+                                     f"file-size limit (ulimit -f): {name}; no ")
+        assert res.stderr.count("\n") == 1 and "choose an output on another disk and rerun\n" in res.stderr
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mp4"]
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".mkv"])
+def test_a_video_cut_short_is_refused_and_leaves_nothing(tmp_path, capsys, suffix):
+    """Issue 48: a clip cut at 60 % of its bytes (30 frames declared) was relit as a shorter clip, exit 0."""
+    from clip_support import cut_short, grainy_video
+
+    (tmp_path / "in").mkdir()
+    cut = cut_short(grainy_video(tmp_path / f"whole{suffix}"), 0.6, tmp_path / "in" / f"cut{suffix}")
+    (tmp_path / f"whole{suffix}").unlink()
+    for out, extra in ((tmp_path / "t.mp4", []), (tmp_path / "frames", []), (tmp_path / "r.mp4", ["--resume"])):
+        code, text, err = _run(capsys, cut, "--light", "sunset", "--out", out, *extra)
+        assert code == 2 and text == "" and err.count("\n") == 1, err
+        assert err.startswith(f"relight video: error: {cut}: the video is cut short: it declares 30 frames (1.25 s) "
+                              "but holds "), err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
 
 
 @pytest.mark.parametrize("setup, extra, message", [
@@ -317,7 +411,7 @@ def _refused_inputs(d):
     write_frames(d / "one", frames[:2])
     (d / "bomb").mkdir()  # 100 MP declared: past Pillow's warning size and the default --max-pixels
     (d / "bomb" / "f_0001.png").write_bytes(png_bytes(8, 8, declared=(10000, 10000)))
-    return {"truncated mkv": ([d / "trunc.mkv"], "holds no frames"),
+    return {"truncated mkv": ([d / "trunc.mkv"], "the video is cut short"),
             "1x1 frames": ([d / "ones"], "too small"),
             "oversized frame": ([d / "one", "--max-pixels", "1000"], "over the limit"),
             "person 2 of 1": ([d / "one", "--person", "2"], "shows 1 person"),

@@ -188,3 +188,73 @@ def test_frame_folder_writer_names_and_what_is_written(tmp_path):
     named.write(1, _frames(1)[0])
     assert named.written() == {1} and (tmp_path / "a_2.exr").is_file()
     assert frame_number("take3_0042") == 42 and frame_number("plain") is None
+
+
+# ------------------------------------------------------------------ issue 48: what is declared against what is read
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".mkv", ".mov"])
+def test_a_video_cut_short_is_refused_and_the_whole_one_read_whole(tmp_path, suffix):
+    from clip_support import cut_short, grainy_video
+
+    whole = grainy_video(tmp_path / f"whole{suffix}")
+    clip = open_clip(whole)
+    assert clip.info.frames == 30 and len(list(clip.frames())) == 30
+    for fraction in (0.6, 0.9):
+        cut = cut_short(whole, fraction, tmp_path / f"cut{suffix}")
+        with pytest.raises(ValueError) as refused:
+            list(open_clip(cut).frames())
+        assert str(refused.value).startswith(f"{cut}: the video is cut short: it declares 30 frames (1.25 s) but "
+                                             "holds "), refused.value
+
+
+class _Unseekable:
+    """A file object without seek: the muxer cannot go back to write the length (a live recording)."""
+
+    def __init__(self, path):
+        self.file = open(path, "wb")
+
+    def write(self, data):
+        return self.file.write(data)
+
+
+def test_a_video_that_declares_no_length_is_read_whole(tmp_path):
+    """A live recording's Matroska says neither its frame count nor its duration: nothing to check
+    against, so it is read as it is (no refusal of a whole file)."""
+    sink = _Unseekable(tmp_path / "live.mkv")
+    with av.open(sink, "w", format="matroska") as c:
+        v = c.add_stream("libx264", rate=25)
+        v.width, v.height, v.pix_fmt = 48, 36, "yuv420p"
+        for i, f in enumerate(_frames(10)):
+            frame = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
+            frame.pts, frame.time_base = i, Fraction(1, 25)
+            c.mux(v.encode(frame))
+        c.mux(v.encode(None))
+    sink.file.close()
+    clip = open_clip(tmp_path / "live.mkv")
+    assert clip.info.frames is None and len(list(clip.frames())) == 10
+
+
+def test_frames_the_decoder_drops_without_an_error_are_refused(tmp_path, monkeypatch):
+    """Every packet is there but fewer frames come out of the decoder (a damaged stream the decoder
+    skips silently): the decoded frames' span is checked against the packets' once decoding ends."""
+    from relight.files import video_io
+
+    clip = open_clip(write_video(tmp_path / "c.mkv", _frames(12), 12))
+    real = video_io.open_container
+
+    class Dropping:
+        def __init__(self, path):
+            self.container = real(path)
+            self.streams = self.container.streams
+
+        def decode(self, stream):
+            return (f for i, f in enumerate(self.container.decode(stream)) if i < 6)
+
+        def close(self):
+            self.container.close()
+
+    monkeypatch.setattr(video_io, "open_container", Dropping)
+    with pytest.raises(ValueError, match=r"c\.mkv: the video is damaged: 6 frames \(0\.50 s\) could be decoded of "
+                                         r"the 1\.00 s it holds"):
+        list(clip.frames())

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import io
 import signal
 import sys
 from fractions import Fraction
@@ -145,6 +146,8 @@ class _Frames:
         self.created = not folder.exists()
         folder.mkdir(parents=True, exist_ok=True)
         self.done = self.writer.written()
+        self.new: set[int] = set()   # the frames this run wrote
+        self.checkpointed = False
         job = folder / JOB_FILE
         self.had_job = job.is_file()
         if self.done and not resume:
@@ -166,18 +169,43 @@ class _Frames:
                 self.state = state
         from relight.files.fileio import atomic_write_json
 
-        atomic_write_json(job, fingerprint)
+        try:
+            atomic_write_json(job, fingerprint)
+        except OSError as exc:
+            self.discard()
+            raise _named(exc, job) from None
+
+    def write(self, index: int, *frame) -> None:
+        """Write frame `index` (FrameFolderWriter.write's arguments); a failure names the frame's file."""
+        try:
+            self.writer.write(index, *frame)
+        except OSError as exc:
+            raise _named(exc, self.writer.path(index)) from None
+        self.new.add(index)
 
     def checkpoint(self, next_frame: int, state: dict) -> None:
         """Save the filter state after frame next_frame - 1 (every frame before it is written)."""
         from relight.files.fileio import atomic_path
 
-        with atomic_path(self.folder / STATE_FILE, ".npz") as tmp:
-            np.savez_compressed(tmp, next_frame=np.int64(next_frame), **state)
+        try:
+            # through memory: numpy's zip file, failing on a full disk, prints a traceback when collected
+            buffer = io.BytesIO()
+            np.savez_compressed(buffer, next_frame=np.int64(next_frame), **state)
+            with atomic_path(self.folder / STATE_FILE, ".npz") as tmp:
+                tmp.write_bytes(buffer.getbuffer())
+        except OSError as exc:
+            raise _named(exc, self.folder / STATE_FILE) from None
+        self.checkpointed = True
 
-    def discard_if_empty(self) -> None:
-        """The job failed before any frame was written: remove what it made (its settings, the
-        folder if it made it), so a refused input leaves nothing."""
+    def discard(self, own_frames: bool = False) -> None:
+        """Remove what this run made that describes nothing: with `own_frames` (a refused input)
+        the frames it wrote, then, if no frame is left, its settings and the folder if it made it."""
+        if own_frames:
+            for index in sorted(self.new):
+                self.writer.path(index).unlink(missing_ok=True)
+            self.new.clear()
+            if self.checkpointed:  # it may count frames just removed: a resume replays from the start
+                (self.folder / STATE_FILE).unlink(missing_ok=True)
         if self.writer.written():
             return
         if not self.had_job:
@@ -195,6 +223,28 @@ class _Frames:
 
         atomic_write_json(self.folder / JOB_FILE, {**self.fingerprint, "complete_frames": frames})
         (self.folder / STATE_FILE).unlink(missing_ok=True)
+
+
+def _named(exc: OSError, path) -> OSError:
+    """The error of a write, naming the file it was writing (not a temporary beside it)."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path)) if exc.errno else exc
+
+
+def _write_failure(exc: OSError, out: Path, frames, kind: str) -> str:
+    """The one line of a write that failed mid-job (a full disk, ...): the file, the cause, what is left."""
+    cause, todo = {errno.ENOSPC: ("output disk full", "free space"), errno.EDQUOT: ("disk quota exceeded", "free space"),
+                   errno.EFBIG: ("file too large for the file system or the process's file-size limit (ulimit -f)",
+                                 "choose an output on another disk")}.get(
+        exc.errno, (exc.strerror or "cannot write", "make the output writable"))
+    line = f"{cause}: {exc.filename or out}" if exc.errno else str(exc)  # else a library's line, naming the file
+    if frames is not None:
+        frames.discard()  # no frame written: no settings left that describe none
+        left = len(frames.writer.written())
+        kept = f"{left} whole frames are in {frames.folder}" if left else "no frame was written"
+        if kind == "video":
+            kept = f"no video written; {kept}" if left else "no video or frame written"
+        return f"{line}; {kept}: {todo} and rerun" + (" with --resume" if left else "")
+    return f"{line}; no video written: {todo} and rerun"
 
 
 def _empty_layers(frame: np.ndarray) -> dict:
@@ -256,18 +306,18 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
 
         dis_flow(np.zeros((8, 8), np.float32), np.zeros((8, 8), np.float32))  # OpenCV missing: fail now
     names = info.names if info.kind == "frames" and kind == "frames" else None  # None: frame_000001, ...
-    frames = None
-    if folder is not None:
-        frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume, video=kind == "video")
-        if frames.complete is not None and len(frames.done) >= frames.complete and kind == "frames":
-            frames.finish(frames.complete)
-            print(f"all {frames.complete} frames are already in {out}")
-            return 0
-        if frames.state is not None:
-            runner.load_state(frames.state)
-    video = None
+    frames = video = None
     previous = _on_sigterm(_terminate_as_interrupt)
     try:
+        if folder is not None:
+            frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume,
+                             video=kind == "video")
+            if frames.complete is not None and len(frames.done) >= frames.complete and kind == "frames":
+                frames.finish(frames.complete)
+                print(f"all {frames.complete} frames are already in {out}")
+                return 0
+            if frames.state is not None:
+                runner.load_state(frames.state)
         if kind == "video" and folder is None:
             video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
         done, written, nobody, clamped = _loop(clip, runner, frames, video, args, info, workers)
@@ -288,18 +338,13 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
     except OSError as exc:
         if video is not None:
             video.abort()
-        full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
-        todo = "free space" if full else "make the output writable"
-        kept = f"; the frames written are whole: {todo} and rerun with --resume" if folder is not None else \
-            f"; no video written: {todo} and rerun"
-        print(f"relight video: error: {'output disk full' if full else 'cannot write'} ({exc}){kept}",
-              file=sys.stderr)
+        print(f"relight video: error: {_write_failure(exc, out, frames, kind)}", file=sys.stderr)
         return EXIT_FAILED
     except BaseException as exc:
         if video is not None:
             video.abort()
         if frames is not None and isinstance(exc, (ValueError, MemoryError)):
-            frames.discard_if_empty()  # refused input: leave nothing
+            frames.discard(own_frames=True)  # refused input (found mid-job: a damaged clip): leave nothing
         raise
     finally:
         _on_sigterm(previous)
@@ -340,7 +385,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         if frames is not None:
             if not skip:
                 layers = (result.layers or _empty_layers(result.image)) if args.layers else None
-                frames.writer.write(index, result.image, layers, frame.codes, result.changed)
+                frames.write(index, result.image, layers, frame.codes, result.changed)
                 written += 1
             # a snapshot (the filters replace their arrays, never change them in place): an
             # interrupt during the next frame's finish() or write() must not save that frame's state

@@ -241,6 +241,8 @@ class VideoFile:
                       "color_trc": int(ctx.color_trc), "color_range": int(ctx.color_range)}
             self.info = ClipInfo(self.path, "video", width, height, Fraction(fps), count,
                                  audio=bool(container.streams.audio), colour=colour)
+            self._slack = _slack(container, fps)
+            self._held_s = _check_whole(self.path, container, stream, fps, self._slack)
         finally:
             container.close()
 
@@ -252,9 +254,12 @@ class VideoFile:
         try:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
-            index = 0
+            index, first, last = 0, None, None  # the decoded frames' timestamps (the stream's time base)
             try:
                 for frame in container.decode(stream):
+                    if frame.pts is not None:
+                        first = frame.pts if first is None else min(first, frame.pts)
+                        last = frame.pts if last is None else max(last, frame.pts)
                     if index >= start:
                         codes = self._codes(frame)
                         image = decode_srgb(codes)
@@ -264,6 +269,11 @@ class VideoFile:
                 raise ValueError(f"{self.path}: cannot decode frame {index + 1} ({exc})") from None
             if index == 0:
                 raise ValueError(f"{self.path}: the video stream holds no frames")
+            fps = float(self.info.fps)
+            decoded_s = index / fps if first is None else float((last - first) * stream.time_base) + 1 / fps
+            if decoded_s < self._held_s - self._slack:  # packets the decoder dropped without an error
+                raise ValueError(f"{self.path}: the video is damaged: {index} frames ({decoded_s:.2f} s) could "
+                                 f"be decoded of the {self._held_s:.2f} s it holds (copy it again whole)")
         finally:
             container.close()
 
@@ -281,6 +291,72 @@ class VideoFile:
             kwargs["src_color_range"] = "JPEG" if int(frame.color_range) == 2 or frame.format.name.startswith(
                 "yuvj") else "MPEG"
         return frame.to_ndarray(format="rgb48le" if deep else "rgb24", **kwargs)
+
+
+def _slack(container, fps) -> float:
+    """Seconds a whole file's timestamps may fall short of its declared length: a frame (the last
+    one's duration may be unknown, a count derived from duration x rate rounds) plus one tick of
+    the coarsest time base (Matroska's milliseconds) and of the container's microseconds."""
+    ticks = [float(s.time_base) for s in container.streams if s.time_base]
+    return 1 / float(fps) + max(ticks, default=0.0) + 1e-6
+
+
+def _tag(stream, name: str):
+    """A Matroska statistics tag (NUMBER_OF_FRAMES, DURATION; FFmpeg may add a language suffix)."""
+    return next((v for k, v in stream.metadata.items() if k.split("-")[0].upper() == name), None)
+
+
+def _declared(container, stream) -> tuple[int | None, float | None, float | None]:
+    """What the container says of the video: (frames, the stream's seconds, the file's seconds), each
+    None where it says nothing (a live recording's Matroska declares no length at all)."""
+    frames = stream.frames or None
+    if frames is None and (text := _tag(stream, "NUMBER_OF_FRAMES")) and str(text).strip().isdigit():
+        frames = int(text) or None
+    seconds = float(stream.duration * stream.time_base) if stream.duration and stream.time_base else None
+    if seconds is None and (text := _tag(stream, "DURATION")):
+        try:
+            h, m, s = str(text).split(":")
+            seconds = int(h) * 3600 + int(m) * 60 + float(s)
+        except ValueError:
+            seconds = None  # a tag we cannot read declares nothing
+    whole = container.duration / 1_000_000 if container.duration and container.duration > 0 else None
+    return frames, seconds, whole
+
+
+def _check_whole(path: Path, container, stream, fps, slack: float) -> float:
+    """Refuse a video whose packets fall short of what its container declares (a file cut short:
+    its header promises frames its body no longer has); returns the seconds of video it holds.
+    Reads the packets only (no decoding): the frame count against the declared count, and the
+    span of the timestamps against the declared durations, within `slack`."""
+    av = import_av()
+    frame_s = 1 / float(fps)
+    packets, v0, v1, a0, a1 = 0, None, None, None, None
+    try:
+        for packet in container.demux():
+            t = packet.pts if packet.pts is not None else packet.dts
+            if packet.size == 0 or t is None or packet.is_discard:  # the flush packet; edit-list leftovers
+                continue
+            tb = float(packet.time_base)
+            start = t * tb
+            end = start + (packet.duration * tb if packet.duration else 0.0)
+            if packet.stream_index == stream.index:
+                packets += 1
+                end = max(end, start + frame_s) if not packet.duration else end
+                v0, v1 = min(v0 if v0 is not None else start, start), max(v1 if v1 is not None else end, end)
+            a0, a1 = min(a0 if a0 is not None else start, start), max(a1 if a1 is not None else end, end)
+    except av.error.FFmpegError:
+        pass  # the body is damaged from here on: what was read is what it holds
+    held_s = (v1 - v0) if packets else 0.0
+    frames, seconds, whole = _declared(container, stream)
+    short = ((frames is not None and packets < frames) or (seconds is not None and held_s < seconds - slack)
+             or (seconds is None and whole is not None and (a1 - a0 if a1 is not None else 0.0) < whole - slack))
+    if short:
+        length = seconds if seconds is not None else whole
+        said = frames if frames is not None else max(1, round(length * float(fps)))
+        raise ValueError(f"{path}: the video is cut short: it declares {said} frames"
+                         + (f" ({length:.2f} s)" if length is not None else "")
+                         + f" but holds {packets} ({held_s:.2f} s): a truncated or damaged copy (copy it again whole)")
+    return held_s
 
 
 def open_clip(path, fps: Fraction | None = None, max_pixels: int | None = None):

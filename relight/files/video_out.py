@@ -139,7 +139,7 @@ class VideoWriter:
             self._space, self._range = _conversion(self._colour, info.height)
             self.stream = stream
             if audio_from is not None:
-                self._audio = _AudioCopy(Path(audio_from), self.container, suffix)
+                self._audio = _AudioCopy(Path(audio_from), self.container, suffix, self.path)
         except BaseException as exc:
             self._discard()
             if isinstance(exc, av.error.FFmpegError):
@@ -243,9 +243,11 @@ def _raise_write_error(path: Path, exc) -> None:
     import errno as errno_module
 
     code = getattr(exc, "errno", None)
-    if code in (errno_module.ENOSPC, errno_module.EDQUOT) or "No space left" in str(exc):
-        raise OSError(errno_module.ENOSPC, f"output disk full while writing {path.name}") from None
-    raise OSError(code or errno_module.EIO, f"cannot write {path.name} ({exc})") from None
+    if "No space left" in str(exc):
+        code = errno_module.ENOSPC
+    code = code if code and code in errno_module.errorcode else errno_module.EIO
+    # the output's name, not the temporary's: the temporary is gone once the writer is aborted
+    raise OSError(code, os.strerror(code), str(path)) from None
 
 
 class _AudioCopy:
@@ -253,7 +255,8 @@ class _AudioCopy:
     advances (kept interleaved): copied when the container holds its codec, else
     re-encoded to the container's usual codec."""
 
-    def __init__(self, source: Path, container, suffix: str):
+    def __init__(self, source: Path, container, suffix: str, output: Path):
+        self.output = output
         self.input = open_container(source)
         if not self.input.streams.audio:
             self.input.close()
@@ -298,7 +301,7 @@ class _AudioCopy:
                         frame.pts = None
                         self.container.mux(self.out_stream.encode(frame))
             except av.error.FFmpegError as exc:
-                _raise_write_error(Path(self.container.name), exc)
+                _raise_write_error(self.output, exc)
         if not self.copy:
             self.container.mux(self.out_stream.encode(None))
         self.input.close()
