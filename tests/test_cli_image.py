@@ -14,6 +14,7 @@ from relight.network.runtime import Relighter
 from relight.network.quality import preset
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
+DRAFT = preset("draft").decompose_options(working_size=False)  # what --quality draft decomposes with
 
 
 def _save_photo(path, h=40, w=30, seed=0, alpha=False):
@@ -46,7 +47,7 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
     assert code == 0, err
     assert f"wrote {out}" in stdout
     img, _ = read_photo(photo)
-    d = Relighter(model, working_size=DRAFT_SIZE).decompose(img, matte="network")
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(img, matte="network", **DRAFT)
     expect = d.relight(sh_light("studio", d.sh_order, rotation_deg=30), 0.5)
     got = np.asarray(Image.open(out)) / 255.0
     # 8-bit sRGB output: within half a code value of the encoded API result
@@ -117,8 +118,8 @@ def test_light_transfer_from_another_photo(model, tmp_path, capsys):
     code, _, err = _run(capsys, photo, "--light-from", donor, "--model", model, "--out", out)
     assert code == 0, err
     r = Relighter(model, working_size=DRAFT_SIZE)
-    d = r.decompose(read_photo(photo)[0], matte="network")
-    expect = d.relight(r.decompose(read_photo(donor)[0], matte="network").light)
+    d = r.decompose(read_photo(photo)[0], matte="network", **DRAFT)
+    expect = d.relight(r.decompose(read_photo(donor)[0], matte="network", **DRAFT).light)
     # (reading an EXR photo clamps negative radiance, which a random network can produce)
     np.testing.assert_array_equal(read_photo(out)[0], np.maximum(expect, 0))
     code, _, err = _run(capsys, photo, "--light", "studio", "--light-from", donor, "--model", model)

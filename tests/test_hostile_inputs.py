@@ -305,7 +305,8 @@ def test_negative_numbers_are_values(tmp_path, model, capsys):
     out = tmp_path / "o.png"
     assert main(["image", str(path), "--light", "studio", "--exposure", "-1e0", "--model", model, "--matte", "network",
                  "--quality", "draft", "--out", str(out)]) == 0, capsys.readouterr().err
-    d = Relighter(model, working_size=DRAFT_SIZE).decompose(photo.read_photo(path)[0], matte="network")
+    d = Relighter(model, working_size=DRAFT_SIZE).decompose(photo.read_photo(path)[0], matte="network",
+                                                          **preset("draft").decompose_options(working_size=False))
     expect = d.relight(sh_light("studio", d.sh_order), -1.0)
     got = np.asarray(Image.open(out)) / 255.0
     assert np.max(np.abs(got - srgb_encode(expect))) <= 0.5 / 255 + 1e-6  # half an 8-bit step

@@ -212,7 +212,7 @@ def test_evaluate_photos_writes_table_sheet_and_the_documented_reconstruction(ra
     from relight.files import photo as photo_io
 
     image, mask = photo_io.read_photo(photos / "b.png")
-    dec = Relighter(random_onnx, threads=1, working_size=32).decompose(image, mask=mask)
+    dec = Relighter(random_onnx, threads=1, working_size=32).decompose(image, mask=mask, augment=())  # Draft's
     L = dec.light.astype(np.float64)
     rerendered = np.maximum(dec.albedo * (dec.transport @ L) + dec.residual @ L, 0.0)
     w = dec.alpha[..., None]

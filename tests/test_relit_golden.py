@@ -108,7 +108,7 @@ def compute(mattes: dict[str, np.ndarray], threads: int = 1) -> dict[str, np.nda
     decs = {}
     for name in PHOTOS:
         photo, _ = read_photo(ROOT / "relight" / "data" / "examples" / name)
-        decs[name] = r.decompose(photo, mattes[f"{Path(name).stem}_matte"])
+        decs[name] = r.decompose(photo, mattes[f"{Path(name).stem}_matte"], augment=())  # the network once, as recorded
     out = {}
     for i, name in enumerate(PHOTOS):
         d, stem = decs[name], Path(name).stem

@@ -57,7 +57,7 @@ def _formula(d, L):
 def test_own_light_reproduces_the_networks_reconstruction(relighter):
     photo = _photo()
     mask = np.ones(photo.shape[:2], np.float32)
-    d = relighter.decompose(photo, mask)
+    d = relighter.decompose(photo, mask, augment=())  # the network once (the default, Balanced, adds a mirrored run)
     assert d.box == (0, 48, 0, 64) and d.working_size == (48, 64)
     # the network's own outputs for the same input
     raw = relighter.run(to_network_input(photo, mask).transpose(2, 0, 1)[None])
@@ -466,3 +466,34 @@ def test_albedo_layer_carries_the_photos_full_resolution_texture():
     # the texture is there: far from what plain upsampling of the working albedo gives
     plain = d._to_full(photo_w / shading)
     assert np.abs(albedo - plain).mean() > 0.02
+
+
+def test_a_bare_decompose_is_balanced():
+    """Issue 48: Relighter().decompose(photo) with no options, as the docs show it, gives what
+    Balanced (relight image's default) gives: the default model at Balanced's working size with
+    Balanced's decompose_options. It gave the network once (up to 112 8-bit codes off Balanced on
+    astronaut.jpg, 246 off Draft). The two are computed by one process: within the float32 rounding
+    bound of the shipped graph (tests/test_relit_golden.py: 2 * sum of gamma_n over its fan-ins,
+    of each array's peak), and the network once is much farther than that from both."""
+    from test_relit_golden import ROOT, graph_fan_ins, graph_rounding_bound
+
+    from relight.files.photo import read_photo
+    from relight.network.quality import preset
+
+    photo, _ = read_photo(ROOT / "relight" / "data" / "examples" / "astronaut.jpg")
+    balanced = preset("balanced")
+    bare = Relighter(threads=1).decompose(photo)
+    explicit = Relighter(models.default_model_path(), threads=1, working_size=balanced.working_size) \
+        .decompose(photo, **balanced.decompose_options())
+    once = Relighter(threads=1).decompose(photo, augment=())
+    assert bare.choices == explicit.choices and bare.choices["augment"] == [[1.0, True]]
+    bound = graph_rounding_bound(graph_fan_ins(models.default_model_path()))
+    light = sh_light("studio", bare.sh_order, rotation_deg=90.0)
+    far = []
+    for name, get in (("light", lambda d: d.light), ("albedo", lambda d: d.albedo),
+                      ("transport", lambda d: d.transport), ("relit", lambda d: d.relight(light))):
+        ref = np.asarray(get(explicit), np.float64)
+        tol = bound * np.abs(ref).max()
+        assert np.abs(np.asarray(get(bare), np.float64) - ref).max() <= tol, name
+        far.append(np.abs(np.asarray(get(once), np.float64) - ref).max() / tol)
+    assert min(far) > 10, far  # the network once is no rounding away from Balanced

@@ -37,6 +37,7 @@ from relight.network.session import ModelSession
 __all__ = ["Relighter", "Decomposition", "RelightStats", "MATTE_SOURCES", "check_working_size"]
 
 DEFAULT_WORKING_SIZE = quality.preset(quality.DEFAULT).working_size  # the presets' table: relight/network/quality.py
+_DEFAULT_OPTIONS = quality.preset(quality.DEFAULT).decompose_options(working_size=False)  # decompose's defaults
 FIND_SIZE = 256          # longest side of the first, person-finding pass
 FIND_THRESHOLD = 0.5     # alpha above which a low-res pixel counts as the person
 CROP_MARGIN = 0.05       # context kept around the person's box, as a fraction of its longest side
@@ -152,10 +153,16 @@ class Relighter(ModelSession):
         return _with_margin(box.rescaled((h, w), (H, W)), H, W)
 
     def decompose(self, photo, mask=None, working_size: int | None = None, *,
-                  matte: str = "person", person: int | None = None, matte_method: str = "ensemble",
-                  augment=(), refine: int = 0, augment_until_agreed: float | None = None,
-                  ensemble=(), level: bool = True) -> Decomposition:
-        """Run the network once on the person in `photo` (linear float32 [H, W, 3]).
+                  matte: str = "person", person: int | None = None,
+                  matte_method: str = _DEFAULT_OPTIONS["matte_method"], augment=_DEFAULT_OPTIONS["augment"],
+                  refine: int = _DEFAULT_OPTIONS["refine"],
+                  augment_until_agreed: float | None = _DEFAULT_OPTIONS["augment_until_agreed"],
+                  ensemble=_DEFAULT_OPTIONS["ensemble"], level: bool = True) -> Decomposition:
+        """Decompose the person in `photo` (linear float32 [H, W, 3]). The defaults are the
+        default quality preset's, Balanced (quality.preset("balanced").decompose_options(): the
+        network at 128 px averaged with its run on the mirrored crop, the ensemble person matte),
+        so a bare `decompose(photo)` gives what `relight image` gives; another preset's are
+        `**quality.preset(key).decompose_options()`, the network once `augment=()`.
 
         With `mask` ([H, W] in [0, 1]) the crop is the mask's box, the network
         input is masked, and the mask is the matte. Without one, `matte` says
