@@ -104,6 +104,10 @@ def add_photo_options(p) -> None:
     cores = cores_available()  # more intra-op threads than cores only slows onnxruntime down
     p.add_argument("--threads", type=bounded_int(1, cores, " (the CPU cores available)"), default=None,
                    help=f"onnxruntime threads, 1..{cores} (default: all cores)")
+    p.add_argument("--shadows", action="store_true",
+                   help="the light's directional part (a sun, a lamp, a map's key) casts shadows on the person "
+                        "from the relief of its own normals (off by default: it does not pay yet with today's "
+                        "model, docs/EVALUATION.md, \"Cast shadows\")")
     p.add_argument("--max-pixels", type=bounded_int(1, MAX_PIXELS), default=None, metavar="N",
                    help=f"largest photo to decode, in pixels (default {DEFAULT_MAX_PIXELS:,}; also allows a "
                         f"header that claims more than its file can hold; at most {MAX_PIXELS:,})")
@@ -137,6 +141,9 @@ def record(args, relighter, d) -> dict:
     if stats is not None:
         out["relight"] = {"sh_order": stats.sh_order, "residual": stats.residual,
                           "negative_clamped": round(stats.fraction, 6)}
+        if getattr(args, "shadows", False):  # what the shadow pass did: the key that cast them, or why none
+            out["relight"]["shadows"] = stats.shadow_key.as_json() if stats.shadow_key is not None else \
+                "none (the light has no directional part)"
     return out
 
 
@@ -182,7 +189,7 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     d = relighter.decompose(image, mask, **decompose_options(args))
     # the light and --exposure were checked at the command's boundary (target_light, their argparse type)
     scale = 2.0 ** args.exposure
-    relit = d.relight_checked(light, scale)
+    relit = d.relight_checked(light, scale, shadows=getattr(args, "shadows", False))
     stats = d.last_stats
     done = record(args, relighter, d)
     metadata = {"relight": json.dumps(done, sort_keys=True)}

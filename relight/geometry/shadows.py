@@ -100,6 +100,7 @@ def cast_visibility(depth: np.ndarray, inside: np.ndarray, direction, half_angle
     if np.any(np.isnan(reach)) or np.any(reach < 0):
         raise ValueError("thickness must be >= 0 (inf allowed)")
     slope = _slope(np.where(inside, depth, 0.0)) * inside
+    own_slope = slope[rows, cols]
     worst = np.full(d.shape, -np.inf)
     for s in march_steps(math.hypot(h, w)):
         t = s * per_pixel
@@ -119,7 +120,9 @@ def cast_visibility(depth: np.ndarray, inside: np.ndarray, direction, half_angle
         surface = occluder[rc, cc]
         delta = qy - surface                        # > 0: the surface there is nearer than the ray point
         pixel_here = (qy / focal_px) if focal_px is not None else 1.0
-        bias = BIAS_PIXELS * slope[rc, cc] + 0.25 * pixel_here
+        # the receiver's own surface, sampled a pixel off, may sit in front of the ray by its slope: the
+        # smaller of the two slopes (an occluder's edge is steep, the floor it shadows is not)
+        bias = BIAS_PIXELS * np.minimum(slope[rc, cc], own_slope) + 0.25 * pixel_here
         beta = (delta - bias) * sine / t
         valid = on & np.isfinite(beta) & (delta < reach[rc, cc])
         np.maximum(worst, np.where(valid, beta, -np.inf), out=worst)

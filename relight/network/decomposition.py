@@ -23,6 +23,7 @@ from relight.network.foreground import foreground, smooth_colours
 from relight.lighting.light import fit_checked
 from relight.person.mask_ops import dilate
 from relight.network.resample import Bilinear
+from relight.network.shadowing import ShadowCaster, key_of
 
 __all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "checked_light",
            "exposure_scale"]
@@ -70,6 +71,7 @@ class RelightStats:
     darkest: float  # the most negative channel value before the clamp (0.0 when none)
     sh_order: int = -1      # the light's order evaluated (bands above moved no value > ORDER_TOLERANCE)
     residual: bool = True   # whether E . L' was evaluated (False: E is zero on the matte)
+    shadow_key: object = None   # the key light whose cast shadows dimmed it (relight.network.shadowing), or None
 
     @property
     def fraction(self) -> float:
@@ -127,6 +129,7 @@ class Decomposition:
         self._alpha_prepared = None
         self._smooth_prepared = None  # relight.network.foreground's smooth colours, prepared on demand
         self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
+        self.shadows = ShadowCaster(self.transport, self.alpha, self._matte)
         self._gather()
 
     def _gather(self) -> None:
@@ -160,6 +163,8 @@ class Decomposition:
         new = copy.copy(self)
         new.transport, new.light = transport, light
         new.albedo = consistent_albedo(self, transport, light, *(() if reliable is None else (reliable,)))
+        if transport is not self.transport:
+            new.shadows = ShadowCaster(transport, self.alpha, self._matte)
         new.choices = dict(self.choices)
         new.last_stats = None
         new._gather()
@@ -200,7 +205,8 @@ class Decomposition:
                 return k
         return self.sh_order
 
-    def relight_working(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0) -> np.ndarray:
+    def relight_working(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0,
+                        shadows: bool = False) -> np.ndarray:
         """The relit person at working resolution, [h, w, 3], zero outside the matte:
         max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
         Only the light's bands this request needs are evaluated (order_needed, judged on the
@@ -209,16 +215,21 @@ class Decomposition:
 
         A radiance is >= 0; negative values are SH truncation ringing (or network
         error), not light: they are set to 0 and counted in `last_stats`
-        (docs/conventions.md, "Ringing and negative light").
+        (docs/conventions.md, "Ringing and negative light"). `shadows`: see relight().
         """
-        return self._relit(self.fit_light(coeffs, exposure_ev), output_scale)
+        return self._relit(self.fit_light(coeffs, exposure_ev), output_scale, shadows)
 
-    def _relit(self, L: np.ndarray, output_scale: float) -> np.ndarray:
-        """relight_working under the fitted light L."""
+    def _relit(self, L: np.ndarray, output_scale: float, shadows: bool = False) -> np.ndarray:
+        """relight_working under the fitted light L; `shadows`: its key light's cast shadows drawn
+        (relight.network.shadowing; none when L has no directional part)."""
         h, w = self.working_size
         order = self.order_needed(L * np.float32(output_scale))
         n = sh.num_coeffs(order)
-        relit = self._albedo_m * (self._transport_m[:, :n] @ L[:n])
+        shading = self._transport_m[:, :n] @ L[:n]
+        key = key_of(L) if shadows else None
+        if key is not None:
+            shading -= self.shadows.blocked_shading(key, self._transport_m, order)
+        relit = self._albedo_m * shading
         if self._has_residual:
             relit += self._residual_m[:, :n] @ L[:n]
         # per-pixel minimum as two column minima: relit.min(axis=1) loops 3 values at a time, 30x slower
@@ -227,7 +238,7 @@ class Decomposition:
         darkest *= self._inside  # only the person's pixels count, not the grown ring
         self.last_stats = RelightStats(clamped=int(np.count_nonzero(darkest)), pixels=self._inside_count,
                                        darkest=float(darkest.min(initial=0.0)), sh_order=order,
-                                       residual=self._has_residual)
+                                       residual=self._has_residual, shadow_key=key)
         np.maximum(relit, np.float32(0.0), out=relit)
         if self._matte.size == h * w:  # matte covers the crop: no scatter needed
             return relit.reshape(h, w, 3)
@@ -236,7 +247,7 @@ class Decomposition:
         return out.reshape(h, w, 3)
 
     def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True,
-                out: np.ndarray | None = None) -> np.ndarray:
+                out: np.ndarray | None = None, shadows: bool = False) -> np.ndarray:
         """The photo relit by the SH light `coeffs`, linear float32 [H, W, 3] at full resolution.
 
         `coeffs`: SH coefficients [m, 3] (cut or zero-padded to the model's order;
@@ -247,18 +258,19 @@ class Decomposition:
         resolution (keeps the photo's fine texture); without it the relit person
         is just upsampled. The relit person is >= 0 (negative light clamped;
         `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
-        written and returned instead of a new array (relight.network.composite).
+        written and returned instead of a new array (relight.network.composite). `shadows`: the
+        light's directional part casts shadows on the person (relight.network.shadowing).
         """
-        return self.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), detail, out)
+        return self.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), detail, out, shadows)
 
     def relight_checked(self, light: np.ndarray, scale: float, detail: bool = True,
-                        out: np.ndarray | None = None) -> np.ndarray:
+                        out: np.ndarray | None = None, shadows: bool = False) -> np.ndarray:
         """relight() for a caller that checked the light and the exposure at its own boundary:
         `light` SH coefficients [m, 3] float64 as checked_light returns them, `scale` = 2**EV
         (relight image: its light checked once by relight.lighting.light.SHLight, --exposure by
         its argparse type). Nothing is checked again here."""
         scale = np.float32(scale)
-        relit = self._relit(self._fit_light(light, 1.0), float(scale))
+        relit = self._relit(self._fit_light(light, 1.0), float(scale), shadows)
         quotient = detail and not self._up.identity
         if quotient:
             source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
@@ -374,6 +386,19 @@ class Decomposition:
         small = np.zeros((h * w, 3), np.float32)
         small[self._matte] = values
         return self._to_full(small.reshape(h, w, 3), out, edge_colour=name == "albedo")
+
+    def shadow_layer(self, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
+        """The share of the light's key each pixel sees past the person's own body [H, W] at full
+        resolution (1 where nothing blocks it, outside the person and when the light has no
+        directional part: relight.network.shadowing); the light as layer() takes it."""
+        key = key_of(self.fit_light(self.light if coeffs is None else coeffs, exposure_ev))
+        h, w = self.working_size
+        blocked = np.zeros((h, w, 1), np.float32)
+        if key is not None:
+            blocked[..., 0] = 1.0 - self.shadows.visibility(key)
+        full = self._to_full(blocked, None if out is None else out[..., None])[..., 0]
+        np.subtract(1.0, full, out=full)
+        return full
 
     @property
     def has_residual(self) -> bool:
