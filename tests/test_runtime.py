@@ -497,3 +497,43 @@ def test_a_bare_decompose_is_balanced():
         assert np.abs(np.asarray(get(bare), np.float64) - ref).max() <= tol, name
         far.append(np.abs(np.asarray(get(once), np.float64) - ref).max() / tol)
     assert min(far) > 10, far  # the network once is no rounding away from Balanced
+
+
+def _documented_calls(text: str) -> list[tuple[str, str]]:
+    """(name, parameter list) of every `name(params)` on the indented lines of
+    docs/ARCHITECTURE.md's "Runtime" section (its call forms)."""
+    import re
+
+    section = text.split("## Runtime (", 1)[1].split("\n## ", 1)[0]
+    lines = [line for line in section.splitlines() if line.startswith("    ")]
+    return [(m[0].rsplit(".", 1)[-1], m[1]) for line in lines for m in re.findall(r"([\w.]+)\(([^()]*)\)", line)]
+
+
+def test_the_architectures_call_forms_bind_to_the_runtimes_signatures():
+    """Issue 48: docs/ARCHITECTURE.md showed `sh_light(source, order, rotation_deg=0.0)`, so a
+    reader passed the rotation third; it is keyword-only and that raised. Each form shown must
+    bind: a parameter shown before `*` is positional in the code, every one shown exists, and a
+    default shown is the code's."""
+    import ast
+    import inspect
+    from pathlib import Path
+
+    from relight.lighting.light import sh_light
+    from relight.network.decomposition import Decomposition
+
+    code = {"Relighter": Relighter.__init__, "decompose": Relighter.decompose, "sh_light": sh_light,
+            "relight": Decomposition.relight}
+    text = (Path(__file__).resolve().parents[1] / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
+    calls = _documented_calls(text)
+    assert sorted({name for name, _ in calls}) == sorted(code), calls
+    for name, params in calls:
+        shown = ast.parse(f"def f({params}): pass").body[0].args
+        real = [p for p in inspect.signature(code[name]).parameters.values() if p.name != "self"]
+        positional = [p.name for p in real if p.kind == p.POSITIONAL_OR_KEYWORD]
+        assert [a.arg for a in shown.args] == positional[:len(shown.args)], (name, params)
+        by_name = {p.name: p for p in real}
+        defaults = dict(zip([a.arg for a in shown.args][::-1], shown.defaults[::-1]))
+        defaults.update({a.arg: d for a, d in zip(shown.kwonlyargs, shown.kw_defaults) if d is not None})
+        for arg, default in defaults.items():
+            assert by_name[arg].default == ast.literal_eval(default), (name, arg)
+        assert {a.arg for a in shown.kwonlyargs} <= set(by_name), (name, params)
