@@ -1,28 +1,24 @@
 """OpenEXR read/write (OpenEXR >= 3.3 Python API), all parts, atomic writes.
 
-The library prints its own diagnostics on the process's stdout and stderr
-(C-level, past Python's sys.stderr); every call into it runs with both file
-descriptors captured, and what it said goes into the one ValueError/OSError
-raised for a file that is refused.
+Nothing here touches the process's file descriptors or sys.stdout/sys.stderr
+(inside Blender they are everyone's): a file is refused for its framing by
+relight.files.exr_layout before the library sees it, since the library would
+print about a damaged file on stderr and stdout. Damage the framing cannot show
+(inside a chunk's compressed data) is found by the library while it decodes: it
+prints its own message, and the read still ends in one ValueError of ours.
 """
 
 from __future__ import annotations
 
-import ctypes
-import io
-import os
-import sys
-import tempfile
-import threading
-from contextlib import contextmanager
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from relight.files.exr_layout import read_layout
 from relight.files.fileio import atomic_path
 
-__all__ = ["read_exr", "write_exr", "write_exr_bands", "exr_size", "library_output_captured"]
+__all__ = ["read_exr", "write_exr", "write_exr_bands", "exr_size"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
 _LIBRARY_NAMES = {name: ("NO" if name == "none" else name.upper()) + "_COMPRESSION" for name in _COMPRESSIONS}
@@ -34,88 +30,14 @@ def _openexr():
     return OpenEXR
 
 
-_CAPTURE_LOCK = threading.Lock()  # fds 1 and 2 are process-wide: one capture at a time
-
-
-def _flush_c_stdio() -> None:
-    """fflush(NULL): C and C++ (synced) stdio buffers out to their fds now."""
-    try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, TypeError, AttributeError):  # no C runtime reachable this way (Windows)
-        pass
-
-
-@contextmanager
-def library_output_captured():
-    """Point fds 1 and 2 at a temporary file for the duration; yields a list that
-    holds, afterwards, the non-empty lines a C library wrote there.
-
-    C stdio buffers are flushed before the fds are restored, so nothing the
-    library wrote escapes later; sys.stdout is swapped for a buffer too (the
-    binding prints through it). Python's own pending output is flushed first
-    so it is not captured by mistake.
-    """
-    lines: list[str] = []
-    with _CAPTURE_LOCK, tempfile.TemporaryFile() as sink:
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (AttributeError, ValueError, OSError):
-                pass
-        saved = []
-        try:
-            for fd in (1, 2):
-                saved.append((fd, os.dup(fd)))
-                os.dup2(sink.fileno(), fd)
-        except OSError:  # no fd 1/2 to borrow (closed): run without capture
-            for fd, copy in saved:
-                os.dup2(copy, fd)
-                os.close(copy)
-            yield lines
-            return
-        python_stdout, sys.stdout = sys.stdout, io.StringIO()  # the binding's own prints go through it
-        try:
-            yield lines
-        finally:
-            printed, sys.stdout = sys.stdout.getvalue(), python_stdout
-            _flush_c_stdio()
-            for fd, copy in saved:
-                os.dup2(copy, fd)
-                os.close(copy)
-            sink.seek(0)
-            text = sink.read(1 << 16).decode("utf-8", errors="replace") + "\n" + printed
-            lines.extend(line.strip() for line in text.splitlines() if line.strip())
-
-
-def _said(lines: list[str]) -> str:
-    """The library's first message, shortened for a one-line error."""
-    if not lines:
-        return ""
-    first = lines[0] if len(lines[0]) <= 200 else lines[0][:197] + "..."
-    return f" ({first})"
-
-
 def exr_size(path) -> tuple[int, int]:
-    """(width, height) of the largest data window over all parts, from the header only."""
+    """(width, height) of the largest data window over all parts, from the headers only
+    (read by exr_layout; the library is not called). ValueError for a damaged header."""
     path = Path(path)
-    OpenEXR = _openexr()
-    with library_output_captured() as said:
-        try:
-            f = OpenEXR.File(str(path), header_only=True)
-            windows = []
-            for part in f.parts:
-                (x0, y0), (x1, y1) = part.header["dataWindow"]
-                windows.append((int(x1) - int(x0) + 1, int(y1) - int(y0) + 1))
-            failure = None
-        except Exception as exc:  # OpenEXR raises RuntimeError and others for corrupt headers
-            if isinstance(exc, MemoryError):
-                raise
-            failure = f"{type(exc).__name__}: {exc}"
-    if failure is not None:
-        raise ValueError(f"{path}: not a readable EXR ({failure}){_said(said)}")
-    if not windows:
-        raise ValueError(f"{path}: EXR has no parts")
-    return max(w for w, _ in windows), max(h for _, h in windows)
+    if not path.is_file():
+        raise FileNotFoundError(f"EXR file not found: {path}")
+    sizes = [part.size for part in read_layout(path, chunks=False)]
+    return max(w for w, _ in sizes), max(h for _, h in sizes)
 
 
 def read_exr(path) -> dict[str, np.ndarray]:
@@ -125,30 +47,30 @@ def read_exr(path) -> dict[str, np.ndarray]:
     multi-part file (Blender 5 writes one part per pass, e.g.
     "ViewLayer.Combined") a channel is named "<part>.<channel>" unless its
     name already starts with the part name. Raises FileNotFoundError for a
-    missing file and ValueError for one that is not a readable EXR, including
-    one the library complained about while reading (damaged pixel data).
+    missing file and ValueError for one that is not a readable EXR: damaged
+    framing (a truncated file), refused before the library reads it, or damaged
+    pixel data the library could not decode (a part it skipped).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"EXR file not found: {path}")
-    OpenEXR = _openexr()
-    with library_output_captured() as said:
-        channels, failure = _read_channels(OpenEXR, path)
+    parts = read_layout(path)
+    channels, failure = _read_channels(_openexr(), path, len(parts))
     if failure is not None:
-        raise ValueError(f"{failure}{_said(said)}")
-    if said:
-        raise ValueError(f"cannot read EXR {path}: damaged data{_said(said)}")
+        raise ValueError(failure)
     if not channels:
         raise ValueError(f"EXR {path} has no channels")
     return channels
 
 
-def _read_channels(OpenEXR, path: Path) -> tuple[dict[str, np.ndarray], str | None]:
-    """(channels, None) or ({}, one-line reason); runs with the library's output captured."""
+def _read_channels(OpenEXR, path: Path, expected_parts: int) -> tuple[dict[str, np.ndarray], str | None]:
+    """(channels, None) or ({}, one-line reason)."""
     channels: dict[str, np.ndarray] = {}
     try:
         f = OpenEXR.File(str(path), separate_channels=True)
         parts = list(f.parts)
+        if len(parts) != expected_parts:  # the binding skips a part it could not decode (and says so itself)
+            return {}, f"cannot read EXR {path}: damaged pixel data in {expected_parts - len(parts)} part(s)"
         channels: dict[str, np.ndarray] = {}
         for part in parts:
             part_name = part.name() if callable(part.name) else part.name
@@ -167,7 +89,8 @@ def _read_channels(OpenEXR, path: Path) -> tuple[dict[str, np.ndarray], str | No
     except Exception as exc:  # OpenEXR raises RuntimeError/others for corrupt data
         if isinstance(exc, MemoryError):
             raise
-        return {}, f"cannot read EXR {path}: {exc}"
+        said = str(exc).strip().splitlines()
+        return {}, f"cannot read EXR {path}: {said[0] if said else type(exc).__name__}"
     return channels, None
 
 
@@ -225,17 +148,16 @@ def write_exr(
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
     with atomic_path(path, ".exr") as tmp:
-        with library_output_captured() as said:
-            try:
-                with OpenEXR.File(header, prepared) as f:
-                    f.write(str(tmp))
-                failure = None
-            except Exception as exc:  # RuntimeError from the library, e.g. a full disk
-                if isinstance(exc, MemoryError):
-                    raise
-                failure = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        try:
+            with OpenEXR.File(header, prepared) as f:
+                f.write(str(tmp))
+            failure = None
+        except Exception as exc:  # RuntimeError from the library, e.g. a full disk (it prints nothing)
+            if isinstance(exc, MemoryError):
+                raise
+            failure = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if failure is not None:
-            raise OSError(f"cannot write EXR {path}: {failure}{_said(said)}")
+            raise OSError(f"cannot write EXR {path}: {failure}")
     return path
 
 
