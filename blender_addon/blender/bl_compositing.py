@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import bl_photo_world
+from . import bl_photo_world, bl_proxy
 from ..logic import photo_light, pixel_buffers
 from .bl_photo_world import RelitPhotoOperator, tag, tagged
 
@@ -179,10 +179,11 @@ class RELIGHT_PHOTO_OT_compositing_setup(bpy.types.Operator, RelitPhotoOperator)
         bl_photo_world.make_world(scene, photo, session)
         camera = make_camera(scene, photo, session)
         floor = make_floor(scene, photo, session)
+        person, _, _ = bl_proxy.make_proxy(scene, photo, session, camera, floor)  # the person casts and catches
         make_compositor(scene, photo, session)
         make_render_settings(scene)
         return (f"Render '{camera.name}' to put CG objects over '{photo.name}', lit like the person, "
-                f"shadows on '{floor.name}'")
+                f"shadows on '{floor.name}' and '{person.name}'")
 
 
 CLASSES = (RELIGHT_PHOTO_OT_compositing_setup,)

@@ -13,7 +13,7 @@ import time
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from . import bl_dials, bl_images, bl_layers, bl_saved, bl_session
+from . import bl_dials, bl_images, bl_layers, bl_proxy, bl_saved, bl_session
 from ..worker import engine, jobs, state, work
 from ..logic import mask_choice, output_names, photo_pixels, quality
 from .bl_dials import schedule_refresh
@@ -154,6 +154,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
     def _done(self, context) -> set:
         session = self._result["session"]
         wall = time.monotonic() - self._started
+        bl_proxy.refresh(session)  # its proxy in the 3D scene, if Compositing Setup made one, follows
         message = (f"Relit '{session.source}' in {wall:.1f} s"
                    f"{seconds_note(self._world_seconds, self._result['network_seconds'])}.")
         if self._plan.get("layers_later"):
