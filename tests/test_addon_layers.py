@@ -76,20 +76,6 @@ def test_each_layer_buffer_is_the_layer_packed(layer):
     assert buffer.reshape(50, 40, 4)[-1 - 20, 15, 3] == 1.0
 
 
-def test_save_layers_maps_are_the_decompositions_layers_made_on_demand():
-    for residual in (True, False):
-        d = _decomposition(mask=True, residual=residual, seed=2)
-        light = sh_light("studio", ORDER)
-        maps = engine.LayerMaps(d, light, 10.0, -0.5)
-        want = d.layers(engine.coefficients(d, light, 10.0), exposure_ev=-0.5)
-        assert list(maps) == list(want) and len(maps) == 4
-        for name in want:
-            np.testing.assert_allclose(maps[name], want[name], atol=SAME, rtol=SAME)
-        assert d.has_residual == residual
-    with pytest.raises(KeyError):
-        maps["relit"]
-
-
 # ------------------------------------------------------------------ under bpy
 
 LAYERS = ("alpha", "albedo", "shading", "residual")

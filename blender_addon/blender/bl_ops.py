@@ -14,7 +14,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from . import bl_dials, bl_images, bl_layers, bl_proxy, bl_saved, bl_session
-from ..worker import engine, jobs, state, work
+from ..worker import engine, jobs, save_layers, state, work
 from ..logic import mask_choice, output_names, photo_pixels, quality
 from .bl_dials import schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
@@ -311,7 +311,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator, WorkerOperator):
         if not self.filepath:
             raise ValueError("Choose a file to save the layers to.")
         path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
-        work.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
+        save_layers.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
         dials = current_dials(context, session)
         import threading
         from pathlib import Path
@@ -320,7 +320,7 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator, WorkerOperator):
         self._plan = plan = dict(session=session, dials=dials, path=path, tmp=tmp, handover=threading.Lock(),
                                  source=session.source)
         token, progress = engine.CancelToken(), jobs.Progress()
-        self._job = jobs.BackgroundJob(lambda: work.save_layers_work(plan, progress, token), label="save-layers",
+        self._job = jobs.BackgroundJob(lambda: save_layers.save_layers_work(plan, progress, token), label="save-layers",
                                        cancel_token=token, progress=progress)
         state.RUNNING[self.SLOT] = self._job
 

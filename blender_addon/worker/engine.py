@@ -11,7 +11,6 @@ import json
 import os
 import threading
 import time
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -308,49 +307,6 @@ def expected_seconds(model_path: str, working_size: int, augment=(), refine: int
 def relight(decomposition, light, rotation_deg: float, exposure_ev: float) -> np.ndarray:
     """The photo relit, linear [H, W, 3]: the person composited over the untouched background."""
     return decomposition.relight(coefficients(decomposition, light, rotation_deg), exposure_ev=exposure_ev)
-
-
-class LayerMaps(Mapping):
-    """albedo, shading, residual [H, W, 3] under the target light and alpha [H, W], each made
-    when it is asked for and not kept: relight.files.photo.write_layers_exr copies each into its
-    channels, so one full-size map is alive at a time (288 MB at 24 MP, not 960 for all four)."""
-
-    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float):
-        from relight.network.decomposition import LAYER_NAMES
-
-        self._names = LAYER_NAMES
-        self._decomposition, self._exposure = decomposition, exposure_ev
-        self._coeffs = coefficients(decomposition, light, rotation_deg)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name not in self._names:
-            raise KeyError(name)
-        d = self._decomposition
-        if name == "residual" and not d.has_residual:  # E is zero (the geometry model): E . L' is zero
-            return np.zeros((*d.size, 3), np.float32)
-        return d.layer(name, self._coeffs, self._exposure)
-
-    def __iter__(self):
-        return iter(self._names)
-
-    def __len__(self) -> int:
-        return len(self._names)
-
-
-def save_layers(path: str, relit: np.ndarray, layer_maps: Mapping) -> Path:
-    """Multi-layer EXR (Blender's render-layer naming), written atomically; compressed by
-    OpenEXR's threads, one a core (it compresses on one thread by default: 14.5 s of a 24 MP
-    photo's 16 s Save Layers on this 2-core machine)."""
-    from relight.files.photo import write_layers_exr
-    from relight.network.session import cores_available
-
-    import OpenEXR
-
-    if getattr(OpenEXR, "global_thread_count", lambda: 1)() == 0:
-        OpenEXR.set_global_thread_count(cores_available())
-    # as it is: a contiguous copy of a 24 MP relit photo is 288 MB (the writer copies channels it
-    # does not find contiguous; work.save_layers_work hands it planes)
-    return write_layers_exr(path, np.asarray(relit, dtype=np.float32), layer_maps)
 
 
 def user_error(exc: BaseException | None) -> Exception:

@@ -9,7 +9,6 @@ to Blender.
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -247,100 +246,3 @@ def save_failures_message(failures: list) -> str:
     listed = ", ".join(names[:-1]) + " and " + names[-1]
     return (f"The relights of {len(names)} photos, {listed}, could not be saved next to the .blend "
             f"({'; '.join(reasons)}): they will need Relight after reopening.")
-
-
-# Save Layers writes 14 float32 channels (relit RGBA, albedo, shading, residual RGB, alpha),
-# compressed at best to about half: the free space asked for before any work
-LAYERS_EXR_CHANNELS = 14
-
-
-def check_layers_target(path: str, height: int, width: int) -> None:
-    """ValueError, in the artist's words, when the layers cannot be written to `path`:
-    checked before anything is computed (a 24 MP photo's layers take seconds)."""
-    import shutil
-
-    folder = os.path.dirname(path) or "."
-    if os.path.isdir(path):
-        raise ValueError(f"'{path}' is a folder: choose a file name for the layers.")
-    if not os.path.isdir(folder):
-        raise ValueError(f"The folder '{folder}' does not exist: choose another place for the layers.")
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"The folder '{folder}' cannot be written to: choose another place for the layers.")
-    need = LAYERS_EXR_CHANNELS * 4 * height * width // 2
-    free = shutil.disk_usage(folder).free
-    if free < need:
-        raise ValueError(f"The disk holding '{folder}' has {free / 1e6:.0f} MB free; the layers need about "
-                         f"{need / 1e6:.0f} MB: free some space or choose another place.")
-
-
-# ------------------------------------------------------------------ Save Layers on the worker
-
-class PlanarLayerMaps(engine.LayerMaps):
-    """engine.LayerMaps, each map made straight into planes ([3, H, W]: every channel contiguous),
-    so relight.files.photo.write_layers_exr takes its channels as they are instead of copying them (at
-    24 MP a map and its copy were 576 MB each); a black residual is one zero plane for its three
-    channels. `check` runs before each map (Esc), `entered(name)` says which one is made ('' once
-    the writer has them all)."""
-
-    def __init__(self, decomposition, light, rotation_deg: float, exposure_ev: float, check=None, entered=None,
-                 alpha_out: np.ndarray | None = None):
-        super().__init__(decomposition, light, rotation_deg, exposure_ev)
-        self._check, self._entered = check or (lambda: None), entered or (lambda name: None)
-        self._alpha_out = alpha_out  # [H, W] to make the alpha in (a spare plane), or None
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name not in self._names:
-            raise KeyError(name)
-        self._check()
-        self._entered(name)
-        self._made = getattr(self, "_made", set()) | {name}
-        d = self._decomposition
-        h, w = d.size
-        if name == "alpha":
-            out = d.layer("alpha", self._coeffs, self._exposure, out=self._alpha_out)
-        elif name == "residual" and not d.has_residual:
-            zero = np.zeros((h, w), np.float32)
-            out = np.lib.stride_tricks.as_strided(zero, (h, w, 3), (4 * w, 4, 0), writeable=False)
-        else:
-            planes = np.empty((3, h, w), np.float32)
-            out = d.layer(name, self._coeffs, self._exposure, out=planes.transpose(1, 2, 0))
-        if len(self._made) == len(self._names):  # the writer has every map: it compresses and writes now
-            self._entered("")
-        return out
-
-
-LAYER_STAGES = {"alpha": ("Making the alpha layer", 0.15), "albedo": ("Making the albedo layer", 0.20),
-                "shading": ("Making the shading layer", 0.30), "residual": ("Making the residual layer", 0.40),
-                "": ("Writing the EXR file", 0.50)}
-
-
-def save_layers_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> str:
-    """Save Layers' worker: the relit photo and its layers under the dials, written to plan["tmp"]
-    beside the chosen file (the main thread puts it in place; Esc leaves nothing). Returns the path."""
-    session, tmp = plan["session"], plan["tmp"]
-    d = session.decomposition
-    light, rotation, exposure, strength = plan["dials"]
-    h, w = d.size
-    try:
-        progress.enter("Relighting at full size", 0.02)
-        # the relit photo as three planes: of a pooled RGBA buffer when one is kept (its fourth plane
-        # then takes the alpha), else of their own (288 MB at 24 MP, not the pool's 384)
-        pooled = pixel_buffers.BUFFERS.take_pooled(h * w * 4)
-        planes = np.empty((3, h, w), np.float32) if pooled is None else pooled.reshape(4, h, w)
-        relit = planes[:3].transpose(1, 2, 0)
-        d.relight(engine.coefficients(d, light, rotation), exposure_ev=exposure, out=relit)
-        pixel_buffers.blend_into(relit, d.photo, strength)
-        maps = PlanarLayerMaps(d, light, rotation, exposure, token.check,
-                               lambda name: progress.enter(*LAYER_STAGES[name]),
-                               alpha_out=None if pooled is None else planes[3])
-        engine.save_layers(tmp, relit, maps)
-        del relit, planes, maps
-        if pooled is not None:
-            pixel_buffers.BUFFERS.give(pooled)
-        with plan["handover"]:  # Esc now or never: the main thread cancels under the same lock
-            token.check()
-            plan["written"] = True
-    except BaseException:
-        os.unlink(tmp) if os.path.exists(tmp) else None
-        raise
-    return tmp
