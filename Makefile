@@ -53,4 +53,4 @@ clean-venv:
 # hour's timeout; prints the cases and the outcomes by type.
 fuzz: $(STAMP)
 	ulimit -v 4194304 && RELIGHT_FUZZ_PROFILE=fuzz PYTHONPATH=tests timeout 3600 \
-		$(PY) -m pytest -q -p fuzz_support tests/test_fuzz_loaders.py tests/test_fuzz_sh.py tests/test_fuzz_cli.py
+		$(PY) -m pytest -q -p fuzz_support tests/test_fuzz_loaders.py tests/test_fuzz_sh.py tests/test_fuzz_cli.py tests/test_fuzz_video.py

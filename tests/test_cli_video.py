@@ -520,3 +520,15 @@ def test_output_colour_tags_are_the_inputs_and_only_those(tmp_path, capsys, clip
     assert code == 0, err
     assert _tags(tmp_path / "from_frames.mp4") == {"colorspace": 1, "color_primaries": 1, "color_trc": 13,
                                                     "color_range": 1}
+
+
+def test_a_frame_found_damaged_mid_job_removes_the_frames_already_written(tmp_path, capsys, clip_frames):
+    """A refusal found once frames were written (the 6th of 8 frames is cut short: its header reads,
+    its pixels do not) leaves nothing: the frames this run wrote go with its settings and folder."""
+    src = write_frames(tmp_path / "in", clip_frames[:8])
+    data = (src / "f_0006.png").read_bytes()
+    (src / "f_0006.png").write_bytes(data[:len(data) // 2])
+    for out, extra in ((tmp_path / "out", []), (tmp_path / "o.mp4", ["--resume"]), (tmp_path / "v.mp4", [])):
+        code, _, err = _run(capsys, src, "--light", "studio", "--out", out, *extra)
+        assert code == 2 and err.count("\n") == 1 and "f_0006.png" in err, err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["in"], err

@@ -258,3 +258,13 @@ def test_frames_the_decoder_drops_without_an_error_are_refused(tmp_path, monkeyp
     with pytest.raises(ValueError, match=r"c\.mkv: the video is damaged: 6 frames \(0\.50 s\) could be decoded of "
                                          r"the 1\.00 s it holds"):
         list(clip.frames())
+
+
+def test_a_stream_of_an_unknown_codec_is_one_valueerror(tmp_path):
+    """Found by tests/test_fuzz_video.py: a Matroska whose codec id is damaged has a video stream
+    without a decoder (an AttributeError, a traceback, before)."""
+    data = write_video(tmp_path / "c.mkv", _frames(3), 12).read_bytes()
+    assert data.count(b"V_MPEG4/ISO/AVC") == 1
+    (tmp_path / "x.mkv").write_bytes(data.replace(b"V_MPEG4/ISO/AVC", b"V_MPEG4/ISO/AVX"))
+    with pytest.raises(ValueError, match=r"x\.mkv: the video stream's codec cannot be decoded"):
+        open_clip(tmp_path / "x.mkv")

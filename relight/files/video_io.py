@@ -226,6 +226,8 @@ class VideoFile:
                 raise ValueError(f"{self.path}: no video stream in the file")
             stream = container.streams.video[0]
             ctx = stream.codec_context
+            if ctx is None:  # a codec FFmpeg has no decoder for (or a damaged codec id)
+                raise ValueError(f"{self.path}: the video stream's codec cannot be decoded")
             width, height = ctx.width, ctx.height
             check_declared_size(width, height, self.path, max_pixels=max_pixels,
                                 bytes_per_pixel=64)  # a frame in flight through decode, relight, encode
