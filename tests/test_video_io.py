@@ -220,7 +220,7 @@ class _Unseekable:
 
 def test_a_video_that_declares_no_length_is_read_whole(tmp_path):
     """A live recording's Matroska says neither its frame count nor its duration: nothing to check
-    against, so it is read as it is (no refusal of a whole file)."""
+    against, so it is read as it is (no refusal of a whole file), its frames counted in its packets."""
     sink = _Unseekable(tmp_path / "live.mkv")
     with av.open(sink, "w", format="matroska") as c:
         v = c.add_stream("libx264", rate=25)
@@ -232,7 +232,7 @@ def test_a_video_that_declares_no_length_is_read_whole(tmp_path):
         c.mux(v.encode(None))
     sink.file.close()
     clip = open_clip(tmp_path / "live.mkv")
-    assert clip.info.frames is None and len(list(clip.frames())) == 10
+    assert clip.info.frames == 10 and len(list(clip.frames())) == 10  # the frames counted in its packets
 
 
 def test_frames_the_decoder_drops_without_an_error_are_refused(tmp_path, monkeypatch):
@@ -268,3 +268,45 @@ def test_a_stream_of_an_unknown_codec_is_one_valueerror(tmp_path):
     (tmp_path / "x.mkv").write_bytes(data.replace(b"V_MPEG4/ISO/AVC", b"V_MPEG4/ISO/AVX"))
     with pytest.raises(ValueError, match=r"x\.mkv: the video stream's codec cannot be decoded"):
         open_clip(tmp_path / "x.mkv")
+
+
+def test_an_mp4_trimmed_by_its_edit_list_is_read_whole(tmp_path):
+    """An mp4 whose edit list starts 5 frames in (a cut made without re-encoding: the frames before
+    it are stored, decoded for the next ones, never shown): its container counts 30 frames and lasts
+    25. Not a file cut short: the 25 frames shown are read, and counted."""
+    from fractions import Fraction
+
+    frames = _frames(30)
+    with av.open(str(tmp_path / "trimmed.mp4"), "w") as c:
+        v = c.add_stream("libx264", rate=24)
+        v.width, v.height, v.pix_fmt = 48, 36, "yuv420p"
+        for i, f in enumerate([*frames, None]):
+            if f is not None:
+                f = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
+                f.pts, f.time_base = i, Fraction(1, 24)
+            for packet in v.encode(f):  # 5 frames before the start: the muxer writes the edit list
+                packet.pts, packet.dts = packet.pts - 5, packet.dts - 5
+                c.mux(packet)
+    with av.open(str(tmp_path / "trimmed.mp4")) as c:
+        assert c.streams.video[0].frames == 30
+        assert sum(p.is_discard for p in c.demux(video=0) if p.size) == 5
+    clip = open_clip(tmp_path / "trimmed.mp4")
+    assert clip.info.frames == 25 and len(list(clip.frames())) == 25
+
+
+@pytest.mark.parametrize("suffix", [".mkv", ".mp4"])
+def test_a_video_starting_late_is_read_whole(tmp_path, suffix):
+    """A stream whose first frame is at 0.5 s: Matroska declares its length as the end time from 0
+    (DURATION 1.00 s for 0.50 s of frames), an mp4 as a length. Neither is a file cut short."""
+    from fractions import Fraction
+
+    with av.open(str(tmp_path / f"late{suffix}"), "w") as c:
+        v = c.add_stream("libx264", rate=24)
+        v.width, v.height, v.pix_fmt = 48, 36, "yuv420p"
+        for i, f in enumerate([*_frames(12), None]):
+            if f is not None:
+                f = av.VideoFrame.from_ndarray(encode_srgb8(f), format="rgb24")
+                f.pts, f.time_base = i + 12, Fraction(1, 24)
+            c.mux(v.encode(f))
+    clip = open_clip(tmp_path / f"late{suffix}")
+    assert clip.info.frames == 12 and len(list(clip.frames())) == 12

@@ -234,17 +234,13 @@ class VideoFile:
             fps = stream.average_rate or stream.guessed_rate or stream.base_rate
             if not fps or not 0 < fps <= MAX_FPS:
                 raise ValueError(f"{self.path}: the video stream has no usable frame rate ({fps})")
-            count = stream.frames or None
-            if count is None and stream.duration is not None and stream.time_base is not None:
-                count = max(1, round(float(stream.duration * stream.time_base * fps)))
-            elif count is None and container.duration:
-                count = max(1, round(container.duration / 1_000_000 * float(fps)))
+            self._slack = _slack(container, fps)
+            self._held_s, hidden, shown = _check_whole(self.path, container, stream, fps, self._slack)
+            count = (stream.frames - hidden if stream.frames else shown) or None  # the frames shown
             colour = {"colorspace": int(ctx.colorspace), "color_primaries": int(ctx.color_primaries),
                       "color_trc": int(ctx.color_trc), "color_range": int(ctx.color_range)}
             self.info = ClipInfo(self.path, "video", width, height, Fraction(fps), count,
                                  audio=bool(container.streams.audio), colour=colour)
-            self._slack = _slack(container, fps)
-            self._held_s = _check_whole(self.path, container, stream, fps, self._slack)
         finally:
             container.close()
 
@@ -325,40 +321,46 @@ def _declared(container, stream) -> tuple[int | None, float | None, float | None
     return frames, seconds, whole
 
 
-def _check_whole(path: Path, container, stream, fps, slack: float) -> float:
+def _check_whole(path: Path, container, stream, fps, slack: float) -> tuple[float, int, int]:
     """Refuse a video whose packets fall short of what its container declares (a file cut short:
-    its header promises frames its body no longer has); returns the seconds of video it holds.
+    its header promises frames its body no longer has); returns the seconds of video it shows, the
+    frames it hides (those before an edit list's start: decoded, never shown) and those it shows.
     Reads the packets only (no decoding): the frame count against the declared count, and the
     span of the timestamps against the declared durations, within `slack`."""
     av = import_av()
     frame_s = 1 / float(fps)
-    packets, v0, v1, a0, a1 = 0, None, None, None, None
+    packets, hidden, v0, v1, a0, a1 = 0, 0, None, None, None, None
     try:
         for packet in container.demux():
             t = packet.pts if packet.pts is not None else packet.dts
-            if packet.size == 0 or t is None or packet.is_discard:  # the flush packet; edit-list leftovers
+            if packet.size == 0 or t is None:  # the demuxer's flush packet
+                continue
+            video = packet.stream_index == stream.index
+            packets += video  # with the frames before an edit list's start: the container counts them
+            if packet.is_discard:  # ... but never shows them, nor counts them in its durations
+                hidden += video
                 continue
             tb = float(packet.time_base)
             start = t * tb
-            end = start + (packet.duration * tb if packet.duration else 0.0)
-            if packet.stream_index == stream.index:
-                packets += 1
-                end = max(end, start + frame_s) if not packet.duration else end
+            end = start + (packet.duration * tb if packet.duration else frame_s if video else 0.0)
+            if video:
                 v0, v1 = min(v0 if v0 is not None else start, start), max(v1 if v1 is not None else end, end)
             a0, a1 = min(a0 if a0 is not None else start, start), max(a1 if a1 is not None else end, end)
     except av.error.FFmpegError:
         pass  # the body is damaged from here on: what was read is what it holds
-    held_s = (v1 - v0) if packets else 0.0
+    held_s = (v1 - v0) if v0 is not None else 0.0
+    # a declared length may be an end time from 0 (Matroska's, a stream starting late): the span or the end
+    reach, reach_all = max(held_s, v1 or 0.0), max(a1 - a0, a1) if a0 is not None else 0.0
     frames, seconds, whole = _declared(container, stream)
-    short = ((frames is not None and packets < frames) or (seconds is not None and held_s < seconds - slack)
-             or (seconds is None and whole is not None and (a1 - a0 if a1 is not None else 0.0) < whole - slack))
+    short = ((frames is not None and packets < frames) or (seconds is not None and reach < seconds - slack)
+             or (seconds is None and whole is not None and reach_all < whole - slack))
     if short:
         length = seconds if seconds is not None else whole
         said = frames if frames is not None else max(1, round(length * float(fps)))
         raise ValueError(f"{path}: the video is cut short: it declares {said} frames"
                          + (f" ({length:.2f} s)" if length is not None else "")
                          + f" but holds {packets} ({held_s:.2f} s): a truncated or damaged copy (copy it again whole)")
-    return held_s
+    return held_s, hidden, packets - hidden
 
 
 def open_clip(path, fps: Fraction | None = None, max_pixels: int | None = None):
