@@ -532,3 +532,15 @@ def test_a_frame_found_damaged_mid_job_removes_the_frames_already_written(tmp_pa
         code, _, err = _run(capsys, src, "--light", "studio", "--out", out, *extra)
         assert code == 2 and err.count("\n") == 1 and "f_0006.png" in err, err
         assert sorted(p.name for p in tmp_path.iterdir()) == ["in"], err
+
+
+def test_a_full_disk_at_the_settings_file_leaves_no_folder(tmp_path, capsys, monkeypatch, clip_frames):
+    from relight.files import fileio
+
+    src = write_frames(tmp_path / "in", clip_frames[:2])
+    monkeypatch.setattr(fileio, "atomic_write_text", _disk_full)
+    code, _, err = _run(capsys, src, "--light", "studio", "--out", tmp_path / "out")
+    assert code == cli_video.EXIT_FAILED
+    assert err == (f"relight video: error: output disk full: {tmp_path / 'out' / cli_video.JOB_FILE}; nothing "
+                   "written: free space and rerun\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]

@@ -244,7 +244,7 @@ def _write_failure(exc: OSError, out: Path, frames, kind: str) -> str:
         if kind == "video":
             kept = f"no video written; {kept}" if left else "no video or frame written"
         return f"{line}; {kept}: {todo} and rerun" + (" with --resume" if left else "")
-    return f"{line}; no video written: {todo} and rerun"
+    return f"{line}; {'no video' if kind == 'video' else 'nothing'} written: {todo} and rerun"
 
 
 def _empty_layers(frame: np.ndarray) -> dict:
