@@ -47,6 +47,16 @@ def _framing(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _people(text: str) -> str:
+    from farm.synthesis.people import parse_people
+
+    try:
+        lo, hi = parse_people(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return str(lo) if lo == hi else f"{lo}-{hi}"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(
         prog="farm",
@@ -85,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--hard-lights", type=finite_float(0, 1, what="share"), default=0.0, metavar="SHARE",
                    help="share of the lights that are a hard light (sun, studio key and fill, lamp; "
                         "farm/synthesis/hard_lights.py) instead of a map")
+    s.add_argument("--people", type=_people, default="1", metavar="N|LO-HI",
+                   help="people per scene: a count, or a range drawn uniformly per scene (2-5: groups, "
+                        "farm/synthesis/people.py)")
     s.add_argument("--clip-frames", type=bounded_int(2, 1000), default=None, metavar="F",
                    help="render clips instead of stills: scene i is frame i mod F of clip i // F (farm/clips.py)")
     s.add_argument("--motion", choices=("turn", "sway"), default="turn",
@@ -127,8 +140,11 @@ def parse_args(argv: list[str]) -> RunConfig:
         denoise_prefilter=a.denoise_prefilter,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
         specular=a.specular, light_pool=a.light_pool, framing=a.framing, hard_lights=float(a.hard_lights),
+        people=a.people,
     )
     job_module = a.job_module
+    if a.clip_frames is not None and a.people != "1":
+        raise UsageError("--clip-frames renders one person: --people must be 1 with it")
     if a.clip_frames is not None:
         from farm import clips
 

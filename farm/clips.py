@@ -57,6 +57,8 @@ class SceneOptions(_BaseOptions):
                              f"got {self.clip_frames!r}")
         if self.motion not in MOTIONS:
             raise ValueError(f"SceneOptions.motion must be one of {MOTIONS}, got {self.motion!r}")
+        if self.people != "1":  # a clip moves one person (a group's clips: issue 47, item 5)
+            raise ValueError(f"SceneOptions.people must be '1' for clips, got {self.people!r}")
 
     @classmethod
     def from_json(cls, settings: dict) -> "SceneOptions":

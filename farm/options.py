@@ -35,6 +35,9 @@ class SceneOptions:
     # lights (farm.synthesis.hard_lights; 0 draws nothing new)
     framing: str = "full-body"
     hard_lights: float = 0.0
+    # issue 47: people per scene, a count or a range drawn uniformly ("2-5"; farm.synthesis.people).
+    # "1" draws nothing new and is left out of the sidecar: the scenes of before, byte for byte
+    people: str = "1"
 
     def validate(self) -> None:
         checks = (
@@ -60,6 +63,9 @@ class SceneOptions:
         from farm.synthesis.camera import parse_framings
 
         parse_framings(self.framing)
+        from farm.synthesis.people import parse_people
+
+        parse_people(self.people)
         if isinstance(self.hard_lights, bool) or not isinstance(self.hard_lights, (int, float)) \
                 or not 0.0 <= float(self.hard_lights) <= 1.0:
             raise ValueError(f"SceneOptions.hard_lights must be a share in [0, 1], got {self.hard_lights!r}")
@@ -70,6 +76,8 @@ class SceneOptions:
         """Plain JSON form (passes as a sorted list); `from_json` rebuilds it."""
         d = asdict(self)
         d["passes"] = sorted(self.passes)
+        if d["people"] == "1":
+            del d["people"]
         return d
 
 
@@ -89,7 +97,10 @@ class SceneOptions:
             channels += 3 * self.lights  # image.LK
         if "body" in self.passes:
             channels += 3 + 1 + 1  # body_normal, body_alpha, body_depth
-        return channels
+        from farm.synthesis.people import parse_people
+
+        most = parse_people(self.people)[1]
+        return channels + (most if most > 1 else 0)  # person.PK, one per person of a group
 
     def path_traced_images(self) -> int:
         """Path-traced images one scene yields when nothing is skipped."""

@@ -19,9 +19,8 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.metadata
-import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,9 +34,6 @@ from relight.lighting import sh
 # view-dependent bake, and the PRT image equals the path-traced one up to
 # interreflection and noise).
 DIFFUSE_ONLY_SHARE = 0.2
-MAX_POSE_ATTEMPTS = 12
-# Capsule overlap (fraction of the two radii) above which a pose is rejected.
-MAX_PENETRATION = 0.3
 GEOMETRY_SAMPLES = 16
 # Streams of their own (default_rng([seed, index, stream])) for what issue 37 added, so that a
 # scene's body, clothes and light maps do not depend on --framing or --hard-lights (the bake is 1)
@@ -55,12 +51,6 @@ def _versions() -> dict:
         except importlib.metadata.PackageNotFoundError:
             out[pkg] = None
     return out
-
-
-def _yaw(vertices: np.ndarray, degrees: float, centre: np.ndarray) -> np.ndarray:
-    t = math.radians(degrees)
-    r = np.array([[math.cos(t), -math.sin(t), 0.0], [math.sin(t), math.cos(t), 0.0], [0.0, 0.0, 1.0]])
-    return (vertices - centre) @ r.T + centre
 
 
 def geometry_hash(vertices: np.ndarray, faces: np.ndarray) -> str:
@@ -104,6 +94,8 @@ class SceneSample:
     timings: dict = field(default_factory=dict)
     body_mesh: tuple | None = None  # (vertices [V, 3] world, faces [F, 3]): the posed body without clothes
     head_labels: list | None = None  # per part: float [V], 1 on the head's skin and face details (the head mask)
+    people: dict | None = None  # a group's sidecar record (farm.synthesis.people.group_record); None: one person
+    part_people: list | None = None  # a group's person index of each part
 
     @property
     def offsets(self) -> np.ndarray:
@@ -155,6 +147,7 @@ class SceneSample:
                      "penetration_pair": self.penetration_pair},
             "appearance": self.look,
             "geometry": self.geometry_record(),
+            **({"people": self.people} if self.people is not None else {}),
         }
 
 
@@ -179,50 +172,28 @@ def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) 
 
 
 def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
-    """sample_scene for a request already checked (check_request)."""
-    from farm.synthesis import appearance, bodies, camera, hard_lights, lights, poses
+    """sample_scene for a request already checked (check_request). A group (options.people,
+    farm.synthesis.people) adds its people; one person draws exactly what it drew before."""
+    from farm.synthesis import appearance, camera, hard_lights, lights, people
 
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
-
-    def stage(name, t0):
-        timings[name] = round(time.perf_counter() - t0, 4)
-
-    t0 = time.perf_counter()
-    params = bodies.sample_body(rng)
-    rest_body = bodies.build_body(params, None)
-    axes = poses.RestAxes.from_joints(rest_body.joints, rest_body.bone_labels)
-    stage("body", t0)
-    t0 = time.perf_counter()
-    for attempt in range(1, MAX_POSE_ATTEMPTS + 1):
-        pose = poses.sample_pose(rng, axes)
-        body = bodies.build_body(params, poses.pose_deltas(pose, rest_body.bone_labels))
-        penetration, pair = poses.worst_penetration(body.vertices, body.joints, body.bone_labels, body.bone_weights)
-        if penetration <= MAX_PENETRATION:
-            break
+    plan = people.people_plan(options.people, seed, index)
+    if plan.count == 1:
+        persons = [people.draw_person(rng, people.one_person_yaw, diffuse_share=DIFFUSE_ONLY_SHARE, timings=timings)]
+        parts = persons[0].parts
     else:
-        pose = poses.Pose("rest")  # every draw intersected: keep the unposed A-pose
-        body = rest_body
-        penetration, pair = poses.worst_penetration(body.vertices, body.joints, body.bone_labels, body.bone_weights)
-    pose.attempts = attempt
-    yaw = float(rng.uniform(-80.0, 80.0) if rng.random() < 0.85 else rng.uniform(80.0, 280.0))
-    pivot = np.array([*body.joints[0, :2], 0.0])
-    body.vertices = _yaw(body.vertices, yaw, pivot)
-    body.joints = _yaw(body.joints, yaw, pivot)
-    stage("pose", t0)
-
-    t0 = time.perf_counter()
-    diffuse_only = bool(rng.random() < DIFFUSE_ONLY_SHARE)
-    parts, look = appearance.dress(
-        body, rng, diffuse_only=diffuse_only, skirt_allowed=pose.family in ("standing", "arms", "rest")
-    )
-    stage("appearance", t0)
+        persons = people.draw_group(rng, plan, seed, index, DIFFUSE_ONLY_SHARE, timings)
+        parts = [replace(p, name=f"p{k}.{p.name}") for k, person in enumerate(persons) for p in person.parts]
+    first = persons[0]
 
     t0 = time.perf_counter()
     everything = np.concatenate([p.vertices for p in parts])
     cam = camera.frame_person(everything, rng)
-    cam = camera.reframe(cam, everything, body, options.framing, [int(seed), int(index), SHOT_STREAM], yaw)
-    stage("camera", t0)
+    group = [(person.vertices(), person.body) for person in persons] if plan.count > 1 else None
+    cam = camera.reframe(cam, everything, first.body, options.framing, [int(seed), int(index), SHOT_STREAM],
+                         plan.yaw_deg if group else first.yaw_deg, group=group)
+    timings["camera"] = round(time.perf_counter() - t0, 4)
 
     t0 = time.perf_counter()
     pool = lights.light_pool(options.light_pool)
@@ -232,12 +203,18 @@ def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) ->
     ]
     hard_lights.replace_share(scene_lights, options.hard_lights, [int(seed), int(index), HARD_LIGHT_STREAM],
                               options.sh_order, cam.world_to_camera)
-    stage("lights", t0)
+    timings["lights"] = round(time.perf_counter() - t0, 4)
+    bodies = [person.body for person in persons]
+    body_offsets = np.cumsum([0] + [len(b.vertices) for b in bodies])
     return SceneSample(
-        index=int(index), seed=int(seed), options=options, body=params, pose=pose, yaw_deg=yaw,
-        penetration=float(penetration), penetration_pair=pair, parts=parts, look=look, camera=cam,
-        lights=scene_lights, timings=timings, body_mesh=(body.vertices, body.faces),
-        head_labels=appearance.head_labels(parts, body),
+        index=int(index), seed=int(seed), options=options, body=first.params, pose=first.pose, yaw_deg=first.yaw_deg,
+        penetration=first.penetration, penetration_pair=first.penetration_pair, parts=parts, look=first.look,
+        camera=cam, lights=scene_lights, timings=timings,
+        body_mesh=(np.concatenate([b.vertices for b in bodies]),
+                   np.concatenate([b.faces + body_offsets[k] for k, b in enumerate(bodies)])),
+        head_labels=[label for person in persons for label in appearance.head_labels(person.parts, person.body)],
+        people=people.group_record(persons, plan, cam, options.resolution) if plan.count > 1 else None,
+        part_people=[k for k, person in enumerate(persons) for _ in person.parts] if plan.count > 1 else None,
     )
 
 
@@ -307,6 +284,7 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
     attribute_names = ["normal", "depth"] + (["head"] if sample.head_labels is not None else [])
     if baked.transport is not None:
         attribute_names += [f"t{i}" for i in range(_transport_blocks(options))]
+    attribute_names += [f"people{i}" for i in range(_people_blocks(sample))]
     spec = blender_scene.AovSpec(attribute_aovs=attribute_names, socket_aovs=["albedo", "material"])
     blender_scene.register_aovs(scene.view_layers[0], spec)
     for i, part in enumerate(sample.parts):
@@ -321,6 +299,11 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
         if baked.transport is not None:
             for k, block in enumerate(blender_scene.pack_vectors(baked.transport[lo:hi])):
                 attrs[f"t{k}"] = block
+        if sample.part_people is not None:  # the person's one-hot id: its AOV / alpha is the pixel's share
+            one_hot = np.zeros((hi - lo, 3 * _people_blocks(sample)))
+            one_hot[:, sample.part_people[i]] = 1.0
+            for k, block in enumerate(blender_scene.pack_vectors(one_hot)):
+                attrs[f"people{k}"] = block
         obj = blender_scene.mesh_object(part.name, part.vertices, part.faces, part.normals, attrs, scene=scene)
         mat, base_socket, params_socket = materials.build_material(part.name, part.material)
         blender_scene.add_attribute_aovs(mat, attribute_names)
@@ -334,6 +317,11 @@ def build_blender_scene(scene, sample: SceneSample, baked: SceneBake):
 
 def _transport_blocks(options: SceneOptions) -> int:
     return (sh.num_coeffs(options.sh_order) + 2) // 3
+
+
+def _people_blocks(sample: SceneSample) -> int:
+    return 0 if sample.part_people is None else (max(sample.part_people) + 1 + 2) // 3
+
 
 
 def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir: Path) -> tuple[dict, dict]:
@@ -362,6 +350,11 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
     }
     if "head" in geo.aovs:  # the head mask: the share of the pixel's person that is head skin or face
         channels["head"] = np.clip(geo.aovs["head"][..., 0], 0.0, 1.0).astype(np.float32)
+    if sample.people is not None:
+        from farm.synthesis.people import person_masks
+
+        channels.update(person_masks(alpha, [geo.aovs[f"people{i}"] for i in range(_people_blocks(sample))],
+                                     sample.people["count"]))
     if baked.transport is not None:
         n_coeffs = sh.num_coeffs(options.sh_order)
         stacked = np.concatenate([geo.aovs[f"t{i}"] for i in range(_transport_blocks(options))], axis=-1)
@@ -443,6 +436,10 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
         "versions": versions,
         "timings": timings,
     }
+    if sample.people is not None:  # each person's visible box and pixels, from its mask
+        from farm.synthesis.people import with_boxes
+
+        meta["people"] = with_boxes(sample.people, channels)
     stem = dataset.scene_stem(out_dir, index)
     _, json_path = dataset.write_scene(stem, channels, meta)
     return json_path

@@ -130,12 +130,13 @@ def test_options_reach_scene_options_one_to_one():
     config = cli.parse_args(["--out", "x", "--scenes", "3", "--seed", "7", "--res", "64", "--lights", "2",
                              "--samples", "8", "--no-denoise", "--order", "2", "--directions", "64",
                              "--passes", "prt", "--specular", "off", "--light-pool", "heldout",
-                             "--denoise-prefilter", "accurate", "--framing", "face,waist-up", "--hard-lights", "0.25"])
+                             "--denoise-prefilter", "accurate", "--framing", "face,waist-up", "--hard-lights", "0.25",
+                             "--people", "2-4"])
     assert config.scene.to_json() == {
         "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "denoise_prefilter": "accurate",
         "sh_order": 2,
         "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout",
-        "framing": "face,waist-up", "hard_lights": 0.25}
+        "framing": "face,waist-up", "hard_lights": 0.25, "people": "2-4"}
     assert list(config.indices) == [0, 1, 2]
     # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
     from farm import scene
@@ -144,12 +145,12 @@ def test_options_reach_scene_options_one_to_one():
     options.validate()
     assert (options.resolution, options.lights, options.samples, options.denoise, options.denoise_prefilter,
             options.sh_order, options.bake_directions, options.passes, options.specular, options.light_pool,
-            options.framing, options.hard_lights) == (
-        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout", "face,waist-up", 0.25)
+            options.framing, options.hard_lights, options.people) == (
+        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout", "face,waist-up", 0.25, "2-4")
     assert set(config.scene.to_json()) == {f.name for f in dataclasses.fields(scene.SceneOptions)}
     # Raw float32 channels of a 64x64 prt-only scene: 12 geometry (the head mask included) + 9
-    # transport + 2*3*2 per light.
-    assert config.scene.expected_channels() == 12 + 9 + 12
+    # transport + 2*3*2 per light + a mask for each of up to 4 people.
+    assert config.scene.expected_channels() == 12 + 9 + 12 + 4
     assert config.scene.path_traced_images() == 0
 
 

@@ -83,6 +83,11 @@ def features(meta: dict) -> dict[str, bool]:
     framing = meta.get("camera", {}).get("framing", "full-body")  # absent before issue 37
     f.update({f"framing: {name}": framing == name for name in FRAMINGS})
     f["hard light (any)"] = any(light.get("source") == "hard" for light in meta.get("lights", []))
+    from farm.synthesis.people import MAX_PEOPLE
+
+    group = meta.get("people", {"count": 1, "persons": []})  # absent: one person (the features above are person 0's)
+    f.update({f"people: {n}": group["count"] == n for n in range(1, MAX_PEOPLE + 1)})
+    f["people placed overlapping (any)"] = any(p["placement"]["relation"] == "overlap" for p in group["persons"])
     return f
 
 

@@ -11,7 +11,7 @@ looks along its local -Z with +Y up: its world rotation has the columns
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -181,11 +181,15 @@ def band(framing: str, marks: Landmarks) -> tuple[float, float, float]:
 
 
 def reframe(full_body: Camera, vertices: np.ndarray, body, framing_text: str, stream: list[int],
-            body_yaw_deg: float = 0.0) -> Camera:
+            body_yaw_deg: float = 0.0, group: list | None = None) -> Camera:
     """The scene's camera for the framings asked (SceneOptions.framing): one drawn uniformly from
     default_rng(stream), its own stream, so that the body, clothes and lights drawn from the
     scene's main stream stay the same whatever the framing; "full-body" keeps `full_body` (the
-    camera the main stream drew, which also holds when only "full-body" is asked: nothing drawn)."""
+    camera the main stream drew, which also holds when only "full-body" is asked: nothing drawn).
+
+    `group` (issue 47): (vertices, body) of each person of a group, the first one's landmarks
+    recorded; the shot keeps every person's band, aims from their mean eye height and walks
+    round the group (turned by body_yaw_deg) half as far as round one person."""
     framings = parse_framings(framing_text)
     if framings == ("full-body",):
         return full_body
@@ -193,9 +197,21 @@ def reframe(full_body: Camera, vertices: np.ndarray, body, framing_text: str, st
     framing = str(framings[int(rng.integers(len(framings)))])
     if framing == "full-body":
         return full_body
+    if not group:
+        marks = _marks(vertices, body)
+        return frame_shot(vertices, marks, framing, rng, body_yaw_deg)
+    marks = [_marks(v, b) for v, b in group]
+    bands = [(*band(framing, m), m.head) for m in marks]
+    first = replace(marks[0], eyes_z=float(np.mean([m.eyes_z for m in marks])))
+    return frame_shot(vertices, first, framing, rng, body_yaw_deg, bands=bands, facing_scale=GROUP_FACING_SCALE)
+
+
+GROUP_FACING_SCALE = 0.5  # a group's row seen from 90 degrees hides all but its nearest person
+
+
+def _marks(vertices: np.ndarray, body) -> Landmarks:
     head = np.argmax(body.bone_weights, axis=1) == body.bone_labels.index("head")
-    marks = landmarks(vertices, body.joints, body.bone_labels, body.vertices[head])
-    return frame_shot(vertices, marks, framing, rng, body_yaw_deg)
+    return landmarks(vertices, body.joints, body.bone_labels, body.vertices[head])
 
 
 def z_turn(degrees: float) -> np.ndarray:
@@ -205,16 +221,18 @@ def z_turn(degrees: float) -> np.ndarray:
 
 
 def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.random.Generator,
-               body_yaw_deg: float = 0.0) -> Camera:
+               body_yaw_deg: float = 0.0, bands: list | None = None, facing_scale: float = 1.0) -> Camera:
     """A camera for one of the cut framings: the band of the body (band()) fills `fill` of the
     frame height with its cut line on the frame's bottom edge and the head room above it; lens,
     camera height (pitch: a high or low camera looks down or up at the head), roll (a
     photographer's tilt, now and then a strong one) and the side it is taken from (about the
     person's facing, `body_yaw_deg`) drawn as photographers vary them. The camera turned about
-    world Z by camera_azimuth_deg (recorded) looks along +Y turned by that much."""
+    world Z by camera_azimuth_deg (recorded) looks along +Y turned by that much. `bands`: a
+    group's (low, high, radius, head) per person, kept together (one person: band(marks))."""
     if framing == "full-body":
         return frame_person(vertices, rng)
-    low, high, radius = band(framing, marks)
+    bands = bands or [(*band(framing, marks), marks.head)]
+    low, high = min(b[0] for b in bands), max(b[1] for b in bands)
     focal = float(rng.uniform(*FOCAL_RANGE[framing]))
     fill = float(rng.uniform(*FILL_RANGE[framing]))
     # the camera's height: seen from the eyes, `elevation` above (or below) them, looking at the
@@ -230,11 +248,13 @@ def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.ran
     # a portrait is taken from the front: the camera walks round the person (turned by
     # body_yaw_deg, farm.scene) to within 45 degrees of its facing, one shot in six a profile
     facing = float(rng.uniform(-45.0, 45.0) if rng.random() < 5.0 / 6.0
-                   else rng.choice([-1.0, 1.0]) * rng.uniform(45.0, 90.0))
+                   else rng.choice([-1.0, 1.0]) * rng.uniform(45.0, 90.0)) * facing_scale
     rot = orientation(pitch, roll) @ z_turn(body_yaw_deg + facing).T
     right, forward, up = rot
-    keep = (vertices[:, 2] >= low) & (vertices[:, 2] <= high)
-    keep &= np.linalg.norm(vertices[:, :2] - marks.head[:2], axis=1) < radius
+    keep = np.zeros(len(vertices), dtype=bool)
+    for lo, hi, radius, head in bands:
+        keep |= (vertices[:, 2] >= lo) & (vertices[:, 2] <= hi) \
+            & (np.linalg.norm(vertices[:, :2] - head[:2], axis=1) < radius)
     key = vertices[keep]
     if len(key) < 4:
         raise ValueError(f"framing {framing!r}: no body between z = {low:.2f} and {high:.2f}")
@@ -266,6 +286,8 @@ def frame_shot(vertices: np.ndarray, marks: Landmarks, framing: str, rng: np.ran
                         "camera_above_eyes_m": float(cam.location[2] - marks.eyes_z),
                         "elevation_from_eyes_deg": elevation, "facing_deg": facing,
                         "camera_azimuth_deg": float(body_yaw_deg + facing)}
+            if len(bands) > 1:
+                cam.shot["people_band_z"] = [[float(b[0]), float(b[1])] for b in bands]
             return cam
         distance *= 1.05
     raise ValueError(f"could not frame the {framing} shot inside the image")

@@ -31,6 +31,7 @@ __all__ = [
     "list_finished_scenes",
     "transport_channel_names",
     "file_sha256",
+    "PERSON_SUM_TOLERANCE",
 ]
 
 FORMAT = "relight-scene/1"
@@ -52,6 +53,12 @@ _BODY = {
 # optional: the farm's head mask (issue 37), the share of the pixel's person that is the head's
 # skin or the face's details (eyes, lips, brows); absent in scenes made before it
 _LABELS = {"head": ("A",)}
+# optional: a group scene's per-person masks (issue 47), person.P0.A .. person.P(N-1).A, each the
+# pixel's coverage by that person (the nearest surface wins where people overlap); they sum to alpha.
+# Each mask and each partial sum of up to MAX_PEOPLE of them is rounded once to float32 (a few
+# 1e-7 of a coverage <= 1); the bound leaves room for readers summing in another order.
+PERSON_SUM_TOLERANCE = 1e-5
+_PERSON_RE = re.compile(r"person\.P(\d+)")
 _PER_LIGHT = ("image", "shading", "prt")
 _RGB = ("R", "G", "B")
 
@@ -82,6 +89,7 @@ class Scene:
     body_alpha: np.ndarray | None = None   # [H, W, 1] coverage of the unclothed body
     body_depth: np.ndarray | None = None   # [H, W, 1] metres along the view axis; 0 off the body
     head: np.ndarray | None = None         # [H, W, 1] head mask in [0, 1] (farm scenes since issue 37)
+    people: list[np.ndarray] | None = None  # group scenes (issue 47): per person K, [H, W, 1] coverage; sum = alpha
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -144,7 +152,8 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
     transport ((sh_order+1)^2) optionally; image.LK / shading.LK / prt.LK (3)
     for lights K = 0..len(meta["lights"])-1 optionally; body_normal (3),
     body_alpha (1), body_depth (1) optionally, all three or none; head (1, the head mask)
-    optionally. `meta` needs `index`,
+    optionally; person.PK (1) for people K = 0..N-1 of a group optionally, summing to alpha
+    (and N = meta["people"]["count"] when meta has "people"). `meta` needs `index`,
     `sh_order`, `lights`; other keys (seed, camera, body, pose, appearance,
     passes, versions, timings) are stored as given. This function fills
     `format`, `resolution`, `channels`, `exr_sha256`.
@@ -195,6 +204,9 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
             for cname, plane in zip(transport_channel_names(n), _as_planes(name, arr, n, hw)):
                 planes[cname] = plane
             continue
+        if _PERSON_RE.fullmatch(name):
+            planes[f"{name}.A"] = _as_planes(name, arr, 1, hw)[0]
+            continue
         key = _light_key(name)
         if key is None:
             raise ValueError(f"unknown scene pass {name!r}")
@@ -209,6 +221,8 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
         present = {k for pass_kind, k in light_passes if pass_kind == kind}
         if present and present != set(range(len(lights))):
             raise ValueError(f"{kind} passes cover lights {sorted(present)}, expected 0..{len(lights) - 1}")
+
+    _check_people(planes, meta, f"scene {stem.name}")
 
     exr_path = stem.with_suffix(".exr")
     json_path = stem.with_suffix(".json")
@@ -228,6 +242,28 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
         raise ValueError(f"scene metadata has a non-finite number: {exc}") from None
     atomic_write_text(json_path, text + "\n")
     return exr_path, json_path
+
+
+def _check_people(planes: dict, meta: dict, where: str) -> list[np.ndarray] | None:
+    """The person masks of `planes` in order ([H, W] each), None when the scene has none;
+    ValueError when they are not person.P0 .. P(N-1), disagree with meta["people"]["count"],
+    leave [0, 1] or do not sum to alpha within PERSON_SUM_TOLERANCE."""
+    found = sorted(int(m.group(1)) for c in planes if (m := re.fullmatch(r"person\.P(\d+)\.A", c)))
+    people = meta.get("people")
+    count = people.get("count") if isinstance(people, dict) else None
+    if not found and count is None:
+        return None
+    if found != list(range(len(found))) or (count is not None and count != len(found)):
+        raise ValueError(f"{where}: person masks {['P%d' % k for k in found]} are not P0..P{len(found) - 1}"
+                         + (f" for the {count} people its sidecar records" if count is not None else ""))
+    masks = [np.asarray(planes[f"person.P{k}.A"], dtype=np.float32) for k in found]
+    low, high = min(float(m.min()) for m in masks), max(float(m.max()) for m in masks)
+    if low < -PERSON_SUM_TOLERANCE or high > 1.0 + PERSON_SUM_TOLERANCE:
+        raise ValueError(f"{where}: person masks leave [0, 1] (min {low:.3g}, max {high:.3g})")
+    gap = float(np.max(np.abs(np.sum(masks, axis=0, dtype=np.float64) - planes["alpha.A"])))
+    if gap > PERSON_SUM_TOLERANCE:
+        raise ValueError(f"{where}: person masks do not sum to alpha (off by up to {gap:.3g})")
+    return masks
 
 
 def _check_light_meta(light, k: int, order: int) -> None:
@@ -333,6 +369,8 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
     if any(c.startswith("body_") for c in planes):
         geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _BODY.items()})
     geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _LABELS.items() if f"{g}.{sfx[0]}" in planes})
+    masks = _check_people(planes, meta, f"scene EXR {exr_path.name}")
+    people = None if masks is None else [m[..., None] for m in masks]
     tnames = transport_channel_names(n)
     has_transport = any(c.startswith("transport.") for c in planes)
     transport = stack(tnames) if has_transport else None
@@ -360,6 +398,7 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
         shading=per_light["shading"],
         prt=per_light["prt"],
         lights=parsed_lights,
+        people=people,
         **geometry,
     )
 
