@@ -123,25 +123,50 @@ def bench_png(linear: np.ndarray, repeats: int) -> None:
 
 
 def bench_exr(linear: np.ndarray, repeats: int, folder: Path) -> None:
+    """OpenEXR's own writer (what relight.files.exr used before issue 48) against
+    relight.files.exr_zip (ISA-L), and relight.files.photo.write_exr_image as shipped."""
     import OpenEXR
 
+    from relight.files import exr_zip
     from relight.files.exr import write_exr
+    from relight.files.photo import write_exr_image
 
     channels = {c: np.ascontiguousarray(linear[..., i]) for i, c in enumerate("RGB")}
     before = OpenEXR.global_thread_count()
     cores = min(4, len(os.sched_getaffinity(0)))
     rows = []
+
+    def run(name, write, path):
+        seconds = median_wall_cpu(write, repeats)
+        rows.append((name, seconds, path.stat().st_size / 1e6))
+        path.unlink()
+
+    available = exr_zip.available
+    exr_zip.available = lambda: False  # write_exr on the library's writer
     try:
         for threads in sorted({0, cores}):
             OpenEXR.set_global_thread_count(threads)
-            for compression in ("zip", "piz", "none"):  # (zips and rle lost to both: time or size)
+            for compression in ("zip", "none"):  # (piz, zips and rle lost to zip: time or size)
                 path = folder / f"o_{compression}.exr"
-                seconds = median_wall_cpu(lambda: write_exr(path, channels, compression=compression), repeats)
-                rows.append((f"float32 {compression}, OpenEXR threads {threads}", seconds, path.stat().st_size / 1e6))
-                path.unlink()
+                run(f"OpenEXR's writer, float32 {compression}, its threads {threads}",
+                    lambda: write_exr(path, channels, compression=compression), path)
     finally:
+        exr_zip.available = available
         OpenEXR.set_global_thread_count(before)
-    table(f"EXR, {linear.shape[1]} x {linear.shape[0]}, RGB float32 (lossless), OpenEXR {OpenEXR.__version__}", rows)
+    h, w = linear.shape[:2]
+    for threads in sorted({1, cores}):
+        path = folder / "o_isal.exr"
+
+        def ours(threads=threads, path=path):
+            with open(path, "wb") as f:
+                exr_zip.write_zip_exr(f, ["R", "G", "B"], h, w, (linear[y:y + 64] for y in range(0, h, 64)),
+                                      threads=threads)
+
+        run(f"exr_zip, float32 zip, ISA-L level {exr_zip.LEVEL}, {threads} thread{'s' if threads > 1 else ''}",
+            ours, path)
+    path = folder / "o.exr"
+    run("relight.files.photo.write_exr_image as shipped", lambda: write_exr_image(path, linear), path)
+    table(f"EXR, {w} x {h}, RGB float32 (lossless), OpenEXR {OpenEXR.__version__}", rows)
 
 
 def run_command(python: str, tree: Path, photo: Path, out: Path) -> tuple[float, float, float]:

@@ -17,7 +17,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from relight.files import exr
+from relight.files import exr, exr_zip
 
 GUARD_S = 60  # a deadlock guard, never a measured time
 
@@ -63,12 +63,26 @@ def _planes(h=64, w=48, seed=0):
 
 
 @contextmanager
-def paused_writer(folder, monkeypatch):
-    """write_exr started on a worker thread; entered once it is inside the library, left
-    after resuming it and checking what it wrote. Started from the test's body: pytest's
-    capfd swaps the streams in only when the body starts, as a console would be there first."""
+def paused_writer(folder, monkeypatch, writer: str):
+    """write_exr started on a worker thread; entered once it is inside its writer (the OpenEXR
+    library's, or relight.files.exr_zip's packing on its threads), left after resuming it and
+    checking what it wrote. Started from the test's body: pytest's capfd swaps the streams in
+    only when the body starts, as a console would be there first."""
     inside, resume, order = threading.Event(), threading.Event(), []
-    monkeypatch.setattr(exr, "_openexr", lambda: _PausingLibrary("exr-writer", inside, resume, order))
+    if writer == "library":
+        monkeypatch.setattr(exr_zip, "available", lambda: False)
+        monkeypatch.setattr(exr, "_openexr", lambda: _PausingLibrary("exr-writer", inside, resume, order))
+    else:
+        pack, first = exr_zip._pack, []
+
+        def pausing_pack(*args):
+            if not first:  # the worker's first task: the main thread's own write comes later
+                first.append(True)
+                inside.set()
+                order.append(("writer resumed by the main thread", resume.wait(GUARD_S)))
+            return pack(*args)
+
+        monkeypatch.setattr(exr_zip, "_pack", pausing_pack)
     failures = []
 
     def write():
@@ -77,20 +91,24 @@ def paused_writer(folder, monkeypatch):
         except BaseException as exc:  # reported by the test, not lost on the thread
             failures.append(exc)
 
-    writer = threading.Thread(target=write, name="exr-writer")
-    writer.start()
+    worker = threading.Thread(target=write, name="exr-writer")
+    worker.start()
     try:
         assert inside.wait(GUARD_S)
         yield resume, order
     finally:
         resume.set()
-        writer.join()
+        worker.join()
     assert not failures, failures
     np.testing.assert_array_equal(exr.read_exr(folder / "layers.exr")["G"], _planes()["G"])
 
 
-def test_lines_printed_during_a_write_all_arrive(tmp_path, monkeypatch, capfd):
-    with paused_writer(tmp_path, monkeypatch) as (resume, _):
+WRITERS = ["library", "exr_zip"]  # exr_zip: ISA-L is a core dependency (pyproject.toml)
+
+
+@pytest.mark.parametrize("writer", WRITERS)
+def test_lines_printed_during_a_write_all_arrive(tmp_path, monkeypatch, capfd, writer):
+    with paused_writer(tmp_path, monkeypatch, writer) as (resume, _):
         print("one, through sys.stdout", flush=True)
         os.write(1, b"two, on fd 1\n")
         print("three, through sys.stderr", file=sys.stderr, flush=True)
@@ -103,11 +121,12 @@ def test_lines_printed_during_a_write_all_arrive(tmp_path, monkeypatch, capfd):
     assert err.splitlines() == ["three, through sys.stderr", "four, on fd 2"], err
 
 
-def test_the_main_thread_reads_and_writes_while_a_write_is_under_way(tmp_path, monkeypatch):
+@pytest.mark.parametrize("writer", WRITERS)
+def test_the_main_thread_reads_and_writes_while_a_write_is_under_way(tmp_path, monkeypatch, writer):
     """No process-wide lock: the main thread's EXR calls finish while the worker is still
     inside its write (before the fix they waited for it, 6-7 s at 24 MP in Blender)."""
     planes = _planes(8, 16, seed=1)
-    with paused_writer(tmp_path, monkeypatch) as (resume, order):
+    with paused_writer(tmp_path, monkeypatch, writer) as (resume, order):
         exr.write_exr(tmp_path / "world.exr", planes)  # e.g. Photo Light -> World
         assert exr.exr_size(tmp_path / "world.exr") == (16, 8)
         np.testing.assert_array_equal(exr.read_exr(tmp_path / "world.exr")["B"], planes["B"])

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.files import exr_zip
 from relight.files.exr_layout import read_layout
 from relight.files.fileio import atomic_path
 
@@ -22,6 +23,9 @@ __all__ = ["read_exr", "write_exr", "write_exr_bands", "exr_size"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
 _LIBRARY_NAMES = {name: ("NO" if name == "none" else name.upper()) + "_COMPRESSION" for name in _COMPRESSIONS}
+# the header's own fields: not for `attributes`
+_RESERVED = {"channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
+             "screenWindowCenter", "screenWindowWidth", "type", "tiles", "chunkCount", "name", "version"}
 
 
 def _openexr():
@@ -107,6 +111,8 @@ def write_exr(
     `channels` maps names to [H, W] arrays of one common shape; floats are
     stored as float32 (or float16 when `half`), uint32 stays uint32.
     `attributes`: string attributes added to the header (e.g. what made the image).
+    ZIP files of float channels are written by relight.files.exr_zip when ISA-L
+    is installed (a third of the CPU), others by the OpenEXR library.
     """
     path = Path(path)
     if compression not in _COMPRESSIONS:
@@ -131,22 +137,16 @@ def write_exr(
             prepared[name] = np.ascontiguousarray(a, dtype=np.float16 if half else np.float32)
         else:
             raise ValueError(f"EXR channel {name!r} has unsupported dtype {a.dtype}")
-    OpenEXR = _openexr()
-    codes = {
-        "zip": OpenEXR.ZIP_COMPRESSION,
-        "zips": OpenEXR.ZIPS_COMPRESSION,
-        "piz": OpenEXR.PIZ_COMPRESSION,
-        "none": OpenEXR.NO_COMPRESSION,
-        "rle": OpenEXR.RLE_COMPRESSION,
-        "pxr24": OpenEXR.PXR24_COMPRESSION,
-    }
-    header = {"compression": codes[compression], "type": OpenEXR.scanlineimage}
-    for key, value in (attributes or {}).items():
-        if not isinstance(key, str) or not key or key in header or not isinstance(value, str):
-            raise ValueError(f"EXR attributes must map new names to strings, got {key!r}: {type(value).__name__}")
-        header[key] = value
+    attributes = _checked_attributes(attributes, _RESERVED)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
+    if compression == "zip" and exr_zip.available() and all(a.dtype != np.uint32 for a in prepared.values()):
+        names, rows = list(prepared), exr_zip.TASK_LINES
+        bands = (np.stack([prepared[n][y:y + rows] for n in names], axis=-1) for y in range(0, shape[0], rows))
+        return _write_zip(path, names, *shape, bands, half, attributes)
+    OpenEXR = _openexr()
+    header = {"compression": getattr(OpenEXR, _LIBRARY_NAMES[compression]), "type": OpenEXR.scanlineimage}
+    header.update(attributes)
     with atomic_path(path, ".exr") as tmp:
         try:
             with OpenEXR.File(header, prepared) as f:
@@ -184,18 +184,20 @@ def write_exr_bands(
     `bands` yields float arrays [rows, width, len(names)], top band first; channel c
     of every band is stored as `names[c]`. Bands may have any number of rows >= 1
     (they need not match the compression's chunk of 16 lines) and must add up to
-    `height`. Only one band is held at a time, so a many-layer image is written
-    without holding the layers whole: each band is compressed and written before
-    the next is drawn. Floats are stored as float32 (float16 when `half`), as
+    `height`. A few bands are held at a time, so a many-layer image is written
+    without holding the layers whole: bands are compressed and written as they
+    are drawn (at most one band by the library's writer; at most
+    (exr_zip.IN_FLIGHT * threads + 1) * exr_zip.TASK_LINES rows by exr_zip's). Floats are stored as float32 (float16 when `half`), as
     write_exr stores them; `attributes` are string attributes added to the header.
 
     Nothing is left at `path` (an older file there is kept) when a band is wrong
     (shape, dtype, too many or too few rows), the disk fails (OSError), or `bands`
     itself raises, which is how a caller cancels a write: the exception propagates.
 
-    The library keeps the GIL while it compresses a band (its band writer is the
-    OpenEXR module's OutputFile): from a worker thread, bands of a few dozen rows
-    keep every stretch the main thread waits short.
+    ZIP is written by relight.files.exr_zip when ISA-L is installed (bands packed
+    on threads, the GIL released), else by the OpenEXR module's OutputFile, which
+    keeps the GIL while it compresses a band: from a worker thread, bands of a few
+    dozen rows keep every stretch the main thread waits short.
     """
     path = Path(path)
     if compression not in _COMPRESSIONS:
@@ -205,18 +207,22 @@ def write_exr_bands(
         raise ValueError(f"EXR channel names must be distinct non-empty strings, got {names!r}")
     if any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 for n in (height, width)):
         raise ValueError(f"EXR size must be positive integers, got {height!r} x {width!r}")
+    height, width = int(height), int(width)
+    attributes = _checked_attributes(attributes, _RESERVED)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"output folder does not exist: {path.parent}")
+    checked = _checked_bands(bands, path.name, height, width, len(names))
+    if compression == "zip" and exr_zip.available():
+        return _write_zip(path, names, height, width, checked, half, attributes)
     import Imath  # shipped with the OpenEXR module
 
     OpenEXR = _openexr()
-    header = OpenEXR.Header(int(width), int(height))
-    attributes = _checked_attributes(attributes, set(header) | {"type"})
+    header = OpenEXR.Header(width, height)
     pixel = Imath.PixelType(Imath.PixelType.HALF if half else Imath.PixelType.FLOAT)
     header["channels"] = {name: Imath.Channel(pixel) for name in names}
     header["compression"] = Imath.Compression(getattr(Imath.Compression, _LIBRARY_NAMES[compression]))
     for key, value in attributes.items():
         header[key] = value.encode("utf-8")  # this writer stores bytes as a string attribute
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"output folder does not exist: {path.parent}")
     dtype = np.float16 if half else np.float32
     with atomic_path(path, ".exr") as tmp:
         try:
@@ -224,25 +230,39 @@ def write_exr_bands(
         except OSError as exc:
             raise OSError(f"cannot write EXR {path}: {exc}") from None
         try:
-            done = 0
-            for band in bands:
-                band = np.asarray(band)
-                rows = band.shape[0] if band.ndim == 3 else 0
-                if band.ndim != 3 or rows < 1 or band.shape[1:] != (width, len(names)):
-                    raise ValueError(f"EXR band for {path.name} must be [rows, {width}, {len(names)}], "
-                                     f"got {band.shape}")
-                if not np.issubdtype(band.dtype, np.floating):
-                    raise ValueError(f"EXR band for {path.name} must hold floats, got {band.dtype}")
-                if done + rows > height:
-                    raise ValueError(f"EXR bands for {path.name} hold more than its {height} rows")
+            for band in checked:
                 planes = {name: np.ascontiguousarray(band[..., c], dtype=dtype) for c, name in enumerate(names)}
                 try:
-                    out.writePixels(planes, rows)
+                    out.writePixels(planes, band.shape[0])
                 except OSError as exc:
                     raise OSError(f"cannot write EXR {path}: {exc}") from None
-                done += rows
-            if done != height:
-                raise ValueError(f"EXR bands for {path.name} hold {done} of its {height} rows")
         finally:
             out.close()
+    return path
+
+
+def _checked_bands(bands: Iterable[np.ndarray], name: str, height: int, width: int, channels: int):
+    """The bands, each checked as it is drawn; ValueError when one is wrong or their rows are
+    not `height` (raised when they run out)."""
+    done = 0
+    for band in bands:
+        band = np.asarray(band)
+        rows = band.shape[0] if band.ndim == 3 else 0
+        if band.ndim != 3 or rows < 1 or band.shape[1:] != (width, channels):
+            raise ValueError(f"EXR band for {name} must be [rows, {width}, {channels}], got {band.shape}")
+        if not np.issubdtype(band.dtype, np.floating):
+            raise ValueError(f"EXR band for {name} must hold floats, got {band.dtype}")
+        if done + rows > height:
+            raise ValueError(f"EXR bands for {name} hold more than its {height} rows")
+        done += rows
+        yield band
+        del band  # held no longer than the writer holds it
+    if done != height:
+        raise ValueError(f"EXR bands for {name} hold {done} of its {height} rows")
+
+
+def _write_zip(path: Path, names: list[str], height: int, width: int, bands, half: bool,
+               attributes: dict[str, str]) -> Path:
+    with atomic_path(path, ".exr") as tmp, open(tmp, "wb") as f:  # an OS error is named by atomic_path
+        exr_zip.write_zip_exr(f, names, height, width, bands, half=half, attributes=attributes)
     return path

@@ -351,25 +351,45 @@ def exr_threads() -> None:
         OpenEXR.set_global_thread_count(min(4, cores))
 
 
+def _check_finite(image: np.ndarray, name: str) -> None:
+    """ValueError on NaN or Inf: min and max carry both (no [H, W, 3] mask allocated)."""
+    if image.size and not (np.isfinite(image.min()) and np.isfinite(image.max())):
+        raise ValueError(f"{name} to write contains NaN or Inf")
+
+
 def _rgb_channels(prefix: str, image: np.ndarray) -> dict[str, np.ndarray]:
-    if not np.all(np.isfinite(image)):
-        raise ValueError(f"{prefix or 'image'} to write contains NaN or Inf")
+    _check_finite(image, prefix or "image")
     return {f"{prefix}{c}": np.ascontiguousarray(image[..., i], dtype=np.float32) for i, c in enumerate("RGB")}
+
+
+EXR_BAND_ROWS = 64  # rows of the image handed to the EXR writer at a time (views: nothing copied whole)
 
 
 def write_exr_image(path: str | os.PathLike, linear: np.ndarray, alpha: np.ndarray | None = None,
                     metadata: dict[str, str] | None = None) -> Path:
-    """Write linear RGB (+ optional A) as a float32 EXR, atomically; `metadata`: header strings."""
-    from relight.files.exr import write_exr
+    """Write linear RGB (+ optional A) as a float32 EXR, atomically; `metadata`: header strings.
+    The image goes to the writer in bands of its own rows (relight.files.exr.write_exr_bands):
+    no per-channel copy of the whole image is made."""
+    from relight.files.exr import write_exr_bands
 
     path = Path(path)
     a = _check_image(linear)
-    channels = _rgb_channels("", a)
+    _check_finite(a, "image")
     if alpha is not None:
-        channels["A"] = np.ascontiguousarray(alpha, dtype=np.float32)
+        alpha = np.asarray(alpha, dtype=np.float32)
+        if alpha.shape != a.shape[:2]:
+            raise ValueError(f"alpha is {alpha.shape}, the image is {a.shape[:2]}")
+
+    def bands():
+        for y in range(0, a.shape[0], EXR_BAND_ROWS):
+            band = a[y:y + EXR_BAND_ROWS]
+            yield band if alpha is None else np.concatenate([band, alpha[y:y + EXR_BAND_ROWS, :, None]], axis=2)
+
+    names = ["R", "G", "B"] + (["A"] if alpha is not None else [])
     exr_threads()
     with _output_folder(path):
-        return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
+        return write_exr_bands(path, names, a.shape[0], a.shape[1], bands(), compression=EXR_COMPRESSION,
+                               attributes=metadata)
 
 
 def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[str, np.ndarray],
