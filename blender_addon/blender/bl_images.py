@@ -31,6 +31,7 @@ _SRGB_NAMES = {"sRGB", "sRGB 2.2"}  # Blender names for the sRGB transfer
 PHOTO_ID = "relight_photo_id"        # on a photo: its stable identity
 OUTPUT_OF = "relight_photo_of"       # on an output: the photo id it belongs to
 OUTPUT_LAYER = "relight_photo_layer"  # on an output: which layer it is
+UNWRITTEN = "relight_photo_unwritten"  # on an output made but not yet written (bl_images.output_image)
 # file types the core's reader (relight.files.photo.read_photo) reads as `relight image` does: sRGB-encoded
 # (8 or 16 bits), or linear EXR
 _PILLOW_EXTENSIONS = {".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp"}
@@ -287,15 +288,13 @@ def write_image(name: str, pixels: np.ndarray, *, colorspace: str = LINEAR, owne
                       owner=owner, layer=layer)
 
 
-def write_rgba(name: str, rgba: np.ndarray, width: int, height: int, *, colorspace: str = LINEAR,
-               owner: str = "", layer: str = "") -> bpy.types.Image:
-    """Put a buffer already in Blender's layout (RGBA, bottom row first) into image `name`.
-
-    The image is found by its (owner, layer) tags first, so a renamed photo's
-    outputs are reused and renamed; it keeps its datablock when its size
-    changes (a generated image is resized in place), so an editor showing it
-    keeps showing it.
-    """
+def output_image(name: str, width: int, height: int, *, colorspace: str = LINEAR, owner: str = "",
+                 layer: str = "") -> tuple:
+    """(image, made): the float image `name` of that size to write an output into, found by its
+    (owner, layer) tags first, so a renamed photo's outputs are reused and renamed; `made` is True
+    when Blender had to allocate its buffer (a new image, or a generated one resized in place, so an
+    editor showing it keeps showing it): at 24 MP the longest single step of a write (0.1 s idle,
+    0.4-0.5 s on the loaded 2-core machine), which a timer does apart from the pixels' copy."""
     image = output_by_tag(owner, layer) if owner else None
     if image is None:
         image = bpy.data.images.get(name)
@@ -306,19 +305,41 @@ def write_rgba(name: str, rgba: np.ndarray, width: int, height: int, *, colorspa
     if image is not None and not image.is_float:
         bpy.data.images.remove(image)
         image = None
-    if image is not None and tuple(image.size) != (width, height):
-        if image.source == "GENERATED":
-            image.generated_width, image.generated_height = width, height
-        else:
-            bpy.data.images.remove(image)
-            image = None
-    if image is None:
-        image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+    if image is not None and tuple(image.size) != (width, height) and image.source != "GENERATED":
+        bpy.data.images.remove(image)
+        image = None
+    if image is None:  # made small and sized below: Blender fills its buffer once, not again after the colour space
+        image = bpy.data.images.new(name, 1, 1, alpha=True, float_buffer=True)
+    if tuple(image.size) != (width, height):  # a generated image resized in place: an editor keeps showing it
+        image.generated_width, image.generated_height = width, height
     if owner:
         image[OUTPUT_OF], image[OUTPUT_LAYER] = owner, layer
         image.use_fake_user = True  # kept in the .blend even when no editor shows it
     if image.colorspace_settings.name != colorspace:
-        image.colorspace_settings.name = colorspace
+        image.colorspace_settings.name = colorspace  # (frees a generated image's buffer)
+    made = not image.has_data  # new, resized, recoloured or reopened from a .blend: its buffer made now
+    if made:
+        image.update()
+        image[UNWRITTEN] = True  # Blender's fill, not an output, until write_rgba writes it
+    return image, made
+
+
+def remove_unwritten(owner: str) -> int:
+    """Remove the outputs of photo `owner` made by output_image but never written (a run dropped
+    between the two steps): never left black as if they were results. Returns how many."""
+    doomed = [image for image in bpy.data.images if image.get(OUTPUT_OF) == owner and image.get(UNWRITTEN)]
+    for image in doomed:
+        bpy.data.images.remove(image)
+    return len(doomed)
+
+
+def write_rgba(name: str, rgba: np.ndarray, width: int, height: int, *, colorspace: str = LINEAR,
+               owner: str = "", layer: str = "") -> bpy.types.Image:
+    """Put a buffer already in Blender's layout (RGBA, bottom row first) into image `name`
+    (output_image's, made here when it is not there at that size)."""
+    image, _ = output_image(name, width, height, colorspace=colorspace, owner=owner, layer=layer)
     image.pixels.foreach_set(rgba)
     image.update()
+    if UNWRITTEN in image:
+        del image[UNWRITTEN]
     return image

@@ -14,7 +14,7 @@ from . import bl_images
 from ..worker import engine, jobs, state, work
 from .bl_dials import show_in_editors
 from .bl_light import current_dials
-from .bl_session import (POLL_SECONDS, addon_settings, current_session, release_job, set_status,
+from .bl_session import (POLL_SECONDS, addon_settings, current_session, make_output, release_job, set_status,
                          updates_immediately, write_output)
 
 
@@ -51,6 +51,8 @@ def cancel_layers(photo_id: str) -> None:
     if job is not None and job.session.photo_id == photo_id:
         job.cancel()
         del state.RUNNING["layers"]
+        if getattr(job, "made", False) and bl_images.photo_by_id(photo_id) is not None:
+            bl_images.remove_unwritten(photo_id)
 
 
 def _start_next() -> None:
@@ -83,15 +85,23 @@ def poll_layers():
             return POLL_SECONDS if "layers" in state.RUNNING else None
         return wait
     session = job.session
-    release_job(job, "layers")
     job_state = job.poll()
+    writes = job_state is jobs.JobState.DONE and _current(session) and \
+        (job.layer != "relit" or job.generation == session.dial_generation)
+    if writes and not getattr(job, "made", False) and make_output(session, job.layer,
+                                                                   work.layer_size(session, job.layer)):
+        job.made = True  # Blender allocated the image at this call: its pixels at the next
+        return POLL_SECONDS
+    release_job(job, "layers")
     if job_state is jobs.JobState.FAILED:
         set_status(bpy.context, str(engine.user_error(job.error)), is_error=True)
     elif job_state is jobs.JobState.DONE and _current(session):
-        if job.layer != "relit" or job.generation == session.dial_generation:
+        if writes:
             write_output(session, job.layer, job.result, work.layer_size(session, job.layer))
             if job.layer == "relit":
                 show_in_editors(session, "relit")
+        elif getattr(job, "made", False):
+            bl_images.remove_unwritten(session.photo_id)
         if job.rest:
             state.RUNNING["layers"] = _layer_job(session, job.dials, job.rest)
             return POLL_SECONDS

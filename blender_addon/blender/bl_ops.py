@@ -19,9 +19,9 @@ from ..logic import mask_choice, output_names, photo_pixels, quality
 from .bl_dials import schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
 from .bl_light import current_dials, light_image_key, target_light
-from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, press_clock, release_job,
-                         seconds_note, session_of, set_status, source_image, status_of, tell, timed_light,
-                         write_output)
+from .bl_session import (WorkerOperator, addon_settings, current_session, editor_image, make_output, press_clock,
+                         release_job, seconds_note, session_of, set_status, source_image, status_of, tell,
+                         timed_light, write_output)
 
 
 def mask_inputs(settings, image) -> dict:
@@ -142,9 +142,14 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         self._result = result
         self._pending = output_names.layers_in_order(result["buffers"])
 
-    def _write_next(self, context) -> None:
+    def _write_next(self, context, apart: bool = False) -> None:
+        """Write the next output; `apart` (a timer tick): an image Blender must allocate first is
+        made at this tick and written at the next."""
         session = self._result["session"]
-        layer = self._pending.pop(0)
+        layer = self._pending[0]
+        if apart and make_output(session, layer, session.photo.shape[:2]):
+            return
+        self._pending.pop(0)
         image = write_output(session, layer, self._result["buffers"].pop(layer), session.photo.shape[:2])
         if layer == "relit":
             space = getattr(context, "space_data", None)
@@ -231,12 +236,14 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         if event.type == "ESC":
             self._job.cancel()
             self._cleanup(context)
+            if self._result is not None:  # an image made for the relit photo, not written: not left black
+                bl_images.remove_unwritten(self._result["session"].photo_id)
             return self._error(context, engine.Cancelled())
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         if self._result is not None:
             try:
-                self._write_next(context)  # one image per tick: the UI stays responsive
+                self._write_next(context, apart=True)  # one step per tick: the UI stays responsive
             except ValueError as exc:
                 self._cleanup(context)
                 return self._error(context, exc)

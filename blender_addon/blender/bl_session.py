@@ -96,15 +96,29 @@ def session_of(image):
     return state.SESSIONS.get(pid) if pid else None
 
 
+def _output_args(session: state.PhotoSession, layer: str, size: tuple[int, int]) -> tuple:
+    """(name, width, height, options) of a layer's output image: `size` is (H, W) of the upright
+    image (the decomposition's); Blender's image is the photo as its file stores it, turned by the
+    session's orientation (pixel_buffers.stored_size)."""
+    height, width = pixel_buffers.stored_size(size, session.orientation)
+    colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
+    return (output_names.output_name(session.source, layer), width, height,
+            dict(colorspace=colorspace, owner=session.photo_id, layer=layer))
+
+
+def make_output(session: state.PhotoSession, layer: str, size: tuple[int, int]) -> bool:
+    """Make the layer's output image when it is not there at its size: True when Blender allocated
+    one (then a timer writes its pixels at its next call, so neither step is a long stretch)."""
+    name, width, height, options = _output_args(session, layer, size)
+    return bl_images.output_image(name, width, height, **options)[1]
+
+
 def write_output(session: state.PhotoSession, layer: str, rgba: np.ndarray, size: tuple[int, int]):
     """Hand a prepared buffer to Blender; the buffer goes back to the pool (nobody reads it after).
-    `size`: (H, W) of the upright image (the decomposition's); Blender's image is the photo as
-    its file stores it, turned by the session's orientation (pixel_buffers.stored_size)."""
-    colorspace = bl_images.NON_COLOR if layer == "alpha" else bl_images.LINEAR
-    height, width = pixel_buffers.stored_size(size, session.orientation)
+    `size`: (H, W) of the upright image (the decomposition's)."""
+    name, width, height, options = _output_args(session, layer, size)
     try:
-        image = bl_images.write_rgba(output_names.output_name(session.source, layer), rgba, width, height,
-                                     colorspace=colorspace, owner=session.photo_id, layer=layer)
+        image = bl_images.write_rgba(name, rgba, width, height, **options)
     finally:
         pixel_buffers.BUFFERS.give(rgba)
     if layer == "matte" and image.alpha_mode != "STRAIGHT":
