@@ -151,73 +151,55 @@ def test_save_layers_runs_on_a_worker_polled_by_the_timer_and_writes_what_it_wro
     np.testing.assert_array_equal(got["Relight.Shadow.X"], d.shadow_layer(coeffs, exposure))
 
 
-class _RecordingOpenEXR:
-    """The OpenEXR module as relight.files.exr sees it, recording the rows each write hands the
-    library (a whole file's File.write, or a band's OutputFile.writePixels) in `events`, after
-    ("Esc",) once the test pressed it; the first write waits for `gate`."""
+class _RecordingWriter:
+    """relight.files.exr's writers as Save Layers calls them, recording the rows each hands on to be
+    written (a whole file's write_exr, or each band write_exr_bands draws) in `events`, after ("Esc",)
+    once the test pressed it; the first rows wait for `gate`."""
 
-    def __init__(self, module, height: int):
-        self._module, self.height, self.events, self.gate = module, height, [], threading.Event()
-        self.writing = threading.Event()
+    def __init__(self, monkeypatch, height: int):
+        import relight.files.exr
 
-    def _wrote(self, rows: int) -> None:
+        self.height, self.events, self.gate, self.writing = height, [], threading.Event(), threading.Event()
+        whole, banded = relight.files.exr.write_exr, relight.files.exr.write_exr_bands
+
+        def write_exr(path, channels, **kw):
+            self._rows(self.height)
+            return whole(path, channels, **kw)
+
+        def write_exr_bands(path, names, height, width, bands, **kw):
+            def drawn():
+                for band in bands:
+                    self._rows(band.shape[0])
+                    yield band
+            return banded(path, names, height, width, drawn(), **kw)
+
+        monkeypatch.setattr(relight.files.exr, "write_exr", write_exr)
+        monkeypatch.setattr(relight.files.exr, "write_exr_bands", write_exr_bands)
+
+    def _rows(self, rows: int) -> None:
         if not self.writing.is_set():
             self.writing.set()
             self.gate.wait(30)
         self.events.append(("rows", rows))
 
-    def __getattr__(self, name):
-        attr = getattr(self._module, name)
-        if name not in ("File", "OutputFile"):
-            return attr
-        recorder = self
-
-        class Recorded:
-            def __init__(self, *args, **kw):
-                self._real = attr(*args, **kw)
-
-            def __enter__(self):
-                self._real.__enter__()
-                return self
-
-            def __exit__(self, *exc):
-                return self._real.__exit__(*exc)
-
-            def write(self, *args, **kw):
-                recorder._wrote(recorder.height)
-                return self._real.write(*args, **kw)
-
-            def writePixels(self, planes, rows):
-                recorder._wrote(rows)
-                return self._real.writePixels(planes, rows)
-
-            def __getattr__(self, other):
-                return getattr(self._real, other)
-
-        return Recorded
-
 
 def test_esc_while_writing_stops_the_write(relit, monkeypatch):
     """Issue 48: a cancelled Save Layers went on writing the whole file (then deleted it)."""
-    import relight.files.exr
-
     name, folder = relit
     monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
-    library = _RecordingOpenEXR(relight.files.exr._openexr(), H)
-    monkeypatch.setattr(relight.files.exr, "_openexr", lambda: library)
+    writer = _RecordingWriter(monkeypatch, H)
     op, context = _ui_operator(name, folder / "cancelled.exr")
     assert op.execute(context) == {"RUNNING_MODAL"}
     job = op._job
-    assert library.writing.wait(30)  # the library is writing
+    assert writer.writing.wait(30)  # the first rows are on their way to the file
     assert op.modal(context, types.SimpleNamespace(type="ESC")) == {"CANCELLED"}
-    library.events.append(("Esc",))
-    library.gate.set()
+    writer.events.append(("Esc",))
+    writer.gate.set()
     assert job.wait(30) is jobs.JobState.CANCELLED and job.finished
     assert isinstance(job.error, engine.Cancelled)
-    # the write in progress at Esc ends (one band) and no other starts: the library got less than the image
-    esc = library.events.index(("Esc",))
-    assert library.events[esc + 1:] == [("rows", save_layers.BAND_ROWS)], library.events
-    assert sum(rows for _, *rest in library.events for rows in rest) < H
+    # the band drawn when Esc came goes on, no other is drawn: less than the image reaches the writer
+    esc = writer.events.index(("Esc",))
+    assert writer.events[esc + 1:] == [("rows", save_layers.BAND_ROWS)], writer.events
     assert list(folder.glob("*.exr")) == [] and list(folder.glob(".*")) == []  # no file, no temporary
     assert op.reports[-1] == ({"WARNING"}, "Saving the layers cancelled: nothing was written.")
 
@@ -269,11 +251,75 @@ def large_relit(model, tmp_path):
         yield name, tmp_path, photo_session(name)
 
 
-def test_save_layers_holds_one_full_size_buffer_and_a_band(large_relit):
+class _PhasePeaks:
+    """tracemalloc's peak over each stage of Save Layers' worker (jobs.Progress.enter marks them):
+    `making` the maps (every stage before "Writing the EXR file"), `writing` the file."""
+
+    def __init__(self, monkeypatch):
+        import tracemalloc
+
+        self.making = self.writing = 0
+        self._stage, self._base, enter = None, 0, jobs.Progress.enter
+
+        def marked(progress, stage, fraction):
+            self._close()
+            self._stage = stage
+            return enter(progress, stage, fraction)
+
+        monkeypatch.setattr(jobs.Progress, "enter", marked)
+        self._tracemalloc = tracemalloc
+
+    def _close(self) -> None:
+        t = self._tracemalloc
+        if self._stage is not None:
+            peak = t.get_traced_memory()[1] - self._base
+            if self._stage == save_layers.WRITING[0]:
+                self.writing = max(self.writing, peak)
+            else:
+                self.making = max(self.making, peak)
+        t.reset_peak()
+
+    def run(self, fn):
+        t = self._tracemalloc
+        t.start()
+        try:
+            self._base, self._stage = t.get_traced_memory()[0], None
+            fn()
+            self._close()
+        finally:
+            t.stop()
+
+
+def _writer_alone(folder, height: int, width: int) -> int:
+    """tracemalloc's peak of relight.files.exr.write_exr_bands writing a 14-channel file of that size
+    from bands of BAND_ROWS rows made as it draws them: the writer's own memory."""
+    import tracemalloc
+
+    from relight.files.exr import write_exr_bands
+    from relight.files.photo import EXR_COMPRESSION
+
+    rng = np.random.default_rng(0)
+
+    def bands():
+        for r0 in range(0, height, save_layers.BAND_ROWS):
+            yield rng.random((min(save_layers.BAND_ROWS, height - r0), width, len(save_layers.channel_names())),
+                             np.float32)
+
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        write_exr_bands(folder / "alone.exr", save_layers.channel_names(), height, width, bands(),
+                        compression=EXR_COMPRESSION)
+        return tracemalloc.get_traced_memory()[1] - before
+    finally:
+        tracemalloc.stop()
+
+
+def test_save_layers_holds_one_full_size_buffer_and_a_band(large_relit, monkeypatch):
     """Issue 48: the EXR writer took every channel whole (14 full-size planes at once, 1.1 GB at
-    24 MP). Now the maps go one at a time through one 3-plane buffer, and the file is written
-    from bands of BAND_ROWS rows; the file holds what relight.files.photo.write_layers_exr writes
-    of the whole maps."""
+    24 MP). Now the maps go one at a time through one 3-plane buffer, and the file is written from
+    bands of BAND_ROWS rows; the file holds what relight.files.photo.write_layers_exr writes of
+    the whole maps."""
     import tracemalloc
 
     from relight.files.photo import write_layers_exr
@@ -284,53 +330,39 @@ def test_save_layers_holds_one_full_size_buffer_and_a_band(large_relit):
     coeffs = engine.coefficients(d, light, rotation)
     pixel_buffers.BUFFERS.clear()
     rgb, alpha = np.empty((600, 400, 3), np.float32), np.empty((600, 400), np.float32)
-    makers = [lambda: d.relight(coeffs, exposure_ev=exposure, out=rgb), lambda: d.layer("alpha", out=alpha)] + \
-        [lambda layer=layer: d.layer(layer, coeffs, exposure, out=rgb) for layer in ("albedo", "shading", "residual")] + \
-        [lambda: d.shadow_layer(coeffs, exposure, out=alpha)]
+    makers = [lambda: d.relight(coeffs, exposure_ev=exposure, out=rgb), lambda: d.layer("alpha", out=alpha),
+              lambda: d.shadow_layer(coeffs, exposure, out=alpha)] + \
+        [lambda layer=layer: d.layer(layer, coeffs, exposure, out=rgb) for layer in ("albedo", "shading", "residual")]
     for make in makers:  # what the decomposition prepares once (its upsampled alpha, its edge colours)
         make()
     tracemalloc.start()
-    try:
-        # what the core itself needs beside the map it makes (its strips and their temporaries)
+    try:  # what the core itself needs beside the map it makes (its strips and their temporaries)
         core = []
         for make in makers:
             tracemalloc.reset_peak()
             before = tracemalloc.get_traced_memory()[0]
             make()
             core.append(tracemalloc.get_traced_memory()[1] - before)
-        tracemalloc.reset_peak()
-        before = tracemalloc.get_traced_memory()[0]
-        target = folder / "layers.exr"
-        assert bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name) == {"FINISHED"}
-        peak = tracemalloc.get_traced_memory()[1] - before
     finally:
         tracemalloc.stop()
-    plane = 600 * 400 * 4
-    band = len(save_layers.channel_names()) * save_layers.BAND_ROWS * 400 * 4
-    # one 3-plane working buffer and what the core needs to make one map into it, or a band (its
-    # planes, its finite check) while the file is written; every channel at once was 14 planes more
-    print(f"peak {peak / plane:.2f} planes: core {max(core) / plane:.2f}, band {band / plane:.2f}")
-    assert peak <= max(3 * plane + max(core), 2 * band) + plane // 10
+    writer = _writer_alone(folder, 600, 400)
+    peaks, target = _PhasePeaks(monkeypatch), folder / "layers.exr"
+    peaks.run(lambda: bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name))
+    plane, band = 600 * 400 * 4, len(save_layers.channel_names()) * save_layers.BAND_ROWS * 400 * 4
+    print(f"making {peaks.making / plane:.2f} planes (core {max(core) / plane:.2f}), writing "
+          f"{peaks.writing / plane:.2f} (the writer alone {writer / plane:.2f}, a band {band / plane:.2f})")
+    # making the maps: one 3-plane working buffer and what the core needs to make one map into it
+    assert peaks.making <= 3 * plane + max(core) + plane // 10
+    # writing: what the writer itself holds, and the band being read; every channel whole was 14 planes
+    assert peaks.writing <= writer + band + plane // 10
     whole = pixel_buffers.blend(d.relight(coeffs, exposure_ev=exposure), d.photo, strength)
     write_layers_exr(folder / "whole.exr", whole, d.layers(coeffs, exposure_ev=exposure))
     want, got = _exr(folder / "whole.exr"), _exr(target)
     assert sorted(set(got) - {"Relight.Shadow.X"}) == sorted(want)  # and the Shadow layer (issue 46)
     for channel in want:
         np.testing.assert_array_equal(got[channel], want[channel])
-    assert sorted(p.name for p in folder.iterdir() if p.suffix == ".exr") == ["layers.exr", "whole.exr"]
-
-
-def _traced_peak(fn) -> int:
-    """Bytes fn() held at its peak beyond what was held before (numpy's arrays included)."""
-    import tracemalloc
-
-    tracemalloc.start()
-    try:
-        before = tracemalloc.get_traced_memory()[0]
-        fn()
-        return tracemalloc.get_traced_memory()[1] - before
-    finally:
-        tracemalloc.stop()
+    np.testing.assert_array_equal(got["Relight.Shadow.X"], d.shadow_layer(coeffs, exposure))
+    assert sorted(p.name for p in folder.iterdir() if p.suffix == ".exr") == ["alone.exr", "layers.exr", "whole.exr"]
 
 
 def test_a_pooled_rgba_buffer_is_the_working_buffer(large_relit, monkeypatch):
@@ -338,18 +370,21 @@ def test_a_pooled_rgba_buffer_is_the_working_buffer(large_relit, monkeypatch):
     3-plane buffer of their own; the buffer is handed back for the next write; the same file."""
     name, folder, session = large_relit
     monkeypatch.setattr(pixel_buffers.BufferPool, "MIN_VALUES", 1)
+    peaks = _PhasePeaks(monkeypatch)
 
     def save(file_name):
         assert bpy.ops.relight_photo.save_layers(filepath=str(folder / file_name), image_name=name) == {"FINISHED"}
 
     pixel_buffers.BUFFERS.clear()
-    peak_fresh = _traced_peak(lambda: save("fresh.exr"))
+    peaks.run(lambda: save("fresh.exr"))
+    fresh = peaks.making
     kept = np.empty(600 * 400 * 4, np.float32)
     pixel_buffers.BUFFERS.clear()
     pixel_buffers.BUFFERS.give(kept)
-    peak_pooled = _traced_peak(lambda: save("pooled.exr"))
+    peaks.making = 0
+    peaks.run(lambda: save("pooled.exr"))
     plane = 600 * 400 * 4
-    assert peak_pooled <= peak_fresh - 3 * plane + plane // 10, (peak_fresh / plane, peak_pooled / plane)
+    assert peaks.making <= fresh - 3 * plane + plane // 10, (fresh / plane, peaks.making / plane)
     assert pixel_buffers.BUFFERS.take_pooled(600 * 400 * 4) is kept
     want, got = _exr(folder / "fresh.exr"), _exr(folder / "pooled.exr")
     for channel in want:

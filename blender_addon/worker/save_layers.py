@@ -136,20 +136,20 @@ def stage_maps(d, dials, staged: StagedPlanes, progress: jobs.Progress, check) -
 
 
 def bands(staged: StagedPlanes, where: dict[str, int], progress: jobs.Progress, check):
-    """[rows, W, 14] bands from the top, the channels in channel_names() order (views of one
-    buffer, refilled for each band: the writer takes a band before it draws the next)."""
+    """[rows, W, 14] bands from the top, the channels in channel_names() order (each its own
+    array: a writer may hold a few while it compresses them)."""
     names = channel_names()
+    opaque = [i for i, name in enumerate(names) if name.endswith(".Relit.A")]  # the relit frame is the whole photo
     h, w = staged.height, staged.width
-    buffer = np.zeros((len(names), min(BAND_ROWS, h), w), np.float32)
-    buffer[[i for i, name in enumerate(names) if name.endswith(".Relit.A")]] = 1.0  # opaque: the whole photo
     start, share = WRITING[1], 0.99 - WRITING[1]
     for r0 in range(0, h, BAND_ROWS):
         check()
         rows = min(BAND_ROWS, h - r0)
+        band = np.zeros((len(names), rows, w), np.float32)
+        band[opaque] = 1.0
         for c, name in enumerate(names):
             if name in where:
-                staged.read_rows(where[name], r0, buffer[c, :rows])
-        band = buffer[:, :rows]
+                staged.read_rows(where[name], r0, band[c])
         if not np.isfinite(band).all():
             raise ValueError("The layers to save contain NaN or Inf values.")
         progress.fraction = start + share * (r0 + rows) / h
