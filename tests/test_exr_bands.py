@@ -129,10 +129,12 @@ def test_bands_are_let_go_once_written(tmp_path, monkeypatch, writer):
 @pytest.mark.parametrize("kwargs, match", [
     ({"names": ["R", "R"]}, "distinct non-empty strings"),
     ({"names": []}, "distinct non-empty strings"),
+    ({"names": ["x" * 256]}, "at most 255 bytes"),
     ({"height": 0}, "positive integers"),
     ({"compression": "jpeg"}, "compression must be one of"),
     ({"attributes": {"channels": "x"}}, "attributes must map new names"),
     ({"attributes": {"note": 3}}, "attributes must map new names"),
+    ({"attributes": {"n" * 256: "x"}}, "attributes must map new names"),
 ])
 def test_bad_arguments_are_refused_before_any_file(tmp_path, kwargs, match):
     args = {"names": ["R"], "height": 2, "width": 2, "bands": iter([np.zeros((2, 2, 1), np.float32)])} | kwargs

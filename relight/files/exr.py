@@ -23,6 +23,7 @@ __all__ = ["read_exr", "write_exr", "write_exr_bands", "exr_size"]
 
 _COMPRESSIONS = ("zip", "zips", "piz", "none", "rle", "pxr24")
 _LIBRARY_NAMES = {name: ("NO" if name == "none" else name.upper()) + "_COMPRESSION" for name in _COMPRESSIONS}
+_NAME_BYTES = 255  # the longest channel or attribute name the format allows
 # the header's own fields: not for `attributes`
 _RESERVED = {"channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
              "screenWindowCenter", "screenWindowWidth", "type", "tiles", "chunkCount", "name", "version"}
@@ -122,8 +123,9 @@ def write_exr(
     shape = None
     prepared = {}
     for name, arr in channels.items():
-        if not isinstance(name, str) or not name:
-            raise ValueError(f"EXR channel names must be non-empty strings, got {name!r}")
+        if not isinstance(name, str) or not name or "\0" in name or len(name.encode()) > _NAME_BYTES:
+            raise ValueError(f"EXR channel names must be non-empty strings of at most {_NAME_BYTES} bytes, "
+                             f"got {name!r}")
         a = np.asarray(arr)
         if a.ndim != 2 or a.shape[0] < 1 or a.shape[1] < 1:
             raise ValueError(f"EXR channel {name!r} must be a 2D [H, W] array, got shape {a.shape}")
@@ -163,7 +165,8 @@ def write_exr(
 
 def _checked_attributes(attributes: dict[str, str] | None, reserved) -> dict[str, str]:
     for key, value in (attributes or {}).items():
-        if not isinstance(key, str) or not key or key in reserved or not isinstance(value, str) or "\0" in value:
+        if not isinstance(key, str) or not key or key in reserved or "\0" in key or len(key.encode()) > _NAME_BYTES \
+                or not isinstance(value, str) or "\0" in value:
             raise ValueError(f"EXR attributes must map new names to strings, got {key!r}: {type(value).__name__}")
     return dict(attributes or {})
 
@@ -203,8 +206,10 @@ def write_exr_bands(
     if compression not in _COMPRESSIONS:
         raise ValueError(f"EXR compression must be one of {_COMPRESSIONS}, got {compression!r}")
     names = list(names)
-    if not names or any(not isinstance(n, str) or not n or "\0" in n for n in names) or len(set(names)) < len(names):
-        raise ValueError(f"EXR channel names must be distinct non-empty strings, got {names!r}")
+    if not names or len(set(names)) < len(names) or any(
+            not isinstance(n, str) or not n or "\0" in n or len(n.encode()) > _NAME_BYTES for n in names):
+        raise ValueError(f"EXR channel names must be distinct non-empty strings of at most {_NAME_BYTES} bytes, "
+                         f"got {names!r}")
     if any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 for n in (height, width)):
         raise ValueError(f"EXR size must be positive integers, got {height!r} x {width!r}")
     height, width = int(height), int(width)
