@@ -216,6 +216,8 @@ def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(ad
     # the camera, on the floor in front of the object
     photo_session(name).decomposition.light = directional_light(180.0, 4, elevation_deg=35.0, ambient=0.1)
     assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    for what in ("person", "person_shadow"):  # the random network's person is the whole photo, its relief
+        bpy.data.objects[f"{name}.{what}"].hide_render = True  # metres deep (tests/test_addon_proxy.py)
     scene = bpy.context.scene
     camera = scene.camera.data
     # a 1 m cube on the floor, 8 m ahead: in the photo camera (f = W * lens / sensor pixels, the

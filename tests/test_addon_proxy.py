@@ -15,8 +15,10 @@ import types
 import warnings
 
 import numpy as np
+import pytest
 
 import bpy
+import mathutils
 
 from blender_addon.blender import bl_images
 from blender_addon.logic import person_proxy
@@ -111,11 +113,17 @@ def test_the_proxy_lies_on_the_persons_pixels_and_stands_on_the_floor(addon, mod
         assert np.all(at[:, 2] > 0)  # in front of the camera
     inside = d.alpha >= person_proxy.COVERAGE
     assert len(person.data.polygons) == int(inside.sum()) == len(caster.data.polygons)
-    # the caster is the catcher 1 % farther along the same rays
+    # the caster is the catcher scaled about the camera (the same rays), wholly behind it along the view
     dist = np.array([(person.matrix_world @ v.co - camera.matrix_world.translation).length for v in person.data.vertices])
     dist_c = np.array([(caster.matrix_world @ v.co - camera.matrix_world.translation).length
                        for v in caster.data.vertices])
-    np.testing.assert_allclose(dist_c / dist, 1.0 + person_proxy.CASTER_SETBACK, rtol=1e-5)
+    ratio = dist_c / dist
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-5)
+    view = camera.matrix_world.to_3x3() @ mathutils.Vector((0.0, 0.0, -1.0))
+    near, far = ([(obj.matrix_world @ v.co - camera.matrix_world.translation).dot(view) for v in obj.data.vertices]
+                 for obj in (person, caster))
+    near, far = np.array(near), np.array(far)
+    assert far.min() > near.max() or ratio[0] == pytest.approx(person_proxy.MAX_CASTER_SCALE, rel=1e-5)
     # the matte ends above the photo's bottom edge: the person's lowest point is on the floor (z = 0)
     lowest = min((person.matrix_world @ v.co).z for v in person.data.vertices)
     assert abs(lowest) < 1e-4, lowest
@@ -143,6 +151,20 @@ def test_pressing_again_replaces_the_proxy_and_a_new_relight_updates_it(addon, m
     assert _on_corners(_photo_pixels(after["person"])[:, :2], photo_session(name).decomposition, 2e-3)
     now = np.array([tuple(v.co) for v in after["person"].data.vertices])
     assert now.shape != before.shape or not np.allclose(now, before)
+
+
+def test_another_photos_setup_takes_this_photos_proxy_out_of_the_render(addon, model):
+    import shutil
+
+    first = _relit_person(model, addon)
+    shutil.copy(addon / "person.png", addon / "other.png")
+    other = bpy.data.images.load(str(addon / "other.png")).name
+    assert bpy.ops.relight_photo.relight(image_name=other, synchronous=True) == {"FINISHED"}
+    mine, theirs = _setup(first), _setup(other)
+    assert all(o.hide_render for o in mine.values()) and not any(o.hide_render for o in theirs.values())
+    assert all(o.parent == bpy.data.objects[f"{other}.camera"] for o in theirs.values())
+    mine = _setup(first)  # back to the first photo: its person renders, the other's does not
+    assert not any(o.hide_render for o in mine.values()) and all(o.hide_render for o in theirs.values())
 
 
 # ------------------------------------------------------------------ rendered
@@ -192,8 +214,6 @@ def _ellipsoid_relief(alpha: np.ndarray) -> np.ndarray:
 def _under_a_sun(model, folder):
     """The person relit, given a body's relief, and Compositing Setup under a sun from the
     front-left (the key lamp of that light); (proxy objects, the unit vector toward the sun)."""
-    import mathutils
-
     name = _relit_person(model, folder)
     d = photo_session(name).decomposition
     d.shadows = types.SimpleNamespace(depth=_ellipsoid_relief(d.alpha))  # as if the relief were estimated
@@ -259,8 +279,6 @@ def test_a_cg_object_between_the_sun_and_the_person_darkens_the_person(addon, mo
     """A 0.6 m cube 2.5 m from the person's middle toward the sun (out of the frame): the person's
     pixels around the middle darken in the composite with the proxy, not without it, and not with
     the proxy alone."""
-    import mathutils
-
     objects, toward_sun = _under_a_sun(model, addon)
     person = objects["person"]
     name = person.parent.name[:-len(".camera")]
@@ -283,3 +301,48 @@ def test_a_cg_object_between_the_sun_and_the_person_darkens_the_person(addon, mo
           f"and the cube, {cube_without[near].mean():.3f} without the proxy, {alone[near].mean():.3f} without the cube")
     assert cube_with[near].mean() < 0.5
     assert cube_without[near].mean() > 0.97 and alone[near].mean() > 0.95
+
+
+# ------------------------------------------------------------------ Save Layers' Shadow layer
+
+def test_save_layers_writes_the_persons_shadow_layer(addon, model):
+    """The EXR's Relight.Shadow.X is Decomposition.shadow_layer under the dials' light (1 = lit),
+    1 outside the person's crop, darker somewhere on the person under a sun from the side, and
+    Blender's compositor lists it as a pass of the file."""
+    from blender_addon.blender import bl_ops
+    from blender_addon.worker import engine
+
+    from relight.files.exr import write_exr
+    from relight.lighting.light_map import light_map
+
+    name = _relit_person(model, addon)
+    # an HDR file of a sun from camera-left, 20 degrees up, a tenth ambient: a light with a key
+    sun = light_map(directional_light(-90.0, 4, elevation_deg=20.0, ambient=0.1), 128).pixels
+    write_exr(addon / "sun.exr", {c: sun[..., i] for i, c in enumerate("RGB")})
+    s = bpy.context.scene.relight_photo
+    s.light_kind, s.hdr_path = "HDR", str(addon / "sun.exr")
+    session = photo_session(name)
+    target = addon / "layers.exr"
+    assert bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name) == {"FINISHED"}
+    channels = exr.read_exr(target)
+    shadow = np.asarray(channels["Relight.Shadow.X"])
+    d = session.decomposition
+    light, rotation, exposure, _ = bl_ops.current_dials(bpy.context, session)
+    want = d.shadow_layer(engine.coefficients(d, light, rotation), exposure)
+    np.testing.assert_array_equal(shadow, want)
+    assert shadow.shape == (H, W) and shadow.min() >= 0.0 and shadow.max() <= 1.0
+    y0, y1, x0, x1 = d.box
+    outside = np.ones((H, W), bool)
+    outside[y0:y1, x0:x1] = False
+    assert outside.sum() > 100 and np.all(shadow[outside] == 1.0)  # off the person's crop: lit
+    print(f"shadow layer: {np.mean(shadow < 0.99):.3f} of the pixels below 0.99, darkest {shadow.min():.3f}")
+    assert shadow.min() < 0.9  # the relief shadows part of the person from the sun
+    image = bpy.data.images.load(str(target))
+    if hasattr(bpy.context.scene, "compositing_node_group"):  # Blender 5
+        tree = bpy.data.node_groups.new("layers", "CompositorNodeTree")
+    else:
+        bpy.context.scene.use_nodes = True
+        tree = bpy.context.scene.node_tree
+    node = tree.nodes.new("CompositorNodeImage")
+    node.image = image
+    assert image.type == "MULTILAYER" and "Shadow" in [o.name for o in node.outputs if o.enabled]

@@ -94,11 +94,25 @@ def test_the_person_stands_on_the_floor_when_their_feet_are_in_view():
         assert not mesh.grounded and mesh.distance == photo_light.PERSON_DISTANCE
 
 
-def test_the_caster_is_the_mesh_a_little_farther_on_the_same_rays():
-    mesh = person_proxy.relief_mesh(np.zeros(WORK), block(slice(3, 9), slice(3, 9)), BOX, PHOTO, F, None)
+def test_the_caster_lies_wholly_behind_the_mesh_on_the_same_rays():
+    alpha = block(slice(3, 9), slice(3, 9))
+    depth = np.zeros(WORK, np.float32)
+    depth[3:9, 3:6] = 10.0      # the left half 10 working pixels (0.6 m at 3 m) farther
+    mesh = person_proxy.relief_mesh(depth, alpha, BOX, PHOTO, F, None)
     caster = person_proxy.caster_vertices(mesh.vertices)
-    np.testing.assert_allclose(project(caster), project(mesh.vertices), atol=1e-4)
-    np.testing.assert_allclose(caster[:, 1] / mesh.vertices[:, 1], 1.0 + person_proxy.CASTER_SETBACK, rtol=1e-6)
+    np.testing.assert_allclose(project(caster), project(mesh.vertices), atol=1e-4)   # the same silhouette
+    y, yc = mesh.vertices[:, 1].astype(np.float64), caster[:, 1].astype(np.float64)
+    scale = yc / y
+    np.testing.assert_allclose(scale, scale[0], rtol=1e-6)                             # scaled about the camera
+    # nearest caster point 1 % behind the farthest proxy point: 3 m and 3.6 m deep -> 3.6 / 3 * 1.01
+    assert scale[0] == pytest.approx(3.6 / 3.0 * (1.0 + person_proxy.CASTER_MARGIN), rel=1e-5)
+    assert yc.min() > y.max()
+    # a relief deeper than MAX_CASTER_SCALE allows: pushed back that far only
+    depth[3:9, 3:6] = 100.0
+    deep = person_proxy.relief_mesh(depth, alpha, BOX, PHOTO, F, None)
+    assert person_proxy.caster_scale(deep.vertices) == person_proxy.MAX_CASTER_SCALE
+    flat = person_proxy.relief_mesh(np.zeros(WORK), alpha, BOX, PHOTO, F, None)
+    assert person_proxy.caster_scale(flat.vertices) == pytest.approx(1.0 + person_proxy.CASTER_MARGIN)
 
 
 def test_the_camera_local_frame_undoes_the_cameras_rotation():

@@ -8,8 +8,9 @@ on the person wherever the artist moves it:
   the render as alpha, which the compositor's Alpha Over turns into a darker person.
 - `<photo>.person_shadow`, seen only by shadow rays: it casts the person's shadow on the floor catcher
   and on CG objects. It is a separate object because Cycles keeps a catcher's shadows off every
-  catcher (the floor included), and it sits CASTER_SETBACK farther along the camera's rays so that it
-  does not shadow the catcher it would coincide with.
+  catcher (the floor included), and it is the catcher scaled about the camera until it lies wholly
+  behind it (person_proxy.caster_scale), so that it does not shadow the catcher with the person's own
+  shadows, which the photo holds already.
 
 Pressed again, Compositing Setup gives both objects a new mesh (no duplicates); a new Relight of the
 photo does the same (refresh), and another photo's Compositing Setup hides this photo's proxy from the
