@@ -34,8 +34,8 @@ SEEN_BY = {PERSON: {"visible_camera"}, PERSON_SHADOW: {"visible_shadow"}}
 
 def relief_mesh(session, camera, floor=None) -> person_proxy.ReliefMesh:
     """The session's person as a relief mesh in `camera`'s upright frame (logic.person_proxy): the
-    camera's lens and sensor at the photo's size as Blender shows it, the floor `floor` (or the one
-    photo_light places) below it."""
+    camera's lens and sensor at the photo's size as Blender shows it, standing on `floor` (None: a
+    floor photo_light.CAMERA_HEIGHT below the camera)."""
     d = session.decomposition
     stored_h, stored_w = pixel_buffers.stored_size(session.photo.shape[:2], session.orientation)
     data = camera.data
@@ -48,7 +48,7 @@ def relief_mesh(session, camera, floor=None) -> person_proxy.ReliefMesh:
 
 
 def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray):
-    """A mesh of quads, filled with foreach_set (a working size of 512 gives ~10^5 quads)."""
+    """A mesh of quads [m, 4] on `vertices` [n, 3], filled with foreach_set (no Python loop)."""
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(len(vertices))
     mesh.vertices.foreach_set("co", np.ascontiguousarray(vertices, np.float32).ravel())
