@@ -384,3 +384,30 @@ def test_a_16_bit_png_is_turned_upright_as_pillow_turns_an_8_bit_one(tmp_path, o
     assert got16.shape == got8.shape == ((7, 4, 3) if orientation >= 5 else (4, 7, 3))
     np.testing.assert_allclose(got16, got8, rtol=1e-6, atol=1e-7)
     np.testing.assert_array_equal(ph.as_stored(ph.upright(stored16, orientation), orientation), stored16)
+
+
+def test_layers_go_to_the_writer_in_bands(tmp_path):
+    """write_layers_exr copies no whole layer: what it allocates at its peak is bounded by the rows
+    the writer holds (exr_zip's tasks in flight and one band: held twice, as views and packed), not
+    by the image (the four passes' channel copies it made before were 4 x 12 B per pixel)."""
+    import tracemalloc
+
+    from relight.files import exr_zip
+
+    h, w = 4096, 256
+    rng = np.random.default_rng(5)
+    relit = rng.uniform(0, 2, (h, w, 3)).astype(np.float32)
+    lay = {k: relit * s for k, s in (("albedo", 0.5), ("shading", 1.5), ("residual", 0.1))}
+    lay["alpha"] = np.ones((h, w), np.float32)
+    held_rows = (exr_zip.IN_FLIGHT * 4 + 1) * exr_zip.TASK_LINES + ph.EXR_BAND_ROWS  # 4 threads at most
+    bound = 2 * held_rows * w * 14 * 4 + (1 << 20)  # 14 float32 channels; 1 MB for the file's own buffers
+    whole_copies = 4 * h * w * 3 * 4
+    assert bound < whole_copies / 2
+    tracemalloc.start()
+    try:
+        ph.write_layers_exr(tmp_path / "l.exr", relit, lay)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < bound, (peak, bound)
+    np.testing.assert_array_equal(read_exr(tmp_path / "l.exr")["Relight.Shading.B"], lay["shading"][..., 2])

@@ -357,11 +357,6 @@ def _check_finite(image: np.ndarray, name: str) -> None:
         raise ValueError(f"{name} to write contains NaN or Inf")
 
 
-def _rgb_channels(prefix: str, image: np.ndarray) -> dict[str, np.ndarray]:
-    _check_finite(image, prefix or "image")
-    return {f"{prefix}{c}": np.ascontiguousarray(image[..., i], dtype=np.float32) for i, c in enumerate("RGB")}
-
-
 EXR_BAND_ROWS = 64  # rows of the image handed to the EXR writer at a time (views: nothing copied whole)
 
 
@@ -400,27 +395,39 @@ def write_layers_exr(path: str | os.PathLike, relit: np.ndarray, layers: dict[st
     Channel names are "Relight.<Pass>.<channel>", the naming Blender writes
     and reads back as one render layer whose passes its Image node lists.
     `layers` is Decomposition.layers(): albedo, shading, residual [H, W, 3]
-    and alpha [H, W].
+    and alpha [H, W]. They go to the writer in bands of their rows (no copy of
+    a whole layer).
     """
-    from relight.files.exr import write_exr
+    from relight.files.exr import write_exr_bands
 
     path = Path(path)
     relit = _check_image(relit, "relit")
+    _check_finite(relit, "relit")
     alpha = np.asarray(layers["alpha"], dtype=np.float32)
     if alpha.shape != relit.shape[:2]:
         raise ValueError(f"alpha layer is {alpha.shape}, relit image is {relit.shape[:2]}")
-    channels = _rgb_channels(f"{LAYER_NAME}.Relit.", relit)
-    # the relit frame is the whole photo (person composited over it): opaque
-    channels[f"{LAYER_NAME}.Relit.A"] = np.ones(relit.shape[:2], np.float32)
+    passes = [(relit, "Relit")]
     for key, pass_name in (("albedo", "Albedo"), ("shading", "Shading"), ("residual", "Residual")):
         img = _check_image(layers[key], key)
         if img.shape != relit.shape:
             raise ValueError(f"{key} layer is {img.shape}, relit image is {relit.shape}")
-        channels.update(_rgb_channels(f"{LAYER_NAME}.{pass_name}.", img))
-    channels[f"{LAYER_NAME}.Alpha.A"] = np.ascontiguousarray(alpha)
+        _check_finite(img, key)
+        passes.append((img, pass_name))
+    # the relit frame is the whole photo (person composited over it): opaque
+    names = [f"{LAYER_NAME}.Relit.{c}" for c in "RGBA"] + [
+        f"{LAYER_NAME}.{pass_name}.{c}" for _, pass_name in passes[1:] for c in "RGB"] + [f"{LAYER_NAME}.Alpha.A"]
+
+    def bands():  # the passes side by side, EXR_BAND_ROWS rows at a time: no whole-image copy of any
+        for y in range(0, relit.shape[0], EXR_BAND_ROWS):
+            rows = slice(y, y + EXR_BAND_ROWS)
+            band = [relit[rows], np.ones((*relit[rows].shape[:2], 1), np.float32)]
+            band += [img[rows] for img, _ in passes[1:]] + [alpha[rows, :, None]]
+            yield np.concatenate(band, axis=2, dtype=np.float32)
+
     exr_threads()
     with _output_folder(path):
-        return write_exr(path, channels, compression=EXR_COMPRESSION, attributes=metadata)
+        return write_exr_bands(path, names, relit.shape[0], relit.shape[1], bands(), compression=EXR_COMPRESSION,
+                               attributes=metadata)
 
 
 def write_image(path: str | os.PathLike, linear: np.ndarray, metadata: dict[str, str] | None = None) -> Path:
