@@ -11,10 +11,12 @@ import pytest
 from relight.lighting import sh, sh_projection
 from relight.lighting.light import directional_light, sh_light
 from relight.files.exr import read_exr, write_exr
+from relight.lighting.light_colour import bound_saturation, colour_envelope, project_colours, saturation
 from relight.lighting.light_map import (
-    FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error, light_map,
+    COLOUR_FIT_HEIGHT, REGULARISATION, _fitted_bands, check_width, irradiance_error, light_map,
 )
 from relight.network.quality import preset
+from light_colour_support import ASTRONAUT_DRAFT, lit_saturation, most_saturated, sun_and_sky
 
 DRAFT_SIZE = preset("draft").working_size  # the Draft preset's working size
 
@@ -78,10 +80,10 @@ def test_black_light_gives_a_black_map():
 
 def test_the_fit_matches_the_irradiance_coefficients_up_to_the_regularisation():
     # stationarity of the convex problem: A_l^2 (L_lm - f_lm) = lambda c_lm on the fitted bands,
-    # f the map's own SH; on the grid the fit runs on (128 x 64) the residual is the Newton
-    # tolerance plus float32 texels (~1e-7)
+    # f the map's own SH; on the grid the fit runs on (64 x 32: the three channels are fitted
+    # together) the residual is the Newton tolerance plus float32 texels (~1e-7)
     L = camera_left_light()
-    m = light_map(L, 2 * FIT_HEIGHT)
+    m = light_map(L, 2 * COLOUR_FIT_HEIGHT)
     f = sh_projection.project_equirect(m.pixels, ORDER, precision="float64")
     keep, _ = _fitted_bands(ORDER)
     assert list(keep) == [k for k in range(25) if BAND[k] != 3]  # band 3: A_3 = 0, not fitted
@@ -142,6 +144,75 @@ def test_check_width():
     assert check_width(np.int64(16)) == 16
     with pytest.raises(ValueError):
         check_width(True)
+
+
+# ------------------------------------------------------------------ colour: no fringes
+
+@pytest.mark.parametrize("order", [4, 8])
+def test_a_sun_and_a_sky_of_other_colours_give_no_texel_more_saturated_than_they_are(order):
+    """Per-channel ringing of a two-colour light made fringes (a channel clamped at 0 where the others are
+    lit: saturation 1); the map's colours now stay within the light's own."""
+    pixels, L = sun_and_sky(order)
+    most = most_saturated()
+    m = light_map(L, 256)
+    assert m.fitted  # the sun rings below 0
+    # the envelope is a positive average of the light: within its colours (float64 round-off)
+    field, bound = colour_envelope(L, 128)
+    assert field.min() >= 0.0 and bound <= most + 1e-9
+    # float32 texels: 1e-6 of relative round-off in the saturation
+    assert lit_saturation(m.pixels).max() <= bound + 1e-5
+    # the fit keeps the irradiance under the bound: measured 0.77 % (order 4) and 0.34 % (order 8), 0.21 %
+    # and 0.26 % with the fringes; the bound is a little below the sky's own 0.65 (0.61, 0.64)
+    assert irradiance_error(L, m.pixels) < 0.012
+    assert m.saturation_bound == bound  # found on one grid whatever the map's size
+
+
+def test_the_fringes_of_an_estimated_light_are_gone():
+    L = ASTRONAUT_DRAFT
+    m = light_map(L, 256)
+    assert m.fitted and m.saturation_bound < 0.8  # the light's own most saturated lit colour: 0.66
+    assert saturation(m.pixels).max() <= m.saturation_bound + 1e-5
+    assert np.mean(lit_saturation(m.pixels, 0.01) > 0.8) == 0.0  # was 0.65 of the lit texels
+    # and it keeps the estimate's irradiance (measured 0.77 %; 0.41 % with the fringes)
+    assert irradiance_error(L, m.pixels) < 0.012
+
+
+def test_the_colour_projection_is_the_nearest_colour_in_the_cone():
+    """project_colours against a brute-force search over the cone's colours (a fine grid of its
+    generators' non-negative combinations): never farther, and inside."""
+    rng = np.random.default_rng(1)
+    values = rng.normal(0.0, 1.0, (200, 3))
+    values[:3] = [[0.5, 0.5, 0.5], [-1.0, -2.0, -0.5], [1.0, 0.0, 0.0]]
+    for bound in (0.0, 0.3, 0.8, 1.0):
+        x, derivative = project_colours(values, bound, jacobian=True)
+        assert np.all(saturation(np.maximum(x, 0.0)) <= bound + 1e-12) and x.min() >= -1e-12
+        # the cone: colours whose smallest channel is >= (1 - bound) of the largest
+        grid = np.stack(np.meshgrid(*[np.linspace(0.0, 3.0, 41)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        inside = grid[grid.min(-1) >= (1.0 - bound) * grid.max(-1) - 1e-12]
+        brute = np.array([np.min(np.linalg.norm(inside - v, axis=1)) for v in values])
+        assert np.all(np.linalg.norm(values - x, axis=1) <= brute + 1e-12)
+        # the derivative is the projection onto the face the colour lands on: P(v + e) = P(v) + D e
+        # for a small e that stays on that face (checked along the colour itself: the cone is a cone)
+        np.testing.assert_allclose(np.einsum("nij,nj->ni", derivative, values), x, atol=1e-9)
+
+
+def test_bounding_the_saturation_moves_only_the_texels_above_it_and_keeps_their_sum():
+    _, L = sun_and_sky(4)
+    field, bound = colour_envelope(L, 16)
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform(0.0, 1.0, (16, 32, 3)).astype(np.float32)
+    pixels[0, 0] = [0.5, 0.5, 0.5]                        # grey: within any bound
+    out = bound_saturation(pixels, L)
+    over = saturation(pixels) > bound
+    assert over.any() and not over.all()
+    np.testing.assert_array_equal(out[~over], pixels[~over])
+    assert saturation(out).max() <= bound + 1e-5
+    np.testing.assert_allclose(out.sum(-1), pixels.sum(-1), rtol=1e-5)
+    # moved toward the envelope's own colour in that direction, not toward some other hue
+    target = field / field.sum(-1, keepdims=True)
+    moved = out / out.sum(-1, keepdims=True)
+    before = pixels / pixels.sum(-1, keepdims=True)
+    assert np.all(np.linalg.norm(moved - target, axis=-1)[over] <= np.linalg.norm(before - target, axis=-1)[over] + 1e-6)
 
 
 # ------------------------------------------------------------------ relight light

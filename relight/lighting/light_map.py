@@ -19,7 +19,12 @@ bands above the light's order (the irradiance error, `irradiance_error`).
 Band 3 (A_3 = 0) is left free: no diffuse surface sees it, and fitting it
 costs irradiance accuracy. Why not a per-band window: docs/conventions.md
 ("The light as a World map"), measured by benchmarks/bench_light_map.py.
-numpy only.
+
+Clamped per channel, each channel rings on its own and the map gets fringes of
+colours the light does not have; so a fitted map is P(sum c Y) instead, P the
+nearest colour no more saturated than the light's own (relight.lighting.light_colour),
+and c minimises the objective above with 1/2 |P(.)|^2 for max(0, .)^2: the same
+stationarity, the three channels solved together. numpy only.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.lighting import sh, sh_projection
+from relight.lighting.light_colour import ENVELOPE_HEIGHT, colour_envelope, project_colours
 
 __all__ = ["LightMap", "light_map", "irradiance_error", "check_width", "DEFAULT_WIDTH", "MAX_WIDTH",
            "REGULARISATION"]
@@ -46,6 +52,9 @@ REGULARISATION = 1e-4
 # 512 x 256 map's own grid change the irradiance error by < 0.0001 and cost 3x the time
 # (benchmarks/bench_light_map.py)
 FIT_HEIGHT = 64
+# the three channels' fit (_fit_colours) on 64 x 32: 5x faster than on 128 x 64, the irradiance error the same
+# to 0.01 points on the presets (0.05 on the bundled photos' estimates)
+COLOUR_FIT_HEIGHT = 32
 MAX_STEPS = 60            # Newton steps (the presets and the held-out estimates take 2-13)
 TABLE_HEIGHT = 256        # maps up to 512 x 256 are evaluated with a cached basis table
 STRIP_ROWS = 64           # map rows evaluated at a time (bounds the basis table)
@@ -55,13 +64,15 @@ IRRADIANCE_ORDER = 16     # the map's irradiance is compared up to this band (A_
 @dataclass(frozen=True)
 class LightMap:
     """The map of one SH light: `pixels` linear RGB float32 [H, W, 3] (>= 0, finite),
-    `coeffs` the light as given [n, 3], `map_coeffs` the c with pixels = max(0, sum c Y)
-    (equal to `coeffs` when `fitted` is False: the light's SH was >= 0 on every texel)."""
+    `coeffs` the light as given [n, 3], `map_coeffs` the c with pixels = P(sum c Y), P the nearest
+    colour of HSV saturation <= `saturation_bound` (relight.lighting.light_colour; equal to `coeffs`
+    and a bound of 1, P = max(0, .), when `fitted` is False: the light's SH was >= 0 on every texel)."""
 
     pixels: np.ndarray
     coeffs: np.ndarray
     map_coeffs: np.ndarray
     fitted: bool
+    saturation_bound: float = 1.0
 
     @property
     def order(self) -> int:
@@ -159,6 +170,62 @@ def _fit(coeffs: np.ndarray, height: int) -> np.ndarray:
     return out
 
 
+def _newton_colours(basis, omega, target, reg, c, bound: float, steps: int) -> np.ndarray:
+    """Minimise 1/2 sum omega |P(basis c)|^2 - <c, target> + 1/2 <c, reg c> over c [n, 3] (damped
+    Newton), P the projection onto the colours of saturation <= bound (light_colour.project_colours):
+    _newton with the three channels together and max(0, .) replaced by P. 1/2 |P(v)|^2 is convex
+    with gradient P(v), so the optimum's map P(basis c) has the irradiance of `target` up to reg."""
+    n = basis.shape[1]
+    tol = 1e-9 * max(float(np.linalg.norm(target)), 1e-300)
+
+    def at(c):
+        x, derivative = project_colours(basis @ c, bound, jacobian=True)
+        value = 0.5 * float(omega @ np.sum(x * x, axis=1)) - float(np.sum(c * target)) + 0.5 * float(np.sum(reg[:, None] * c * c))
+        return x, derivative, value
+
+    x, derivative, value = at(c)
+    for _ in range(steps):
+        grad = basis.T @ (omega[:, None] * x) - target + reg[:, None] * c
+        if not np.linalg.norm(grad) > tol:
+            break
+        hessian = np.zeros((n, 3, n, 3))
+        for a in range(3):
+            for b in range(a, 3):  # the projection's derivative is symmetric
+                w = omega * derivative[:, a, b]
+                if np.any(w):
+                    hessian[:, a, :, b] = hessian[:, b, :, a] = (basis * w[:, None]).T @ basis
+        hessian = hessian.reshape(3 * n, 3 * n)
+        hessian[np.diag_indices_from(hessian)] += np.repeat(reg, 3)
+        step = np.linalg.solve(hessian, grad.reshape(-1)).reshape(n, 3)
+        slope, t = float(np.sum(grad * step)), 1.0
+        while True:
+            trial = c - t * step
+            trial_x, trial_derivative, trial_value = at(trial)
+            if trial_value <= value - 1e-4 * t * slope or t < 1e-6:
+                break
+            t *= 0.5
+        c, x, derivative, value = trial, trial_x, trial_derivative, trial_value
+    return c
+
+
+def _fit_colours(coeffs: np.ndarray, height: int, bound: float) -> np.ndarray:
+    """_fit's coefficients [n, 3] for the map P(sum c Y) of colours of saturation <= bound, solved on a
+    grid of min(height, COLOUR_FIT_HEIGHT) rows."""
+    order = sh.order_from_num_coeffs(coeffs.shape[0])
+    keep, inverse_a2 = _fitted_bands(order)
+    basis, omega = _grid(min(height, COLOUR_FIT_HEIGHT), order)
+    out = np.zeros_like(coeffs)
+    out[keep] = _newton_colours(basis[:, keep], omega, coeffs[keep], REGULARISATION * inverse_a2,
+                                coeffs[keep].copy(), bound, MAX_STEPS)
+    return out
+
+
+def _colour_map(c: np.ndarray, height: int, bound: float) -> np.ndarray:
+    """P(sum c Y) at the texel centres of a 2H x H map, [H, 2H, 3]."""
+    values = _evaluate(c, height)
+    return project_colours(values.reshape(-1, 3), bound).reshape(values.shape)
+
+
 def light_map(coeffs, width: int = DEFAULT_WIDTH) -> LightMap:
     """The non-negative equirect map (width x width/2) of the SH light `coeffs` [n, 3].
 
@@ -170,15 +237,17 @@ def light_map(coeffs, width: int = DEFAULT_WIDTH) -> LightMap:
     values = _evaluate(L, height)
     fitted = bool(values.min() < 0)
     c = L
-    if fitted:
-        c = _fit(L, height)
-        values = np.maximum(_evaluate(c, height), 0.0)
+    bound = 1.0
+    if fitted:  # clamped per channel where each rings on its own, the map had fringes of colours no light has
+        _, bound = colour_envelope(L, ENVELOPE_HEIGHT)
+        c = _fit_colours(L, height, bound)
+        values = _colour_map(c, height, bound)
     with np.errstate(over="ignore"):
         pixels = values.astype(np.float32)
     if not np.all(np.isfinite(pixels)):
         raise ValueError("the light is too bright for a float32 map (texels beyond 3.4e38)")
     pixels.flags.writeable = False
-    return LightMap(pixels=pixels, coeffs=L, map_coeffs=c, fitted=fitted)
+    return LightMap(pixels=pixels, coeffs=L, map_coeffs=c, fitted=fitted, saturation_bound=bound)
 
 
 def irradiance_error(coeffs, pixels) -> float:
