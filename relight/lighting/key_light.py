@@ -15,8 +15,9 @@ the closed forms `fit_key` uses (on the luminance for the angle, per channel for
 colour). When the light has band 4 and g_4(a) / g_2(a) = s_4 / s_2 has a root (a <= 49
 degrees), the angle comes from bands 2 and 4 instead and S = min(s_2 / g_2, s_1 / g_1): a
 broad sky adds to band 1 about d and would widen the s_2 / s_1 cone (a 2-degree sun under
-a sky: 30 degrees). d is where the light's luminance SH up to band DIRECTION_BANDS peaks
-(for band 1 alone that is the band-1 vector; a delta's truncated SH peaks at the delta).
+a sky: 30 degrees). d is where the light's luminance SH up to band DIRECTION_BANDS, Hanning
+windowed, peaks (for band 1 alone that is the band-1 vector; a delta's truncated SH peaks at the
+delta).
 The key is then shrunk, if needed, until what is left is a light (mean >= 0 per channel,
 order-2 irradiance >= 0 or no lower than the light's own).
 
@@ -44,13 +45,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from relight.lighting import sh, sh_projection
+from relight.lighting.light_colour import bound_saturation, chroma_spread
 from relight.colour import LUMINANCE_WEIGHTS
 
 __all__ = ["KeyLight", "LightSplit", "cone_profile", "lobe_coeffs", "key_direction", "fit_key", "key_coeffs",
            "smooth_world", "split_light", "split_irradiance_error", "chroma_spread", "direction_from_angles",
            "angles_from_direction", "DIRECTION_BANDS", "WORLD_ORDER", "WIDE_ANGLE_DEG"]
 
-DIRECTION_BANDS = 2      # bands whose luminance peak is the key's direction (benchmarks/bench_key_light.py)
+DIRECTION_BANDS = 4      # bands whose windowed luminance peak is the key's direction (benchmarks/bench_key_direction.py)
+DIRECTION_WINDOW = "hanning"  # relight.lighting.sh.window over those bands: 3 and 4 sharpen, damped
 WORLD_ORDER = 2          # the smooth World's highest band
 CHROMA_ORDER = 1         # the World's chromaticity: SH up to this band (1: linear in the direction)
 WIDTH_FROM_BAND4 = True  # the key's width from bands 2 and 4 when they agree (benchmarks/bench_key_light.py)
@@ -123,14 +126,18 @@ def _band_slice(lo: int, hi: int) -> slice:
     return slice(lo * lo, (hi + 1) * (hi + 1))
 
 
-def key_direction(coeffs, bands: int = DIRECTION_BANDS) -> np.ndarray:
-    """Unit vector toward the peak of the light's luminance SH over bands 1..`bands`
-    (band 0 is a constant and does not move the peak). Band 1 alone: the band-1 vector,
-    in closed form. Otherwise a search over SEARCH_POINTS directions refined locally."""
+def key_direction(coeffs, bands: int = DIRECTION_BANDS, window: str | None = DIRECTION_WINDOW) -> np.ndarray:
+    """Unit vector toward the peak of the light's luminance SH over bands 1..`bands` (at most the
+    light's order), band l weighted by relight.lighting.sh.window(bands, `window`) (None: not
+    weighted; band 0 is a constant and does not move the peak). Band 1 alone: the band-1 vector,
+    in closed form. Otherwise a search over SEARCH_POINTS directions refined locally. On
+    estimated lights bands 1-4 Hanning-windowed point the key nearer the true light than bands
+    1-2 unwindowed (benchmarks/bench_key_direction.py; docs/EVALUATION.md)."""
     L = sh.validate_coeffs(coeffs, "light")
     order = sh.order_from_num_coeffs(L.shape[0])
     bands = max(1, min(int(bands), order))
-    y = L @ LUMINANCE_WEIGHTS
+    sigma = np.ones(bands + 1) if window is None else sh.window(bands, window)
+    y = (L[:(bands + 1) ** 2] @ LUMINANCE_WEIGHTS) * np.repeat(sigma, 2 * np.arange(bands + 1) + 1)
     if bands == 1 or not np.any(y[_band_slice(2, bands)]):
         v = np.array([y[3], y[1], y[2]])  # (Y_11, Y_1-1, Y_10) are x, y, z up to one factor
         n = float(np.linalg.norm(v))
@@ -400,7 +407,11 @@ def split_light(coeffs, width: int = 512, bands: int = DIRECTION_BANDS) -> Light
     L = sh.validate_coeffs(coeffs, "light")
     key = fit_key(L, bands)
     order = sh.order_from_num_coeffs(L.shape[0])
-    pixels = smooth_world(L - key_coeffs(key, order), width)
+    # its colour capped at the rest's own most saturated (relight.lighting.light_colour.colour_envelope): the
+    # chromaticity fit may overshoot it (green on one side, magenta on the other); the whole light's lit
+    # colours would be the key's, and cap a sky dimmer than the sun at the sun's saturation
+    rest = L - key_coeffs(key, order)
+    pixels = bound_saturation(smooth_world(rest, width), rest)
     pixels.flags.writeable = False
     return LightSplit(key=key, pixels=pixels, coeffs=L)
 
@@ -426,24 +437,3 @@ def split_irradiance_error(split: LightSplit, key_order: int | None = None) -> f
     if reference == 0.0:
         return 0.0 if difference == 0.0 else math.inf
     return math.sqrt(difference / reference)
-
-
-def chroma_spread(pixels) -> float:
-    """How much the colour of a map varies: the RMS distance of its texels' rg-chromaticity
-    (r, g) / (r + g + b) from their mean, weighted by luminance x solid angle (dark texels count
-    little). 0 for a map of one colour; saturated stripes of several colours give ~0.2-0.4."""
-    from relight.lighting.envmap import validate_equirect
-
-    rgb = validate_equirect(pixels).pixels[..., :3].astype(np.float64)
-    rgb = np.maximum(rgb, 0.0)
-    height, width = rgb.shape[:2]
-    _, omega = sh_projection.equirect_directions(height, width)
-    total = rgb.sum(axis=-1)
-    weight = (rgb @ LUMINANCE_WEIGHTS) * omega[:, None]
-    keep = total > 0
-    if not np.any(keep) or float(weight[keep].sum()) <= 0:
-        return 0.0
-    rg = rgb[keep][:, :2] / total[keep][:, None]
-    w = weight[keep] / float(weight[keep].sum())
-    mean = w @ rg
-    return float(math.sqrt(float(w @ np.sum((rg - mean) ** 2, axis=1))))
