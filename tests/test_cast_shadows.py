@@ -246,3 +246,20 @@ def test_relight_with_shadows_only_removes_light(tmp_path, capsys):
     assert 0.01 < darker.mean() < 0.6                    # a shadow, not the whole photo
     assert np.array_equal(outputs["sunset", True][0], outputs["sunset", False][0])
     assert outputs["sunset", True][1].startswith("none")
+
+
+def test_shadow_layer_is_one_off_the_person():
+    """The Shadow layer: 1 wherever the full-resolution matte is 0 (the working matte's soft edge reaches a
+    little past it: no dark fringe there), below 1 somewhere on the person under a side sun, in [0, 1]."""
+    from relight.files.photo import read_photo
+    from relight.network.quality import preset
+    from relight.network.runtime import Relighter
+
+    photo, _ = read_photo("relight/data/examples/grace_hopper.jpg")
+    d = Relighter(working_size=128).decompose(photo, **preset("draft").decompose_options(working_size=False))
+    layer = d.shadow_layer(sun_light(90.0, 10.0, 5.0, 4))
+    alpha = d.full_alpha()
+    assert layer.shape == alpha.shape and np.all((layer >= 0) & (layer <= 1))
+    assert np.all(layer[alpha <= 0] == 1.0)
+    assert (layer[alpha > 0.99] < 0.5).mean() > 0.01
+    assert np.all(d.shadow_layer(sun_light(90.0, 10.0, 5.0, 4, ambient=0.95)) == 1.0)  # no directional part

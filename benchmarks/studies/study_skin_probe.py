@@ -69,21 +69,21 @@ def face_disc(photo: np.ndarray, landmarks_model: str, shape) -> np.ndarray | No
 
     import onnxruntime as ort
 
-    from relight.person import matte
+    from relight.person import matte, pose_people
     from relight.colour import srgb_encode
     from relight.network.resample import area_shrink, sample_points
 
     small = srgb_encode(area_shrink(photo, matte.GUIDE_SIZE)).astype(np.float32)
-    found = matte._detect(matte._session("detector"), small)
+    found = pose_people.detect(matte._session("detector"), small)
     if not found:
         return None
-    cx, cy, side, rotation = matte._roi(found[0])
+    cx, cy, side, rotation = pose_people.roi(found[0])
     c, s = math.cos(rotation), math.sin(rotation)
     t = ((np.arange(matte.NET_SIDE, dtype=np.float64) + 0.5) / matte.NET_SIDE - 0.5) * side
     u, v = np.meshgrid(t, t)
     crop = sample_points(small, c * u - s * v + cx, s * u + c * v + cy)
     session = ort.InferenceSession(landmarks_model, providers=["CPUExecutionProvider"])
-    marks = session.run(["landmarks"], {"image": matte._nchw(crop)})[0].reshape(-1, 5)[:33]
+    marks = session.run(["landmarks"], {"image": pose_people.nchw(crop)})[0].reshape(-1, 5)[:33]
     if min(marks[0, 3], marks[2, 3], marks[5, 3]) < 0.0:  # visibility logits of nose and eye centres
         return None
     uu, vv = (marks[:, 0] / matte.NET_SIDE - 0.5) * side, (marks[:, 1] / matte.NET_SIDE - 0.5) * side

@@ -18,7 +18,8 @@ from . import bl_photo_world, bl_proxy
 from ..logic import photo_light, pixel_buffers
 from .bl_photo_world import RelitPhotoOperator, tag, tagged
 
-CAMERA, FLOOR, COMPOSITE = "camera", "shadow_catcher", "composite"
+CAMERA, COMPOSITE = "camera", "composite"
+FLOOR = bl_proxy.FLOOR  # the shadow catcher: the proxy stands on it
 NODE_PREFIX = "Relight Photo "  # our nodes in a Blender 4 compositor tree (the user's stay)
 
 

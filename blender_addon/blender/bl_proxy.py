@@ -27,6 +27,7 @@ from .bl_images import OUTPUT_LAYER, OUTPUT_OF, photo_by_id
 from .bl_photo_world import tag, tagged
 
 PERSON, PERSON_SHADOW = "person", "person_shadow"
+FLOOR = "shadow_catcher"   # Compositing Setup's floor (blender_addon.blender.bl_compositing tags it so)
 VISIBILITY = ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
               "visible_volume_scatter", "visible_shadow")
 SEEN_BY = {PERSON: {"visible_camera"}, PERSON_SHADOW: {"visible_shadow"}}
@@ -121,8 +122,6 @@ def refresh(session) -> bool:
     camera = getattr(objects[PERSON], "parent", None)
     if photo is None or camera is None or camera.type != "CAMERA" or objects[PERSON_SHADOW] is None:
         return False
-    from .bl_compositing import FLOOR
-
     relief = relief_mesh(session, camera, tagged(bpy.data.objects, session.photo_id, FLOOR))
     for what, mesh in _meshes(photo, session, relief).items():
         _set_mesh(objects[what], mesh)

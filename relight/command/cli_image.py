@@ -186,12 +186,24 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     import json
 
     image, mask = read.result() if read is not None else read_photo_and_mask(photo_path, mask_path, args.max_pixels)
-    d = relighter.decompose(image, mask, **decompose_options(args))
+    options = decompose_options(args)
     # the light and --exposure were checked at the command's boundary (target_light, their argparse type)
     scale = 2.0 ** args.exposure
-    relit = d.relight_checked(light, scale, shadows=getattr(args, "shadows", False))
+    shadows = getattr(args, "shadows", False)
+    group = None
+    if mask is None and options.pop("matte") == "person" and options.pop("person") is None:
+        from relight.network.group import decompose_people
+
+        group = decompose_people(relighter, image, **options)  # everyone, under one light
+        d = group.people[0]
+        relit = group.relight_checked(light, scale, shadows)
+    else:
+        d = relighter.decompose(image, mask, **decompose_options(args))
+        relit = d.relight_checked(light, scale, shadows=shadows)
     stats = d.last_stats
     done = record(args, relighter, d)
+    if group is not None:
+        done["people"] = group.record()
     metadata = {"relight": json.dumps(done, sort_keys=True)}
     if args.json:
         print(json.dumps(dict(done, photo=str(photo_path), output=str(out_path)), sort_keys=True))
@@ -200,6 +212,9 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
               f"on {stats.fraction:.1%} of the person", file=sys.stderr)
     if args.layers:
         layers = d.layers_checked(light, scale)
+        for other in group.people[1:] if group is not None else ():  # each zero outside its own matte
+            for name, layer in other.layers_checked(light, scale).items():
+                layers[name] += layer
         return write_layers_exr(out_path, relit, layers, metadata)
     return write_image(out_path, relit, metadata)
 

@@ -53,8 +53,9 @@ class _Compositor:
     """Writes the person over the photo into `out`, one band of tiles per call."""
 
     def __init__(self, photo: np.ndarray, box, up: Bilinear, alpha: np.ndarray, mask: np.ndarray | None,
-                 out: np.ndarray, source: np.ndarray, quotient: bool, scale: np.float32):
+                 out: np.ndarray, source: np.ndarray, quotient: bool, scale: np.float32, accumulate: bool = False):
         self.photo, self.box, self.up, self.alpha, self.mask = photo, box, up, alpha, mask
+        self.accumulate = accumulate
         self.out, self.source, self.quotient = out, source, quotient
         self.packed = out.flags.c_contiguous  # else a strided view: written channel by channel
         self.offset = np.float32(DETAIL_EPS) * scale  # eps * 2^EV: exact for whole EV steps
@@ -102,8 +103,14 @@ class _Compositor:
                 np.copyto(a3[..., c], a[..., 0])
             # a * person + (1 - a) * photo: exactly the photo where a == 0, the person where a == 1
             person *= a3
-            rest = np.subtract(np.float32(1.0), a3, out=rest_buf[:n])
             target = self.out[y0 + r0:y0 + r1, x0:x1]
+            if self.accumulate:  # out holds other people already: add a * (person - photo)
+                change = np.multiply(photo, a3, out=rest_buf[:n])
+                np.subtract(person, change, out=change)
+                for c in [slice(None)] if self.packed else range(3):
+                    target[..., c] += change[..., c]
+                continue
+            rest = np.subtract(np.float32(1.0), a3, out=rest_buf[:n])
             if self.packed:
                 np.multiply(photo, rest, out=target)
                 target += person
@@ -114,7 +121,8 @@ class _Compositor:
 
 
 def composite(photo: np.ndarray, box, up: Bilinear, alpha: np.ndarray, mask: np.ndarray | None,
-              source: np.ndarray, quotient: bool, scale: np.float32, out: np.ndarray | None = None) -> np.ndarray:
+              source: np.ndarray, quotient: bool, scale: np.float32, out: np.ndarray | None = None,
+              accumulate: bool = False) -> np.ndarray:
     """The photo with the person of `source` (working resolution, the crop `box`)
     composited over it, float32 [H, W, 3]; outside the box the photo's values bit for bit.
 
@@ -123,17 +131,21 @@ def composite(photo: np.ndarray, box, up: Bilinear, alpha: np.ndarray, mask: np.
     matte, `mask` the user's full-resolution mask (used instead when given).
     `out`: where to write, [H, W, 3] float32, possibly a strided view (the RGB of
     an RGBA buffer, rows in any order), so a caller that packs the image anyway
-    needs no full-size array besides its own (288 MB at 24 MP); same values."""
+    needs no full-size array besides its own (288 MB at 24 MP); same values. `accumulate`: `out`
+    already holds a composite (other people over the photo, whose mattes and this one sum to <= 1):
+    a * (person - photo) is added over the box and nothing else is written."""
     y0, y1, x0, x1 = box
+    if accumulate and out is None:
+        raise ValueError("accumulate needs the out it adds to")
     if out is None:
         out = np.empty_like(photo)
     elif out.shape != photo.shape or out.dtype != np.float32:
         raise ValueError(f"out must be float32 {photo.shape}, got {out.dtype} {out.shape}")
-    for c in ([slice(None)] if out.flags.c_contiguous else range(3)):
+    for c in ([slice(None)] if out.flags.c_contiguous else range(3)) if not accumulate else ():
         o, p = out[..., c], photo[..., c]
         o[:y0], o[y1:] = p[:y0], p[y1:]
         o[y0:y1, :x0], o[y0:y1, x1:] = p[y0:y1, :x0], p[y0:y1, x1:]
-    compose = _Compositor(photo, box, up, alpha, mask, out, source, quotient, scale)
+    compose = _Compositor(photo, box, up, alpha, mask, out, source, quotient, scale, accumulate)
     bands = _bands(up.rows[0] if not up.identity else None, y1 - y0, x1 - x0)
     if len(bands) > 1 and (os.cpu_count() or 1) > 1:
         # numpy releases the GIL in its loops: one band per core at a time

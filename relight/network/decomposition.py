@@ -264,11 +264,12 @@ class Decomposition:
         return self.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), detail, out, shadows)
 
     def relight_checked(self, light: np.ndarray, scale: float, detail: bool = True,
-                        out: np.ndarray | None = None, shadows: bool = False) -> np.ndarray:
+                        out: np.ndarray | None = None, shadows: bool = False, accumulate: bool = False) -> np.ndarray:
         """relight() for a caller that checked the light and the exposure at its own boundary:
         `light` SH coefficients [m, 3] float64 as checked_light returns them, `scale` = 2**EV
         (relight image: its light checked once by relight.lighting.light.SHLight, --exposure by
-        its argparse type). Nothing is checked again here."""
+        its argparse type). Nothing is checked again here. `accumulate`: `out` already holds the photo
+        with other people relit; this person's change is added over its box (relight.network.group)."""
         scale = np.float32(scale)
         relit = self._relit(self._fit_light(light, 1.0), float(scale), shadows)
         quotient = detail and not self._up.identity
@@ -282,7 +283,8 @@ class Decomposition:
         # exposure folded into what is upsampled: a power of two for whole EV
         # steps, so +1 EV still doubles the person exactly
         source *= scale
-        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale, out)
+        return composite(self.photo, self.box, self._up, self.alpha, self.mask, source, quotient, scale, out,
+                         accumulate)
 
     def _alpha_strip(self, r0: int, r1: int) -> np.ndarray:
         y0, _, x0, x1 = self.box
@@ -388,15 +390,18 @@ class Decomposition:
         return self._to_full(small.reshape(h, w, 3), out, edge_colour=name == "albedo")
 
     def shadow_layer(self, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
-        """The share of the light's key each pixel sees past the person's own body [H, W] at full
-        resolution (1 where nothing blocks it, outside the person and when the light has no
-        directional part: relight.network.shadowing); the light as layer() takes it."""
+        """The share of the light's key each pixel sees past the person's body [H, W] at full resolution (1 where
+        nothing blocks it, off the person, for a light without a directional part); the light as layer() takes it."""
         key = key_of(self.fit_light(self.light if coeffs is None else coeffs, exposure_ev))
         h, w = self.working_size
         blocked = np.zeros((h, w, 1), np.float32)
         if key is not None:
             blocked[..., 0] = 1.0 - self.shadows.visibility(key)
         full = self._to_full(blocked, None if out is None else out[..., None])[..., 0]
+        y0, y1, x0, x1 = self.box
+        for r0 in range(0, y1 - y0, STRIP_ROWS):  # nothing is blocked where the full-resolution matte is 0
+            r1 = min(r0 + STRIP_ROWS, y1 - y0)
+            full[y0 + r0:y0 + r1, x0:x1][self._alpha_strip(r0, r1)[..., 0] <= 0.0] = 0.0
         np.subtract(1.0, full, out=full)
         return full
 

@@ -28,7 +28,6 @@ says how it runs. Nothing here imports torch or bpy.
 
 from __future__ import annotations
 
-import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,10 +38,11 @@ from relight.person.box import Box
 from relight.person.linear_photo import check_photo
 from relight.person.mask_ops import box_mean, dilate, label
 from relight.models import REGISTRY_PATH
-from relight.network.resample import area_shrink, bilinear_rows, resize_linear, sample_points, upsample_support
+from relight.person.pose_people import DETECT_SIDE, POSE_SIDE, SAME_PERSON, nchw, pose_people
+from relight.network.resample import area_shrink, bilinear_rows, resize_linear, upsample_support
 
-__all__ = ["PersonMatte", "NoPersonError", "person_matte", "matte_of_checked_photo", "METHODS", "MODELS",
-           "model_paths"]
+__all__ = ["PersonMatte", "NoPersonError", "person_matte", "matte_of_checked_photo", "mattes_of_checked_photo",
+           "METHODS", "MODELS", "model_paths"]
 
 # registry name -> default file (relight/models/), for each network of the matte
 MODELS = {
@@ -60,12 +60,6 @@ GUIDE_RADIUS = 2                        # guided-filter window radius, in grid p
 GUIDE_EPS = 1e-3                        # guided-filter regulariser (guide in [0, 1])
 ALPHA_FLOOR = 1.0 / 255                 # below: exactly background; above 1 - this: exactly person
 MIN_SIDE = 32                           # px: smaller photos cannot show a person to segment
-# pose detection, as MediaPipe's pose_detection graph configures it
-DETECT_SIDE = 224
-DETECT_STRIDES = (8, 16, 32, 32, 32)    # SSD anchor layers (2 anchors per layer and cell)
-DETECT_SCORE = 0.5
-DETECT_OVERLAP = 0.3                    # IoU above which detections merge (weighted)
-ROI_SCALE = 1.25                        # body circle -> the landmark model's square
 SELFIE_AGREEMENT = 0.25                 # mean selfie probability over a pose mask below which the
                                         # selfie model missed that person: the pose mask alone is used
 
@@ -100,7 +94,7 @@ _NOBODY = "no person found in the photo: give a mask (--mask) or a photo where a
 _SESSION_LOCK = threading.Lock()
 _SESSIONS: dict = {}
 _SIGNATURES = {"selfie": (["mask"], (NET_SIDE, NET_SIDE)), "detector": (["boxes", "scores"], (DETECT_SIDE,) * 2),
-               "pose": (["mask"], (NET_SIDE, NET_SIDE))}
+               "pose": (["mask"], (POSE_SIDE, POSE_SIDE))}
 
 
 def model_paths(registry_path=REGISTRY_PATH) -> dict[str, Path]:
@@ -135,114 +129,11 @@ def _session(kind: str, threads: int | None = None, registry_path=REGISTRY_PATH)
         return _SESSIONS[key]
 
 
-def _nchw(srgb: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(srgb.transpose(2, 0, 1)[None], dtype=np.float32)
-
-
 def _selfie(session, grid: np.ndarray) -> np.ndarray:
     """Selfie segmentation of the grid image (sRGB [h, w, 3]) -> probability on the grid."""
     x = resize_linear(grid, NET_SIDE, NET_SIDE)  # squeezed to the square, as MediaPipe feeds it
-    p = session.run(["mask"], {"image": _nchw(x)})[0][0, 0]
+    p = session.run(["mask"], {"image": nchw(x)})[0][0, 0]
     return bilinear_rows(p, *grid.shape[:2])
-
-
-def _anchors() -> np.ndarray:
-    """SSD anchor centres [2254, 2] (x, y in [0, 1]) of MediaPipe's pose detector: per layer
-    stride, a feature map of ceil(224 / stride) cells, 2 anchors per layer sharing the stride."""
-    centres = []
-    i = 0
-    while i < len(DETECT_STRIDES):
-        j = i
-        while j < len(DETECT_STRIDES) and DETECT_STRIDES[j] == DETECT_STRIDES[i]:
-            j += 1
-        cells = math.ceil(DETECT_SIDE / DETECT_STRIDES[i])
-        c = (np.arange(cells, dtype=np.float32) + 0.5) / cells
-        xy = np.stack(np.meshgrid(c, c), axis=-1).reshape(-1, 1, 2)
-        centres.append(np.repeat(xy, 2 * (j - i), axis=1).reshape(-1, 2))
-        i = j
-    return np.concatenate(centres)
-
-
-_ANCHORS = _anchors()
-
-
-def _detect(session, grid: np.ndarray) -> list[np.ndarray]:
-    """People found by the pose detector in an sRGB image: for each, its 4 keypoints
-    [4, 2] in the image's pixels (0: hips' centre, 1: a point on the body's enclosing
-    circle), after MediaPipe's weighted non-maximum suppression."""
-    h, w = grid.shape[:2]
-    scale = DETECT_SIDE / max(h, w)
-    nh, nw = max(1, round(h * scale)), max(1, round(w * scale))
-    oy, ox = (DETECT_SIDE - nh) // 2, (DETECT_SIDE - nw) // 2
-    canvas = np.zeros((DETECT_SIDE, DETECT_SIDE, 3), np.float32)  # letterboxed, black borders
-    canvas[oy:oy + nh, ox:ox + nw] = resize_linear(grid, nh, nw)
-    raw, logits = session.run(["boxes", "scores"], {"image": _nchw(canvas)})
-    logits = np.clip(logits[0, :, 0], -100.0, 100.0)
-    keep = np.flatnonzero(logits >= math.log(DETECT_SCORE / (1.0 - DETECT_SCORE)))
-    if keep.size == 0:
-        return []
-    score = 1.0 / (1.0 + np.exp(-logits[keep]))
-    r = raw[0, keep].astype(np.float64)
-    anchor = _ANCHORS[keep]
-    # canvas pixels -> grid pixels: offsets relative to the anchor centre, in canvas pixels
-    to_x = lambda v: (v - ox) / scale
-    to_y = lambda v: (v - oy) / scale
-    cx, cy = r[:, 0] + anchor[:, 0] * DETECT_SIDE, r[:, 1] + anchor[:, 1] * DETECT_SIDE
-    boxes = np.stack([to_x(cx - r[:, 2] / 2), to_y(cy - r[:, 3] / 2), to_x(cx + r[:, 2] / 2),
-                      to_y(cy + r[:, 3] / 2)], axis=1)
-    kx = r[:, 4:12:2] + anchor[:, :1] * DETECT_SIDE
-    ky = r[:, 5:12:2] + anchor[:, 1:] * DETECT_SIDE
-    keypoints = np.stack([to_x(kx), to_y(ky)], axis=-1)            # [n, 4, 2]
-    people = []
-    remaining = np.argsort(-score)
-    while remaining.size:
-        top = boxes[remaining[0]]
-        b = boxes[remaining]
-        inter = (np.clip(np.minimum(b[:, 2], top[2]) - np.maximum(b[:, 0], top[0]), 0, None)
-                 * np.clip(np.minimum(b[:, 3], top[3]) - np.maximum(b[:, 1], top[1]), 0, None))
-        area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-        overlap = inter / np.maximum(area + area[0] - inter, 1e-12)
-        group = remaining[overlap > DETECT_OVERLAP]
-        weights = score[group][:, None, None]
-        people.append((keypoints[group] * weights).sum(axis=0) / weights.sum())
-        remaining = remaining[overlap <= DETECT_OVERLAP]
-    return people
-
-
-def _roi(keypoints: np.ndarray) -> tuple[float, float, float, float]:
-    """(centre x, centre y, side, rotation) of the landmark model's square, in grid pixels:
-    centred on the hips, side 2 x 1.25 x the body circle's radius, turned so the body is upright."""
-    (x0, y0), (x1, y1) = keypoints[0], keypoints[1]
-    side = 2.0 * ROI_SCALE * math.hypot(x1 - x0, y1 - y0)
-    rotation = math.pi / 2 - math.atan2(-(y1 - y0), x1 - x0)
-    rotation -= 2 * math.pi * math.floor((rotation + math.pi) / (2 * math.pi))
-    return x0, y0, side, rotation
-
-
-def _pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k: int) -> np.ndarray:
-    """The pose landmark model's segmentation of one detected person (keypoints in pixels of
-    `image`, sRGB), resampled onto the grid [h, w] whose pixels are k x k pixels of `image`."""
-    h, w = grid_shape
-    cx, cy, side, rotation = _roi(keypoints)
-    c, s = math.cos(rotation), math.sin(rotation)
-    # the rotated square sampled into the network's 256 x 256 (pixel centres)
-    t = ((np.arange(NET_SIDE, dtype=np.float64) + 0.5) / NET_SIDE - 0.5) * side
-    u, v = np.meshgrid(t, t)
-    crop = sample_points(image, c * u - s * v + cx, s * u + c * v + cy)
-    mask = session.run(["mask"], {"image": _nchw(crop)})[0][0, 0]
-    # back to the grid, over the square's bounding box only
-    half = side * (abs(c) + abs(s)) / 2
-    x0, x1 = max(0, int((cx - half) / k)), min(w, int(math.ceil((cx + half) / k)) + 1)
-    y0, y1 = max(0, int((cy - half) / k)), min(h, int(math.ceil((cy + half) / k)) + 1)
-    out = np.zeros((h, w), np.float32)
-    if x1 <= x0 or y1 <= y0 or side <= 0:
-        return out
-    yy, xx = (np.mgrid[y0:y1, x0:x1].astype(np.float64) + 0.5) * k  # grid pixel centres, in image pixels
-    dx, dy = xx - cx, yy - cy
-    mu = (c * dx + s * dy) / side + 0.5
-    mv = (-s * dx + c * dy) / side + 0.5
-    out[y0:y1, x0:x1] = sample_points(mask, mu * NET_SIDE, mv * NET_SIDE)
-    return out
 
 
 # ------------------------------------------------------------------ the matte
@@ -273,7 +164,31 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
         raise ValueError(f"person must be 1 (the largest), 2, ... or None, got {person!r}")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    H, W = photo.shape[:2]
+    small, grid, people = _found(photo, method, threads, registry_path)
+    index = 1 if person is None else int(person)
+    if index > len(people):
+        raise PersonIndexError(index, len(people))
+    return _full_matte(small, grid, people[index - 1], refine, photo.shape[:2], index, len(people))
+
+
+def mattes_of_checked_photo(photo: np.ndarray, *, threads: int | None = None, registry_path=REGISTRY_PATH,
+                            method: str = "ensemble", refine: bool = True) -> list[PersonMatte]:
+    """Every person's matte (largest first), as matte_of_checked_photo gives each: the segmenters run
+    once for all. Where two soft edges overlap the mattes are scaled to sum to at most 1, so the
+    people composite over the photo together without light counted twice."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    small, grid, people = _found(photo, method, threads, registry_path)
+    mattes = [_full_matte(small, grid, p, refine, photo.shape[:2], i, len(people)) for i, p in enumerate(people, 1)]
+    total = np.sum([m.alpha for m in mattes], axis=0) if len(mattes) > 1 else np.zeros(1)
+    for m in mattes if (total > 1.0).any() else ():
+        m.alpha[total > 1.0] /= total[total > 1.0]
+    return mattes
+
+
+def _found(photo: np.ndarray, method: str, threads, registry_path):
+    """(the photo shrunk to GUIDE_SIZE, the grid the segmenters see, each person's probability on
+    the grid: largest first); NoPersonError when there is nobody."""
     small = area_shrink(photo, GUIDE_SIZE)
     # a NaN or Inf survives the block average (a sum of huge values may overflow to Inf:
     # refused too), so one check of the small image covers the photo at a fraction of the cost
@@ -286,10 +201,14 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
     people = _people(small_srgb, grid, method, threads, registry_path)
     if not people:
         raise NoPersonError(_NOBODY)
-    index = 1 if person is None else int(person)
-    if index > len(people):
-        raise PersonIndexError(index, len(people))
-    alpha_small = _edge(small, grid, people[index - 1], refine)
+    return small, grid, people
+
+
+def _full_matte(small: np.ndarray, grid: np.ndarray, probability: np.ndarray, refine: bool, size, index: int,
+                count: int) -> PersonMatte:
+    """One person's probability on the grid -> their PersonMatte at the photo's `size` (H, W)."""
+    H, W = size
+    alpha_small = _edge(small, grid, probability, refine)
     # snapped at the small size: bilinear interpolation between equal values is exact, so the
     # full-resolution matte is exactly 0 (photo untouched) and exactly 1 where its taps are
     alpha_small[alpha_small < ALPHA_FLOOR] = 0.0
@@ -298,7 +217,7 @@ def matte_of_checked_photo(photo: np.ndarray, person: int | None = None, *, thre
     box = Box.around(alpha)
     if box is None:  # the edge refinement erased a part the networks saw: treat as nobody
         raise NoPersonError(_NOBODY)
-    return PersonMatte(alpha=alpha, box=box, index=index, count=len(people))
+    return PersonMatte(alpha=alpha, box=box, index=index, count=count)
 
 
 def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_path) -> list[np.ndarray]:
@@ -309,13 +228,9 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
     k = max(1, max(small.shape[:2]) // NET_SIDE)  # as area_shrink chose it
     floor = MIN_PERSON_FRACTION * h * w
     selfie = _selfie(_session("selfie", threads, registry_path), grid) if method != "pose" else None
-    poses = []
-    if method != "selfie":
-        pose_session = _session("pose", threads, registry_path)
-        for keypoints in _detect(_session("detector", threads, registry_path), small):
-            mask = _pose_mask(pose_session, small, keypoints, (h, w), k)
-            if np.count_nonzero(mask > PERSON_THRESHOLD) >= floor:
-                poses.append(mask)
+    poses = [] if method == "selfie" else pose_people(
+        _session("detector", threads, registry_path), _session("pose", threads, registry_path), small, (h, w), k,
+        floor, PERSON_THRESHOLD, KEEP_RADIUS, selfie)
     if not poses:
         if selfie is None:
             return []
@@ -332,11 +247,12 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         # this person's mask beats the others', are this person's. Geometric mean: a soft
         # "both": a pixel only one network claims stays faint (less ghosting than the mean)
         mine = pose >= others  # where another person's mask is stronger, that person is
+        before = np.count_nonzero(pose > PERSON_THRESHOLD)
         pose = np.where(mine, pose, np.float32(0.0))
         near = dilate(pose > PERSON_THRESHOLD, KEEP_RADIUS * max(1, round(max(h, w) / NET_SIDE)))
         own = np.where(near & mine, selfie, np.float32(0.0))
         inside = pose > PERSON_THRESHOLD
-        if np.count_nonzero(inside) < floor:  # another detection holds all of it: one person twice
+        if np.count_nonzero(inside) < max(floor, SAME_PERSON * before):  # others hold most of it: one person twice
             continue
         if own[inside].mean() < SELFIE_AGREEMENT:  # the selfie model missed this person
             people.append(pose.astype(np.float32))
