@@ -24,7 +24,7 @@ import numpy as np
 from . import engine, jobs
 from ..logic import pixel_buffers
 
-BAND_ROWS = 32  # rows per band: 7 MB of 14 float channels at 4000 px wide, compressed in tens of ms
+BAND_ROWS = 32  # rows per band: 7.7 MB of 15 float channels at 4000 px wide, compressed in tens of ms
 PASSES = (("Relit", "RGBA"), ("Albedo", "RGB"), ("Shading", "RGB"), ("Residual", "RGB"), ("Alpha", "A"),
           ("Shadow", "X"))  # Shadow: the share of the light's key the body leaves (a value pass, Blender's X)
 LAYER_STAGES = {"alpha": ("Making the alpha layer", 0.15), "shadow": ("Making the shadow layer", 0.17),
@@ -136,7 +136,7 @@ def stage_maps(d, dials, staged: StagedPlanes, progress: jobs.Progress, check) -
 
 
 def bands(staged: StagedPlanes, where: dict[str, int], progress: jobs.Progress, check):
-    """[rows, W, 14] bands from the top, the channels in channel_names() order (each its own
+    """[rows, W, C] bands from the top, the C channels in channel_names() order (each its own
     array: a writer may hold a few while it compresses them)."""
     names = channel_names()
     opaque = [i for i, name in enumerate(names) if name.endswith(".Relit.A")]  # the relit frame is the whole photo
