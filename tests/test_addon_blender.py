@@ -500,9 +500,9 @@ def test_save_layers_refusals_reach_the_panel_before_any_work(addon, settings, t
             bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name)
         assert status.is_error and status.message.startswith(message), status.message
     h, w = session(name).photo.shape[:2]
-    # one byte short of what the layers need: the EXR (14 channels, compressed to about half) and
-    # the 13 planes staged while it is written (blender_addon.worker.save_layers)
-    free = (14 // 2 + 13) * 4 * h * w - 1
+    # one byte short of what the layers need: the EXR (its channels compressed to about half) and
+    # the planes staged while it is written (blender_addon.worker.save_layers)
+    free = (bl_ops.save_layers.LAYERS_EXR_CHANNELS // 2 + bl_ops.save_layers.STAGED_PLANES) * 4 * h * w - 1
     monkeypatch.setattr(shutil, "disk_usage", lambda _p: type("Usage", (), {"free": free})())
     with pytest.raises(RuntimeError, match="MB free; the layers need about"):
         bpy.ops.relight_photo.save_layers(filepath=str(tmp_path / "l.exr"), image_name=name)
