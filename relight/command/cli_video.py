@@ -1,4 +1,4 @@
-"""`relight video`: relight the person in a clip, frame by frame, stable over time.
+"""`relight video`: relight everyone in a clip (or --person N), frame by frame, stable over time.
 
     relight video INPUT (--light HDR_OR_PRESET | --light-from PHOTO) [--rotate DEG] [--exposure EV]
                   [--no-normalize] --out OUTPUT [--format png|exr] [--layers] [--fps RATE]
@@ -10,9 +10,9 @@ INPUT is a video file (.mp4 .mov .m4v .mkv .webm .avi) or a folder of numbered
 frames (PNG/JPEG/TIFF/EXR; a frame's alpha channel is its person mask); OUTPUT a
 video file (.mp4 .mov .m4v .mkv .webm: the input's frame rate, size and audio)
 or a folder of frames (PNG, or EXR with linear values). The light and photo
-options work as in `relight image`; relight.command.clip keeps the light, maps and matte
-steady (--stability 0: every frame on its own). A frame without a person is
-written unchanged (and listed). Frames go to a folder atomically, one whole
+options work as in `relight image`; relight.command.clip keeps the light, maps and
+matte steady (--stability 0: every frame on its own), each person tracked with their
+own. A frame without a person is written unchanged (and listed). Frames go to a folder atomically, one whole
 file each; a video is written to a temporary file that replaces OUTPUT only
 when complete. --resume continues an interrupted job, skipping the frames
 already written and giving exactly the frames an uninterrupted run gives (a
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import io
 import signal
 import sys
 from fractions import Fraction
@@ -33,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.command.video_job import JOB_FILE, STATE_FILE, Frames as _Frames  # noqa: F401 (the job's files)
+
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
 CHECKPOINT_EVERY = 24   # frames between saved filter states (a resume re-runs at most this many)
-JOB_FILE = ".relight-video.json"
-STATE_FILE = ".relight-video-state.npz"
 WORK_SUFFIX = ".frames"  # OUTPUT.mp4.frames/: a resumable video job's frames
 
 
@@ -47,7 +46,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     from relight.command.cli_image import add_relight_parser
     from relight.command.clip import DEFAULT_STABILITY, FILTER_MODES
 
-    p = add_relight_parser(subparsers, "video", help="relight the person in a video or a folder of frames",
+    p = add_relight_parser(subparsers, "video", help="relight everyone in a video or a folder of frames",
                            description=__doc__.split("\n\n")[0], source="input",
                            source_help="video file or folder of numbered frames")
     # the shared --threads counts frames analysed at once here (each network on one thread)
@@ -128,106 +127,6 @@ def _fingerprint(args, info, relighter) -> dict:
             "model": relighter.sha256, "working_size": relighter.working_size, "matte": args.matte,
             "person": args.person, "stability": args.stability, "filter": args.filter,
             "format": args.format, "layers": args.layers}
-
-
-class _Frames:
-    """The output frames of the job: a folder writer plus the resume bookkeeping beside them
-    (JOB_FILE: the settings, and the frame count once the job is complete; STATE_FILE: the
-    filter state at the last checkpoint)."""
-
-    def __init__(self, folder: Path, names, fmt: str, fingerprint: dict, resume: bool, video: bool = False):
-        import json
-
-        from relight.files.video_out import FrameFolderWriter
-
-        self.folder = folder
-        self.writer = FrameFolderWriter(folder, fmt, names, video_codes=video)
-        self.fingerprint = fingerprint
-        self.created = not folder.exists()
-        folder.mkdir(parents=True, exist_ok=True)
-        self.done = self.writer.written()
-        self.new: set[int] = set()   # the frames this run wrote
-        self.checkpointed = False
-        job = folder / JOB_FILE
-        self.had_job = job.is_file()
-        if self.done and not resume:
-            raise ValueError(f"{folder} already holds {len(self.done)} frames of this clip: --resume continues "
-                             "that job, or choose another output")
-        self.start, self.state, self.complete = 0, None, None
-        if resume and job.is_file():
-            before = json.loads(job.read_text(encoding="utf-8"))
-            self.complete = before.pop("complete_frames", None)
-            changed = sorted(k for k in set(before) | set(fingerprint) if before.get(k) != fingerprint.get(k))
-            if changed:
-                raise ValueError(f"--resume: the frames in {folder} were made with other settings "
-                                 f"({', '.join(changed)} differ): rerun them with those, or use another output")
-            state_path = folder / STATE_FILE
-            if state_path.is_file():
-                with np.load(state_path) as saved:
-                    state = {k: saved[k] for k in saved.files}
-                self.start = int(state.pop("next_frame"))
-                self.state = state
-        from relight.files.fileio import atomic_write_json
-
-        try:
-            atomic_write_json(job, fingerprint)
-        except OSError as exc:
-            self.discard()
-            raise _named(exc, job) from None
-
-    def write(self, index: int, *frame) -> None:
-        """Write frame `index` (FrameFolderWriter.write's arguments); a failure names the frame's file."""
-        try:
-            self.writer.write(index, *frame)
-        except OSError as exc:
-            raise _named(exc, self.writer.path(index)) from None
-        self.new.add(index)
-
-    def checkpoint(self, next_frame: int, state: dict) -> None:
-        """Save the filter state after frame next_frame - 1 (every frame before it is written)."""
-        from relight.files.fileio import atomic_path
-
-        try:
-            # through memory: numpy's zip file, failing on a full disk, prints a traceback when collected
-            buffer = io.BytesIO()
-            np.savez_compressed(buffer, next_frame=np.int64(next_frame), **state)
-            with atomic_path(self.folder / STATE_FILE, ".npz") as tmp:
-                tmp.write_bytes(buffer.getbuffer())
-        except OSError as exc:
-            raise _named(exc, self.folder / STATE_FILE) from None
-        self.checkpointed = True
-
-    def discard(self, own_frames: bool = False) -> None:
-        """Remove what this run made that describes nothing: with `own_frames` (a refused input)
-        the frames it wrote, then, if no frame is left, its settings and the folder if it made it."""
-        if own_frames:
-            for index in sorted(self.new):
-                self.writer.path(index).unlink(missing_ok=True)
-            self.new.clear()
-            if self.checkpointed:  # it may count frames just removed: a resume replays from the start
-                (self.folder / STATE_FILE).unlink(missing_ok=True)
-        if self.writer.written():
-            return
-        if not self.had_job:
-            (self.folder / JOB_FILE).unlink(missing_ok=True)
-            (self.folder / STATE_FILE).unlink(missing_ok=True)
-        if self.created:
-            try:
-                self.folder.rmdir()
-            except OSError:
-                pass  # something else is in it now: not ours to remove
-
-    def finish(self, frames: int) -> None:
-        """The job is complete: its settings stay (a later --resume finds nothing to do), the state goes."""
-        from relight.files.fileio import atomic_write_json
-
-        atomic_write_json(self.folder / JOB_FILE, {**self.fingerprint, "complete_frames": frames})
-        (self.folder / STATE_FILE).unlink(missing_ok=True)
-
-
-def _named(exc: OSError, path) -> OSError:
-    """The error of a write, naming the file it was writing (not a temporary beside it)."""
-    return OSError(exc.errno, exc.strerror or str(exc), str(path)) if exc.errno else exc
 
 
 def _write_failure(exc: OSError, out: Path, frames, kind: str) -> str:
@@ -327,7 +226,7 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
         elif kind == "video":
             _encode_folder(frames, info, out)
         else:
-            frames.finish(frames.start + done)
+            frames.finish(frames.start + done, runner.record())
     except KeyboardInterrupt:
         if video is not None:
             video.abort()
@@ -353,9 +252,20 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
     if clamped > 0.01:
         print(f"relight video: warning: negative light (SH ringing) clamped to 0 on up to {clamped:.1%} of the "
               "person", file=sys.stderr)
+    people = runner.record()
+    if people["found"] > 1 or people["frames_with_people_left"]:  # (one person: the lines as they were)
+        print(_people_line(people))
     kept = len(frames.done) if frames is not None else 0
     print(f"relit {written} frames into {out}" + (f" ({kept} were there already)" if kept else ""))
     return 0
+
+
+def _people_line(record: dict) -> str:
+    """What the record (ClipRelighter.record) says of the people, in one line."""
+    line = (f"people: up to {record['found']} found in a frame, up to {record['relit']} relit under the shot's "
+            f"one light, {len(record['tracks'])} tracked")
+    left = record["frames_with_people_left"]
+    return line + (f"; someone too small to relight left as they were in {left} frames" if left else "")
 
 
 def _loop(clip, runner, frames, video, args, info, workers: int):

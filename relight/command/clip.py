@@ -27,6 +27,11 @@ not change within a shot is held or smoothed over its frames:
   moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
   (docs/video.md, "A still shot").
 
+* **everyone**: without --person, everyone the segmenter finds is relit, each tracked over the
+  frames (relight.command.clip_people: matched by their matte boxes' overlap) with their own maps and
+  matte filters, under one light for the shot: each frame's estimate is the mean of everyone's
+  (relight.network.group.joint_light), smoothed as above. One person: exactly as before.
+
 `stability` in [0, 1] sets the windows: 0 is independent per-frame processing
 (exactly `relight image` on each frame), 1 the longest windows (most lag when the
 light or the body changes). The whole state is a dict of arrays (state(),
@@ -36,15 +41,16 @@ load_state()) so an interrupted job resumes exactly where it stopped.
 from __future__ import annotations
 
 import json
-from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from relight.person.box import Box
 from relight.command.clip_maps import (
-    FILTER_MODES, MapSmoother, MatteSmoother, Stillness, grid_axes, grid_grey, history_weight, sample_separable,
+    FILTER_MODES, MapSmoother, MatteSmoother, Stillness, grid_grey, history_weight, regridded as _regridded,
+    with_mask as _with_mask,
 )
+from relight.command.clip_people import ShotLight, Tracker, shared_mattes as _shared
 from relight.network.decomposition import Decomposition
 from relight.network.refine import consistent_albedo
 
@@ -79,6 +85,20 @@ class FrameResult:
     clamped: float = 0.0              # share of the person's pixels whose negative light was clamped
     layers: dict | None = None        # Decomposition.layers() when asked for
     changed: tuple | None = None      # (y0, y1, x0, x1): outside it the image is the input bit for bit
+    # everyone relit, largest first: {"track": identity over the clip, "person": size rank (1 = the
+    # largest), "box": the matte's box}; `left`: those too small to relight; `found`: everyone found
+    people: list = field(default_factory=list)
+    left: list = field(default_factory=list)
+    found: int = 0
+
+
+@dataclass
+class Seen:
+    """Another person of a frame than the largest (Analysis.others)."""
+
+    decomposition: Decomposition
+    matte_box: Box | None
+    index: int                         # size rank in the frame: 1 = the largest
 
 
 @dataclass
@@ -90,43 +110,17 @@ class Analysis:
     decomposition: Decomposition | None   # None: no person in the frame
     smooth_matte: bool = False            # the mask is the segmenter's: smoothed over frames in finish()
     matte_box: Box | None = None          # the segmenter's matte's box
+    others: list = field(default_factory=list)  # everyone else relit (Seen), largest first
+    left: list = field(default_factory=list)    # people too small to relight: {"person", "px", "why"}
+    found: int = 0                        # people the segmenter found (0: not asked, or nobody)
+    index: int = 1                        # `decomposition`'s size rank in the frame
 
-
-def _with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
-    """`d` with another full-resolution matte (the smoothed one), its working-resolution alpha
-    resampled from it as decompose() does."""
-    from relight.network.resample import resize_linear
-
-    y0, y1, x0, x1 = d.box
-    h, w = d.working_size
-    alpha = np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0).astype(np.float32)
-    return Decomposition(albedo=d.albedo, transport=d.transport, residual=d.residual, light=d.light, alpha=alpha,
-                         box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working,
-                         mask=mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
-
-
-def _regridded(d: Decomposition, box: Box, size: tuple) -> Decomposition:
-    """`d` on another grid of its photo (the crop `box` resized to `size`): the network's maps
-    resampled bilinearly (edge values held past the old crop), the working photo cut and
-    resized again from the frame as decompose() does."""
-    from relight.network.resample import resize_linear
-
-    gy, gx = grid_axes(d.box, d.working_size, box, size)
-    h, w = d.working_size
-    gy, gx = np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)
-    parts = [d.albedo, d.transport, d.residual, d.alpha[..., None]]
-    if d.network_alpha is not None:
-        parts.append(d.network_alpha[..., None])
-    out, _ = sample_separable(np.concatenate(parts, axis=2), gy, gx)
-    n = d.transport.shape[2]
-    split = np.cumsum([3, n, n, 1])
-    albedo, transport, residual, alpha = (np.ascontiguousarray(a) for a in np.split(out, split, axis=2)[:4])
-    network_alpha = np.ascontiguousarray(out[..., -1]) if d.network_alpha is not None else None
-    y0, y1, x0, x1 = box
-    photo_working = resize_linear(d.photo[y0:y1, x0:x1], *size)
-    return Decomposition(albedo=albedo, transport=transport, residual=residual, light=d.light, alpha=alpha[..., 0],
-                         box=box, working_size=tuple(size), photo=d.photo, photo_working=photo_working,
-                         mask=d.mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=network_alpha)
+    def people(self) -> list:
+        """(decomposition, matte box, size rank) of everyone relit, largest first."""
+        if self.decomposition is None:
+            return []
+        return [(self.decomposition, self.matte_box, self.index)] + \
+            [(o.decomposition, o.matte_box, o.index) for o in self.others]
 
 
 class CutDetector:
@@ -155,31 +149,6 @@ class CutDetector:
         return d > self.threshold
 
 
-class ShotLight:
-    """The mean of the per-frame light estimates over the shot's last `window` frames; while the
-    person is still, held: the previous light weighted by `hold` x how still (still_weight)."""
-
-    def __init__(self, window: int, hold: float = 0.0):
-        self.lights: deque = deque(maxlen=max(1, int(window)))
-        self.hold = float(hold)
-        self.held: np.ndarray | None = None  # the last light given
-
-    def reset(self) -> None:
-        self.lights.clear()
-        self.held = None
-
-    def update(self, light: np.ndarray, still: float = 0.0) -> np.ndarray:
-        """The shot's light after this frame's estimate `light`; `still`: the person's stillness
-        in [0, 1] (still_weight)."""
-        self.lights.append(np.asarray(light, np.float64))
-        mean = np.mean(self.lights, axis=0)
-        k = self.hold * float(still)
-        if self.held is not None and k > 0.0:
-            mean = k * self.held + (1.0 - k) * mean
-        self.held = mean
-        return mean.astype(np.float32)
-
-
 def still_weight(share: float) -> float:
     """How still the person is, in [0, 1], from the share of them that is still: 0 until
     STILL_PERSON[0], rising linearly to 1 at STILL_PERSON[1]. The light and the network's maps
@@ -193,7 +162,10 @@ class ClipRelighter:
 
     relighter: relight.network.runtime.Relighter; light: target SH coefficients [n, 3];
     exposure_ev: as in Decomposition.relight; matte: "person" (the segmenter) or
-    "network"; person: which person (1 = the largest); stability: 0..1; mode:
+    "network"; person: which person (1 = the largest), None: everyone the segmenter finds, each
+    tracked over the frames (relight.command.clip_people) with their own maps and matte filters,
+    under one light for the shot (the mean of everyone's, relight.network.group.joint_light; a
+    person under relight.network.group.MIN_PERSON_PX left as they are); stability: 0..1; mode:
     "ema" or "flow" (relight.command.clip_maps); threads: the segmenter's onnxruntime threads;
     light_window: frames the light is averaged over (default 1 + (LIGHT_WINDOW - 1) x stability);
     working_size: the network's working size (default the relighter's own);
@@ -222,9 +194,11 @@ class ClipRelighter:
         elif isinstance(light_window, bool) or not isinstance(light_window, int) or light_window < 1:
             raise ValueError(f"light_window must be a whole number of frames >= 1, got {light_window!r}")
         self.shot_light = ShotLight(light_window, hold)
-        self.maps = MapSmoother(history, mode, hold)
-        self.matte_filter = MatteSmoother(history, hold)
+        MapSmoother(history, mode, hold)  # a bad mode fails here, not at the first person
+        self.tracker = Tracker(lambda: (MapSmoother(history, mode, hold), MatteSmoother(history, hold)))
         self.stillness = Stillness(hold)
+        self.frame = 0                    # the clip's next frame to finish (the tracks' record)
+        self.counts = np.zeros(3, np.int64)  # most people found in a frame, most relit, frames with one left
         config = json.loads(relighter.metadata.get("relight.network_config", "{}") or "{}")
         # the geometry-first model's albedo is photo / shading under its fitted light: re-derived
         # under the shot's light (docs/model.md); other models' albedo is smoothed like the maps
@@ -233,8 +207,7 @@ class ClipRelighter:
     def reset(self) -> None:
         """Forget the shot: the next frame starts afresh (a cut, a frame without a person)."""
         self.shot_light.reset()
-        self.maps.reset()
-        self.matte_filter.reset()
+        self.tracker.reset()
         self.stillness.reset()
 
     def state(self) -> dict[str, np.ndarray]:
@@ -245,18 +218,11 @@ class ClipRelighter:
             out["held_light"] = self.shot_light.held
         if self.cuts.previous is not None:
             out["cut_histogram"] = self.cuts.previous
-        if self.matte_filter.previous is not None:
-            out["matte"] = self.matte_filter.previous
-            if self.matte_filter.box is not None:
-                out["matte_box"] = np.asarray(self.matte_filter.box)
         if self.stillness.reference is not None:
             out["still_reference"] = self.stillness.reference
             out["still_block"] = np.asarray(self.stillness.block)
-        maps = self.maps.state
-        if maps is not None:
-            out.update({"maps_box": np.asarray(maps["box"]), "maps_size": np.asarray(maps["size"]),
-                        "maps_grey": maps["grey"], "maps_alpha": maps["alpha"]})
-            out.update({f"map_{k}": v for k, v in maps["maps"].items()})
+        out.update(self.tracker.state())  # each person's maps and matte
+        out["frame"], out["people_counts"] = np.int64(self.frame), self.counts.copy()
         return out
 
     def load_state(self, state: dict) -> None:
@@ -269,16 +235,20 @@ class ClipRelighter:
             self.shot_light.held = np.asarray(state["held_light"], np.float64)
         elif len(self.shot_light.lights):
             self.shot_light.held = np.mean(self.shot_light.lights, axis=0)
-        self.matte_filter.previous = state.get("matte")
-        self.matte_filter.box = Box(*(int(v) for v in state["matte_box"])) if "matte_box" in state else None
         if "still_reference" in state:  # (a state saved before it was kept: judged afresh)
             self.stillness.reference = np.array(state["still_reference"], np.float32)
             self.stillness.block = int(state["still_block"])
-        if "maps_box" in state:
-            self.maps.state = {"box": tuple(int(v) for v in state["maps_box"]),
-                               "size": tuple(int(v) for v in state["maps_size"]),
-                               "grey": state["maps_grey"], "alpha": state["maps_alpha"],
-                               "maps": {k[4:]: v for k, v in state.items() if k.startswith("map_")}}
+        self.tracker.load_state(state)
+        self.frame = int(state.get("frame", 0))
+        self.counts = np.array(state.get("people_counts", np.zeros(3)), np.int64)
+
+    def record(self) -> dict:
+        """The people of the clip so far (plain JSON values): the most found in one frame, the most
+        relit in one frame, the frames where someone was left as they were (too small), and every
+        track (clip_people.Tracker.record: its frames and first and last boxes)."""
+        found, relit, left = (int(v) for v in self.counts)
+        return {"found": found, "relit": relit, "frames_with_people_left": left, "tracks": self.tracker.record(),
+                "light": "one for the shot, from everyone relit" if relit > 1 else "the person's own"}
 
     def analyse(self, frame: np.ndarray, mask: np.ndarray | None = None) -> "Analysis":
         """What does not depend on other frames: the person matte, the network's decomposition
@@ -291,6 +261,8 @@ class ClipRelighter:
         smooth_matte, matte_box = False, None
         if mask is not None and not np.any(mask > 0):  # the frame's own alpha marks nobody
             return Analysis(frame, histogram, None)
+        if mask is None and self.matte == "person" and self.person is None:
+            return self._everyone(frame, histogram)
         if mask is None and self.matte == "person":
             try:
                 found = person_matte(frame, self.person, threads=self.threads, method=self.matte_method)
@@ -301,45 +273,116 @@ class ClipRelighter:
                                      matte_method=self.matte_method, augment=self.augment)
         return Analysis(frame, histogram, d, smooth_matte, matte_box)
 
+    def _everyone(self, frame: np.ndarray, histogram: np.ndarray) -> "Analysis":
+        """analyse() of everyone the segmenter finds, each decomposed at their own crop (as
+        relight.network.group.decompose_people, without its joint light: finish() fits the shot's)."""
+        from relight.network.group import MIN_PERSON_PX
+        from relight.person import matte as segmenter
+        from relight.person.linear_photo import check_photo
+
+        checked = check_photo(frame, segmenter.MIN_SIDE, finite=False, purpose="a person matte")
+        try:
+            mattes = segmenter.mattes_of_checked_photo(checked, threads=self.threads, method=self.matte_method)
+        except segmenter.NoPersonError:
+            return Analysis(frame, histogram, None)
+        seen, left = [], []
+        for m in mattes:
+            side = max(m.box.height, m.box.width)
+            if side < MIN_PERSON_PX:
+                left.append({"person": m.index, "px": int(side),
+                             "why": f"too small to relight ({side} < {MIN_PERSON_PX} px)"})
+                continue
+            d = self.relighter.decompose(frame, m.alpha, self.working_size, matte=self.matte,
+                                         matte_method=self.matte_method, augment=self.augment)
+            seen.append(Seen(d, m.box, m.index))
+        if not seen:
+            return Analysis(frame, histogram, None, left=left, found=len(mattes))
+        return Analysis(frame, histogram, seen[0].decomposition, self.stability > 0, seen[0].matte_box, seen[1:],
+                        left, len(mattes), seen[0].index)
+
     def finish(self, analysis: "Analysis", layers: bool = False) -> FrameResult:
         """The analysed frame relit, in clip order (the temporal state advances by one frame).
         `layers`: also Decomposition.layers() of the frame (None when it has no person)."""
         cut = self.cuts.update_histogram(analysis.histogram)
         if cut:
             self.reset()
-        d = analysis.decomposition
-        if d is None:
+        index, self.frame = self.frame, self.frame + 1
+        people = analysis.people()
+        found = analysis.found or len(people)
+        self.counts = np.maximum(self.counts, [found, len(people), 0]) + [0, 0, bool(analysis.left)]
+        if not people:
             self.reset()
-            return FrameResult(analysis.frame, False, cut)
-        estimate = np.asarray(d.light, np.float32)
+            return FrameResult(analysis.frame, False, cut, left=analysis.left, found=found)
+        boxes = [b if b is not None else d.box for d, b, _ in people]
+        tracks = self.tracker.match(boxes, index)
+        ds = [d for d, _, _ in people]
+        if len(ds) == 1:
+            estimate = np.asarray(ds[0].light, np.float32)
+        else:
+            from relight.network.group import joint_light
+
+            estimate = joint_light(ds)
         shot_light = estimate
         if self.stability > 0:
-            held = self.maps.state
-            self.stillness.update(analysis.frame, d.box if held is None else d.box.union(Box(*held["box"])))
-            if d.mask is not None:
-                person_still = still_weight(self.stillness.share(d.mask))
-            else:  # the network's matte: on its grid
-                grid = self.stillness.on_grid(d.box, d.working_size)
-                person_still = still_weight(float((grid * d.alpha).sum() / max(float(d.alpha.sum()), 1e-6)))
-            if person_still > 0.0:
-                d = self._on_held_grid(d, analysis.matte_box)
+            region = None
+            for d, t in zip(ds, tracks):
+                held = t.maps.state
+                box = d.box if held is None else d.box.union(Box(*held["box"]))
+                region = box if region is None else region.union(box)
+            self.stillness.update(analysis.frame, region)
+            stills = [self._person_still(d) for d in ds]
+            ds = [self._on_held_grid(d, b, t.maps) if s > 0.0 else d
+                  for d, (_, b, _), t, s in zip(ds, people, tracks, stills)]
             if analysis.smooth_matte:
-                d = _with_mask(d, self.matte_filter.update(d.mask, analysis.matte_box, self.stillness.at))
-            shot_light = self.shot_light.update(estimate, person_still)
+                mattes = _shared([t.matte.update(d.mask, b, self.stillness.at)
+                                  for d, (_, b, _), t in zip(ds, people, tracks)], boxes)
+                ds = [_with_mask(d, m) for d, m in zip(ds, mattes)]
+            # the light is the whole shot's: held only as far as everyone is still
+            shot_light = self.shot_light.update(estimate, min(stills))
             # the network's answer at a pixel depends on the whole crop: its maps are held where the
             # picture is still only as far as the whole person is
-            still = self.stillness.on_grid(d.box, d.working_size) * np.float32(person_still)
-            d = self._stabilised(d, shot_light, still)
-        image = d.relight(self.light, self.exposure_ev)
-        stats = d.last_stats
-        return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
-                           d.layers(self.light, self.exposure_ev) if layers else None, d.box)
+            ds = [self._stabilised(d, shot_light, self.stillness.on_grid(d.box, d.working_size) * np.float32(s),
+                                   t.maps) for d, t, s in zip(ds, tracks, stills)]
+        elif len(ds) > 1:  # as relight image relights a group: everyone under the photo's one light
+            ds = [d.with_light(estimate) for d in ds]
+        who = [{"track": t.number, "person": rank, "box": tuple(int(v) for v in box)}
+               for t, (_, _, rank), box in zip(tracks, people, boxes)]
+        if len(ds) == 1:
+            d = ds[0]
+            image = d.relight(self.light, self.exposure_ev)
+            stats = d.last_stats
+            return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
+                               d.layers(self.light, self.exposure_ev) if layers else None, d.box, who,
+                               analysis.left, found)
+        from relight.network.decomposition import checked_light, exposure_scale
+        from relight.network.group import Group
+
+        image = Group(ds).relight_checked(checked_light(self.light), exposure_scale(self.exposure_ev))
+        clamped = max(d.last_stats.fraction if d.last_stats is not None else 0.0 for d in ds)
+        out_layers = None
+        if layers:  # each person's layers are zero outside their own matte
+            out_layers = ds[0].layers(self.light, self.exposure_ev)
+            for d in ds[1:]:
+                for name, layer in d.layers(self.light, self.exposure_ev).items():
+                    out_layers[name] += layer
+        changed = ds[0].box
+        for d in ds[1:]:
+            changed = changed.union(d.box)
+        return FrameResult(image, True, cut, estimate, shot_light, clamped, out_layers, changed, who,
+                           analysis.left, found)
 
     def relight(self, frame: np.ndarray, mask: np.ndarray | None = None, layers: bool = False) -> FrameResult:
         """The next frame (linear float32 [H, W, 3]) relit: finish(analyse(frame, mask))."""
         return self.finish(self.analyse(frame, mask), layers)
 
-    def _on_held_grid(self, d: Decomposition, matte_box) -> Decomposition:
+    def _person_still(self, d: Decomposition) -> float:
+        """How still a person is (still_weight), from this frame's Stillness over their matte."""
+        if d.mask is not None:
+            return still_weight(self.stillness.share(d.mask))
+        grid = self.stillness.on_grid(d.box, d.working_size)  # the network's matte: on its grid
+        return still_weight(float((grid * d.alpha).sum() / max(float(d.alpha.sum()), 1e-6)))
+
+    def _on_held_grid(self, d: Decomposition, matte_box, smoother: MapSmoother) -> Decomposition:
         """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
         only (finish() asks when the person is still): the person (the matte's box) inside the
         previous crop, which lies within this frame's own crop grown by its margin. A crop box that
@@ -348,7 +391,7 @@ class ClipRelighter:
         maps are resampled onto the held grid instead."""
         from relight.network.runtime import CROP_MARGIN
 
-        held = self.maps.state
+        held = smoother.state
         if held is None or d.mask is None or tuple(held["box"]) == tuple(d.box):
             return d
         box = Box(*held["box"])
@@ -362,8 +405,9 @@ class ClipRelighter:
             return d
         return _regridded(d, box, held["size"])
 
-    def _stabilised(self, d: Decomposition, shot_light: np.ndarray, still: np.ndarray) -> Decomposition:
-        """The frame's decomposition with smoothed maps, under the shot's light."""
+    def _stabilised(self, d: Decomposition, shot_light: np.ndarray, still: np.ndarray,
+                    smoother: MapSmoother) -> Decomposition:
+        """The frame's decomposition with smoothed maps (the person's own `smoother`), under the shot's light."""
         maps = {"transport": d.transport}
         if self.reliable is None:  # the geometry-first model's E is 0 (docs/model.md): nothing to smooth
             maps["residual"] = d.residual
@@ -371,7 +415,7 @@ class ClipRelighter:
         if d.mask is None:  # the network's own matte: smoothed with the maps
             maps["alpha"] = d.alpha[..., None]
         grey = grid_grey(d.photo_working)
-        smooth = self.maps.update(d.box, d.working_size, grey, d.alpha, maps, still)
+        smooth = smoother.update(d.box, d.working_size, grey, d.alpha, maps, still)
         transport = smooth["transport"]
         alpha = smooth["alpha"][..., 0] if "alpha" in smooth else d.alpha
         if self.reliable is not None:
@@ -383,3 +427,4 @@ class ClipRelighter:
             alpha=alpha,
             box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working, mask=d.mask,
             sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
+

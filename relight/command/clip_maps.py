@@ -1,5 +1,6 @@
 """The temporal filters of a clip (relight.command.clip): low-resolution maps and the person matte
-smoothed over frames, and the photo-consistent albedo of the geometry-first model.
+smoothed over frames, and the photo-consistent albedo of the geometry-first model; a frame's
+decomposition given the smoothed matte (with_mask) or moved onto a held grid (regridded).
 
 Maps live on a grid: the working-resolution crop `box` = (y0, y1, x0, x1) of the frame
 resized to `size` = (h, w). The previous frame's smoothed maps are resampled onto this
@@ -22,10 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from relight.network.decomposition import Decomposition
 from relight.person.box import Box
 from relight.person.mask_ops import box_mean
 
-__all__ = ["MapSmoother", "MatteSmoother", "Stillness", "grid_grey", "FILTER_MODES",
+__all__ = ["MapSmoother", "MatteSmoother", "Stillness", "grid_grey", "with_mask", "regridded", "FILTER_MODES",
            "AGREE_SCALE", "MATTE_AGREE_SCALE", "STILL_SCALE"]
 
 FILTER_MODES = ("ema", "flow")
@@ -291,6 +293,43 @@ class Stillness:
         gy, gx = grid_axes((b0 * q, (b0 + self.still.shape[0]) * q, c0 * q, (c0 + self.still.shape[1]) * q),
                            self.still.shape, box, size)
         return sample_separable(self.still[..., None], gy, gx)[0][..., 0]
+
+
+def with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
+    """`d` with another full-resolution matte (the smoothed one), its working-resolution alpha
+    resampled from it as decompose() does."""
+    from relight.network.resample import resize_linear
+
+    y0, y1, x0, x1 = d.box
+    h, w = d.working_size
+    alpha = np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0).astype(np.float32)
+    return Decomposition(albedo=d.albedo, transport=d.transport, residual=d.residual, light=d.light, alpha=alpha,
+                         box=d.box, working_size=d.working_size, photo=d.photo, photo_working=d.photo_working,
+                         mask=mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=d.network_alpha)
+
+
+def regridded(d: Decomposition, box: Box, size: tuple) -> Decomposition:
+    """`d` on another grid of its photo (the crop `box` resized to `size`): the network's maps
+    resampled bilinearly (edge values held past the old crop), the working photo cut and
+    resized again from the frame as decompose() does."""
+    from relight.network.resample import resize_linear
+
+    gy, gx = grid_axes(d.box, d.working_size, box, size)
+    h, w = d.working_size
+    gy, gx = np.clip(gy, 0, h - 1), np.clip(gx, 0, w - 1)
+    parts = [d.albedo, d.transport, d.residual, d.alpha[..., None]]
+    if d.network_alpha is not None:
+        parts.append(d.network_alpha[..., None])
+    out, _ = sample_separable(np.concatenate(parts, axis=2), gy, gx)
+    n = d.transport.shape[2]
+    split = np.cumsum([3, n, n, 1])
+    albedo, transport, residual, alpha = (np.ascontiguousarray(a) for a in np.split(out, split, axis=2)[:4])
+    network_alpha = np.ascontiguousarray(out[..., -1]) if d.network_alpha is not None else None
+    y0, y1, x0, x1 = box
+    photo_working = resize_linear(d.photo[y0:y1, x0:x1], *size)
+    return Decomposition(albedo=albedo, transport=transport, residual=residual, light=d.light, alpha=alpha[..., 0],
+                         box=box, working_size=tuple(size), photo=d.photo, photo_working=photo_working,
+                         mask=d.mask, sh_order=d.sh_order, person_matte=d.person_matte, network_alpha=network_alpha)
 
 
 def history_weight(window: float) -> float:
