@@ -147,6 +147,26 @@ def test_a_resumed_group_clip_continues_exactly(draft, group):
     assert second.record() == whole.record()
 
 
+def test_a_state_saved_before_tracking_continues_as_its_one_person(draft):
+    """A job checkpointed by the one-person code (its filters under the bare keys, no tracks) resumes
+    with that person as track 1 and the frames an uninterrupted run gives."""
+    frames = person_clip(6)
+    light = sh_light("studio", draft.sh_order)
+    whole = ClipRelighter(draft, light, threads=1, matte_method="selfie")
+    want = [whole.relight(f).image for f in frames]
+    first = ClipRelighter(draft, light, threads=1, matte_method="selfie")
+    for f in frames[:3]:
+        first.relight(f)
+    new = {"tracks", "tracks_ended", "track_next", "frame", "people_counts"}
+    old = {k: np.array(v) for k, v in first.state().items() if k not in new}
+    assert {"matte", "maps_box", "lights"} <= set(old)
+    second = ClipRelighter(draft, light, threads=1, matte_method="selfie")
+    second.load_state(old)
+    assert [t.number for t in second.tracker.tracks] == [1]
+    for f, expected in zip(frames[3:], want[3:]):
+        np.testing.assert_array_equal(second.relight(f).image, expected)
+
+
 def test_stability_zero_relights_a_group_as_relight_image_does(tmp_path, capsys, group):
     frames, _ = group
     src = write_frames(tmp_path / "in", frames[:2])
