@@ -130,6 +130,19 @@ def test_each_person_keeps_their_track_when_the_sizes_swap(draft, group):
                                   .astype(np.float32))
 
 
+def test_a_person_entering_and_leaving_gets_a_track_of_their_own(draft):
+    alone, _ = _group_clip(7, PEOPLE[:1])
+    both, _ = _group_clip(7)
+    frames = alone[:2] + both[2:5] + alone[5:]   # the right person walks in at frame 2, out at frame 5
+    runner = ClipRelighter(draft, sh_light("studio", draft.sh_order), threads=1, matte_method="selfie")
+    results = [runner.relight(f) for f in frames]
+    assert [r.cut for r in results] == [True] + [False] * 6  # one shot: the filters carry on
+    assert [sorted(p["track"] for p in r.people) for r in results] == [[1], [1], [1, 2], [1, 2], [1, 2], [1], [1]]
+    record = runner.record()
+    assert [(t["track"], t["frames"]) for t in record["tracks"]] == [(1, [0, 6]), (2, [2, 4])]
+    assert (record["found"], record["relit"]) == (2, 2)
+
+
 def test_a_resumed_group_clip_continues_exactly(draft, group):
     frames, _ = group
     light = sh_light("studio", draft.sh_order)
