@@ -93,7 +93,7 @@ def add_photo_options(p) -> None:
                    help="where the matte comes from without a mask: the person segmenter (default) or "
                         "the relighting network's own alpha head (for comparison)")
     p.add_argument("--person", type=bounded_int(1, 1000), default=None, metavar="N",
-                   help="which person when the photo shows several: 1 = the largest (default), 2 = the next, ...")
+                   help="relight only this person (1 = the largest, 2 = the next, ...); default: everyone, under one light")
     p.add_argument("--model", default=None, help="ONNX model (default: the quality preset's installed model)")
     p.add_argument("--quality", choices=[q.key for q in PRESETS], default=DEFAULT,
                    help="preset of relight/network/quality.py: model and working resolution ("
