@@ -154,6 +154,7 @@ def bands(staged: StagedPlanes, where: dict[str, int], progress: jobs.Progress, 
             raise ValueError("The layers to save contain NaN or Inf values.")
         progress.fraction = start + share * (r0 + rows) / h
         yield band.transpose(1, 2, 0)
+        del band  # the writer's now: not held while the next is read
 
 
 def save_layers_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken) -> str:
