@@ -150,3 +150,21 @@ def test_min_person_px_is_below_every_working_size():
 
     assert all(MIN_PERSON_PX < q.working_size for q in PRESETS)
     assert group_module.MIN_PERSON_PX == MIN_PERSON_PX
+
+
+def test_relight_light_is_the_light_of_everyone(tmp_path, capsys):
+    """`relight light` on a group photo: the photo's one light, fitted from every person (the record says
+    how many), which is the mean of the people's own estimates."""
+    from relight.cli import main
+
+    photo, _ = _pair(("obama", "biden"), 40)
+    path = tmp_path / "pair.png"
+    write_image(path, photo)
+    assert main(["light", str(path), "--quality", "draft", "--json", "--out", str(tmp_path / "light.exr")]) == 0
+    record = json.loads(capsys.readouterr().out.splitlines()[0])
+    assert record["people"]["found"] == 2 and record["people"]["relit"] == [1, 2]
+    from relight.files.photo import read_photo
+
+    group = decompose_people(Relighter(working_size=128), read_photo(path)[0], **DRAFT)  # the photo as saved
+    expected = np.mean([np.asarray(d.light, np.float64) for d in group.people], axis=0)
+    assert np.abs(np.asarray(record["coeffs"]) - expected).max() < 1e-6 * max(1.0, float(np.abs(expected).max()))

@@ -133,6 +133,19 @@ def decompose_options(args) -> dict:
     return dict(options, matte=args.matte, person=getattr(args, "person", None))
 
 
+def decompose_photo(relighter, image, mask, args):
+    """(the largest person's Decomposition, the Group of everyone or None) of a photo under the parsed
+    options: everyone under the photo's one light (relight.network.group) unless a mask, --matte network
+    or --person N says whom; then that one person alone."""
+    options = decompose_options(args)
+    if mask is None and options.pop("matte") == "person" and options.pop("person") is None:
+        from relight.network.group import decompose_people
+
+        group = decompose_people(relighter, image, **options)
+        return group.people[0], group
+    return relighter.decompose(image, mask, **decompose_options(args)), None
+
+
 def record(args, relighter, d) -> dict:
     """What was done to one photo (plain JSON values): the output's metadata and --json line."""
     stats = d.last_stats
@@ -186,20 +199,11 @@ def _process(relighter, photo_path: Path, out_path: Path, args, mask_path: str |
     import json
 
     image, mask = read.result() if read is not None else read_photo_and_mask(photo_path, mask_path, args.max_pixels)
-    options = decompose_options(args)
     # the light and --exposure were checked at the command's boundary (target_light, their argparse type)
     scale = 2.0 ** args.exposure
     shadows = getattr(args, "shadows", False)
-    group = None
-    if mask is None and options.pop("matte") == "person" and options.pop("person") is None:
-        from relight.network.group import decompose_people
-
-        group = decompose_people(relighter, image, **options)  # everyone, under one light
-        d = group.people[0]
-        relit = group.relight_checked(light, scale, shadows)
-    else:
-        d = relighter.decompose(image, mask, **decompose_options(args))
-        relit = d.relight_checked(light, scale, shadows=shadows)
+    d, group = decompose_photo(relighter, image, mask, args)
+    relit = (group or d).relight_checked(light, scale, shadows=shadows)
     stats = d.last_stats
     done = record(args, relighter, d)
     if group is not None:

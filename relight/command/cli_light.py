@@ -88,14 +88,14 @@ def run_light(args) -> int:
 
 def _write_light(args, photo: Path, out: Path) -> int:
     """run_light's work once the output is claimed: decompose, split or map the light, write, report."""
-    from relight.command.cli_image import decompose_options, open_relighter, photo_named, read_photo_and_mask
+    from relight.command.cli_image import decompose_photo, open_relighter, photo_named, read_photo_and_mask
     from relight.files.exr import write_exr
     from relight.lighting.light_map import irradiance_error, light_map
 
     relighter = open_relighter(args)
     image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
     with photo_named(photo):
-        decomposition = relighter.decompose(image, mask, **decompose_options(args))
+        decomposition, group = decompose_photo(relighter, image, mask, args)  # the light of everyone in it
     if args.lamp_free:
         result = light_map(decomposition.light, args.width)
         pixels, key = result.pixels, None
@@ -116,7 +116,7 @@ def _write_light(args, photo: Path, out: Path) -> int:
             "coeffs": np.round(decomposition.light, 9).tolist(),
             "key": None if key is None else key.as_json(),
             "map": {"width": width, "height": height, "irradiance_error": round(error, 6), **world},
-            "decomposition": decomposition.choices,
+            "decomposition": decomposition.choices, **({"people": group.record()} if group is not None else {}),
         }))
     else:
         lamp = "" if key is None else (f"; key light from azimuth {key.as_json()['azimuth_deg']:.0f}, elevation "
