@@ -189,7 +189,9 @@ def test_esc_while_writing_stops_the_write(relit, monkeypatch):
     name, folder = relit
     monkeypatch.setattr(bl_session, "updates_immediately", lambda: False)
     writer = _RecordingWriter(monkeypatch, H)
-    op, context = _ui_operator(name, folder / "cancelled.exr")
+    earlier = folder / "cancelled.exr"
+    earlier.write_bytes(b"an earlier save")  # what the file browser asked to overwrite
+    op, context = _ui_operator(name, earlier)
     assert op.execute(context) == {"RUNNING_MODAL"}
     job = op._job
     assert writer.writing.wait(30)  # the first rows are on their way to the file
@@ -201,7 +203,9 @@ def test_esc_while_writing_stops_the_write(relit, monkeypatch):
     # the band drawn when Esc came goes on, no other is drawn: less than the image reaches the writer
     esc = writer.events.index(("Esc",))
     assert writer.events[esc + 1:] == [("rows", save_layers.BAND_ROWS)], writer.events
-    assert list(folder.glob("*.exr")) == [] and list(folder.glob(".*")) == []  # no file, no temporary
+    # the earlier file kept whole, no temporary left
+    assert earlier.read_bytes() == b"an earlier save" and list(folder.glob("*.exr")) == [earlier]
+    assert list(folder.glob(".*")) == []
     assert op.reports[-1] == ({"WARNING"}, "Saving the layers cancelled: nothing was written.")
 
 
