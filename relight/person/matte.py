@@ -60,6 +60,7 @@ GUIDE_RADIUS = 2                        # guided-filter window radius, in grid p
 GUIDE_EPS = 1e-3                        # guided-filter regulariser (guide in [0, 1])
 ALPHA_FLOOR = 1.0 / 255                 # below: exactly background; above 1 - this: exactly person
 MIN_SIDE = 32                           # px: smaller photos cannot show a person to segment
+MIN_FILL = 0.2                          # of its box a person's mask covers at least (a person fills 0.4-0.7 of theirs)
 SELFIE_AGREEMENT = 0.25                 # mean selfie probability over a pose mask below which the
                                         # selfie model missed that person: the pose mask alone is used
 
@@ -254,6 +255,9 @@ def _people(small: np.ndarray, grid: np.ndarray, method: str, threads, registry_
         inside = pose > PERSON_THRESHOLD
         if np.count_nonzero(inside) < max(floor, SAME_PERSON * before):  # others hold most of it: one person twice
             continue
+        rows, cols = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
+        if np.count_nonzero(inside) < MIN_FILL * (rows[-1] + 1 - rows[0]) * (cols[-1] + 1 - cols[0]):
+            continue  # scraps strewn over others' edges and the background: no one's silhouette
         if own[inside].mean() < SELFIE_AGREEMENT:  # the selfie model missed this person
             people.append(pose.astype(np.float32))
         else:
