@@ -914,7 +914,7 @@ def test_automatic_mask_with_nobody_in_the_photo_says_so(addon, settings, tmp_pa
 
 def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, settings):
     settings.mask_mode = "AUTO"
-    settings.people_found = 2
+    settings.people_found, settings.people_relit = 2, 2
     status = bpy.context.window_manager.relight_photo_status
     status.running, status.stage, status.progress, status.elapsed = True, "Running the network", 0.42, 3.25
     try:
@@ -923,12 +923,13 @@ def test_panel_shows_the_person_list_and_the_stage_of_a_running_relight(addon, s
         assert ("prop", "person") in log
         from blender_addon.blender import bl_props
 
-        assert [item[0] for item in bl_props._person_items(settings, None)] == ["1", "2"]  # one per person
-        assert "2 people found; '.matte' shows the cut-out" in labels
+        # Everyone, then one per person
+        assert [item[0] for item in bl_props._person_items(settings, None)] == ["0", "1", "2"]
+        assert "2 people found, 2 relit; '.matte' shows the cut-out" in labels
         assert "Running the network: 42% (3.2 s)" in labels and "Esc cancels" in labels
     finally:
         status.running, status.stage, status.progress, status.elapsed = False, "", 0.0, 0.0
-        settings.people_found = 0
+        settings.people_found = settings.people_relit = 0
         settings.mask_mode = "NETWORK"
 
 

@@ -14,7 +14,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 
 from . import bl_dials, bl_images, bl_layers, bl_proxy, bl_saved, bl_session
-from ..worker import engine, jobs, save_layers, state, work
+from ..worker import engine, jobs, people, save_layers, state, work
 from ..logic import mask_choice, output_names, photo_pixels, quality
 from .bl_dials import schedule_refresh
 from .bl_layers import poll_layers, start_layers, write_layers_now
@@ -139,6 +139,7 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         settings.last_photo_id = session.photo_id
         if session.people:
             settings.people_found = session.people
+        settings.people_relit = len(people.people_of(session.decomposition)) if session.people else 0
         self._result = result
         self._pending = output_names.layers_in_order(result["buffers"])
 
@@ -160,7 +161,9 @@ class RELIGHT_PHOTO_OT_relight(bpy.types.Operator, WorkerOperator):
         session = self._result["session"]
         wall = time.monotonic() - self._started
         bl_proxy.refresh(session)  # its proxy in the 3D scene, if Compositing Setup made one, follows
-        message = (f"Relit '{session.source}' in {wall:.1f} s"
+        note = people.people_note(session.people, len(people.people_of(session.decomposition))) \
+            if session.mask_key == ("AUTO", str(work.EVERYONE)) else ""
+        message = (f"Relit '{session.source}'{note} in {wall:.1f} s"
                    f"{seconds_note(self._world_seconds, self._result['network_seconds'])}.")
         if self._plan.get("layers_later"):
             start_layers(session, self._result["dials"])
@@ -318,7 +321,8 @@ class RELIGHT_PHOTO_OT_save_layers(bpy.types.Operator, WorkerOperator):
         if not self.filepath:
             raise ValueError("Choose a file to save the layers to.")
         path = bpy.path.abspath(bpy.path.ensure_ext(self.filepath, ".exr"))
-        save_layers.check_layers_target(path, *session.photo.shape[:2])  # before seconds of work
+        save_layers.check_layers_target(path, *session.photo.shape[:2],  # before seconds of work
+                                        len(people.people_of(session.decomposition)))
         dials = current_dials(context, session)
         import threading
         from pathlib import Path

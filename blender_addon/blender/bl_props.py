@@ -28,11 +28,13 @@ _person_items_cache: list = []
 
 
 def _person_items(self, _context):
-    # as many entries as the last Relight found people (at least one)
+    # Everyone (the default), then as many people as the last Relight found (at least one)
     count = max(1, int(getattr(self, "people_found", 1)))
-    if len(_person_items_cache) != count:
-        _person_items_cache[:] = [("1", "Largest person", "The largest person in the photo")] + [
-            (str(i), f"Person {i}", f"The {i}th largest person in the photo") for i in range(2, count + 1)]
+    if len(_person_items_cache) != count + 1:
+        _person_items_cache[:] = [
+            ("0", "Everyone", "Everyone in the photo, relit together under the photo's one light"),
+            ("1", "Largest person", "The largest person in the photo alone")] + [
+            (str(i), f"Person {i}", f"The {i}th largest person in the photo alone") for i in range(2, count + 1)]
     return _person_items_cache
 
 
@@ -54,6 +56,9 @@ class RelightPhotoSettings(bpy.types.PropertyGroup):
                          description="Which person to relight (press Relight after choosing)")
     people_found: IntProperty(name="People Found", default=0, min=0,
                               description="How many people the last Relight found in the photo")
+    people_relit: IntProperty(name="People Relit", default=0, min=0,
+                              description="How many people the last Relight relit (Everyone: all found but "
+                                          "those too small)")
     light_kind: EnumProperty(
         name="Light",
         items=[("WORLD", "World", "The scene's World (environment texture or baked procedural sky)"),

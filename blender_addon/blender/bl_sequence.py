@@ -73,7 +73,7 @@ class RELIGHT_PHOTO_OT_relight_sequence(bpy.types.Operator, WorkerOperator):
                     augment=quality.preset(settings.quality).augment, light=light,
                     rotation=math.degrees(settings.rotation) + extra_rotation, exposure=settings.exposure,
                     stability=DEFAULT_STABILITY,
-                    person=int(settings.person) if settings.person.isdigit() else None)
+                    person=int(settings.person) or None if settings.person.isdigit() else None)  # 0: everyone
 
     def _start(self, context, press: tuple | None = None) -> None:
         from ..worker import state

@@ -31,7 +31,8 @@ class RELIGHT_PHOTO_PT_panel(bpy.types.Panel):
             box.prop(settings, "person")
             if settings.people_found:
                 found = settings.people_found
-                box.label(text=f"{found} {'person' if found == 1 else 'people'} found; "
+                relit = f", {settings.people_relit} relit" if settings.people_relit and found > 1 else ""
+                box.label(text=f"{found} {'person' if found == 1 else 'people'} found{relit}; "
                                "'.matte' shows the cut-out", icon="USER")
         if settings.mask_mode == "IMAGE":
             box.template_ID(settings, "mask_image", open="image.open")

@@ -136,6 +136,35 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     return decomposition
 
 
+def decompose_everyone(relighter, photo: np.ndarray, working_size: int, cancel: CancelToken | None = None,
+                       matte_method: str = "ensemble", **options):
+    """Everyone in the photo (relight.network.group.decompose_people: each person at their own crop,
+    the photo's one light from all of them) under the quality preset's `options`, as `relight image`
+    does without --person: the Decomposition alone when one person is relit, else a people.People.
+    Esc terminates a running network pass, as in decompose()."""
+    from relight.network.group import decompose_people
+    from relight.network.session import cancellable
+    from relight.person.matte import NoPersonError
+
+    from .people import People
+
+    networks = [relighter] + [relighter.member(name) for name in options.get("ensemble", ())]
+    if cancel is not None:
+        cancel.check()
+    try:
+        with cancellable(networks if cancel is not None else (), cancel.run_options() if cancel else None):
+            group = decompose_people(relighter, photo, matte_method=matte_method, working_size=working_size,
+                                     **options)
+    except NoPersonError:
+        raise ValueError(NO_PERSON) from None
+    except Exception:
+        if cancel is not None and cancel.cancelled:
+            cancel.stopped_inference = True
+            raise Cancelled() from None
+        raise
+    return group.people[0] if len(group.people) == 1 else People(group)
+
+
 NO_PERSON = ("No person was found in the photo: set Mask to Network Matte, Image Alpha or Other Image, "
              "or use a photo where a person is clearly visible.")
 
@@ -167,9 +196,17 @@ def preview_decomposition(decomposition, long_side: int):
     from relight.network.decomposition import Decomposition
     from relight.network.resample import fit_longest, resize_linear
 
+    from .people import People
+
     H, W = decomposition.size
     if max(H, W) <= 1.25 * long_side:
         return None
+    if isinstance(decomposition, People):  # each person over the same smaller photo, one light
+        from relight.network.group import Group
+
+        people = [preview_decomposition(d, long_side) for d in decomposition.people]
+        group = decomposition.group
+        return People(Group(people=people, left=group.left, count=group.count))
     h, w = fit_longest(H, W, long_side)
     box = decomposition.box.rescaled((H, W), (h, w))
     # every k-th pixel first (k = half the reduction): the area filter then reads

@@ -21,7 +21,7 @@ import tempfile
 
 import numpy as np
 
-from . import engine, jobs
+from . import engine, jobs, people
 from ..logic import pixel_buffers
 
 BAND_ROWS = 32  # rows per band: 7.7 MB of 15 float channels at 4000 px wide, compressed in tens of ms
@@ -36,14 +36,16 @@ WRITING = ("Writing the EXR file", 0.50)
 LAYERS_EXR_CHANNELS, STAGED_PLANES = 15, 14
 
 
-def channel_names() -> list[str]:
-    """The EXR's channels, in the order of a band's planes."""
+def channel_names(people: int = 1) -> list[str]:
+    """The EXR's channels, in the order of a band's planes; with more than one person relit, a matte
+    pass each after them (Person1.A the largest: they sum to Alpha.A)."""
     from relight.files.photo import LAYER_NAME
 
-    return [f"{LAYER_NAME}.{name}.{c}" for name, channels in PASSES for c in channels]
+    passes = PASSES + tuple((f"Person{k}", "A") for k in range(1, people + 1) if people > 1)
+    return [f"{LAYER_NAME}.{name}.{c}" for name, channels in passes for c in channels]
 
 
-def check_layers_target(path: str, height: int, width: int) -> None:
+def check_layers_target(path: str, height: int, width: int, people: int = 1) -> None:
     """ValueError, in the artist's words, when the layers cannot be written to `path`:
     checked before anything is computed (a 24 MP photo's layers take seconds)."""
     folder = os.path.dirname(path) or "."
@@ -53,7 +55,8 @@ def check_layers_target(path: str, height: int, width: int) -> None:
         raise ValueError(f"The folder '{folder}' does not exist: choose another place for the layers.")
     if not os.access(folder, os.W_OK):
         raise ValueError(f"The folder '{folder}' cannot be written to: choose another place for the layers.")
-    need = (LAYERS_EXR_CHANNELS // 2 + STAGED_PLANES) * 4 * height * width
+    mattes = people if people > 1 else 0  # a matte pass per person, written and staged
+    need = ((LAYERS_EXR_CHANNELS + mattes) // 2 + STAGED_PLANES + mattes) * 4 * height * width
     free = shutil.disk_usage(folder).free
     if free < need:
         raise ValueError(f"The disk holding '{folder}' has {free / 1e6:.0f} MB free; the layers need about "
@@ -97,6 +100,7 @@ def stage_maps(d, dials, staged: StagedPlanes, progress: jobs.Progress, check) -
     Relit.A is 1, a residual without E is 0)."""
     light, rotation, exposure, strength = dials
     h, w = d.size
+    everyone = people.people_of(d)
     prefix = channel_names()[0].rsplit(".", 2)[0]  # the render layer's name
     where: dict[str, int] = {}
     # a pooled RGBA buffer when one is kept (its planes taken as they are), else three planes of
@@ -129,16 +133,20 @@ def stage_maps(d, dials, staged: StagedPlanes, progress: jobs.Progress, check) -
                 continue
             d.layer(layer, coeffs, exposure, out=rgb)
             stage_rgb(layer.capitalize())
+        for k, person in enumerate(everyone if len(everyone) > 1 else (), 1):  # one matte pass per person
+            progress.enter(f"Making person {k}'s matte", LAYER_STAGES["residual"][1])
+            check()
+            where[f"{prefix}.Person{k}.A"] = staged.add(person.full_alpha(out=planes[0]))
     finally:
         if pooled is not None:  # nothing reads it any more
             pixel_buffers.BUFFERS.give(pooled)
     return where
 
 
-def bands(staged: StagedPlanes, where: dict[str, int], progress: jobs.Progress, check):
-    """[rows, W, C] bands from the top, the C channels in channel_names() order (each its own
+def bands(staged: StagedPlanes, where: dict[str, int], progress: jobs.Progress, check, names=None):
+    """[rows, W, C] bands from the top, the C channels in `names` (channel_names()) order (each its own
     array: a writer may hold a few while it compresses them)."""
-    names = channel_names()
+    names = names or channel_names()
     opaque = [i for i, name in enumerate(names) if name.endswith(".Relit.A")]  # the relit frame is the whole photo
     h, w = staged.height, staged.width
     start, share = WRITING[1], 0.99 - WRITING[1]
@@ -171,7 +179,8 @@ def save_layers_work(plan: dict, progress: jobs.Progress, token: engine.CancelTo
         where = stage_maps(d, plan["dials"], staged, progress, token.check)
         progress.enter(*WRITING)
         exr_threads()
-        write_exr_bands(tmp, channel_names(), h, w, bands(staged, where, progress, token.check),
+        names = channel_names(len(people.people_of(d)))  # a matte pass per person relit
+        write_exr_bands(tmp, names, h, w, bands(staged, where, progress, token.check, names),
                         compression=EXR_COMPRESSION)
         with plan["handover"]:  # Esc now or never: the main thread cancels under the same lock
             token.check()

@@ -14,8 +14,10 @@ import time
 import numpy as np
 
 from . import engine, jobs, state
+from .people import people_of
 from ..logic import light_sources, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality
 
+EVERYONE = 0  # the panel's Person "Everyone": all the people found, under the photo's one light
 PREVIEW_LONG_SIDE = 1024  # px: the screen-sized preview shown while a dial moves on a large photo
 
 
@@ -23,7 +25,9 @@ def make_mask(inputs: dict, pixels: photo_pixels.PhotoPixels, quality_key: str) 
     """(mask or None, people found or 0) on the worker: AUTO runs the person matte the
     quality preset names."""
     if inputs["mode"] == "AUTO":
-        return engine.person_matte(pixels.rgb, inputs["person"], quality.preset(quality_key).matte_method)
+        # Everyone with one person relit (a saved relight restored): that person is the largest
+        person = max(1, inputs["person"])
+        return engine.person_matte(pixels.rgb, person, quality.preset(quality_key).matte_method)
     alpha = pixels.alpha if inputs["use_photo_alpha"] else None
     # a mask image lies over the photo as Blender shows both (stored): upright, as the photo is read
     rgb, mask_alpha = (None if a is None else pixel_buffers.upright(a, pixels.orientation)
@@ -105,7 +109,11 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
         light = light_sources.preset_light(value, relighter.sh_order) if kind == "PRESET" else \
             light_sources.hdr_file_light(value, relighter.sh_order)
     previous = plan.get("previous")
-    if previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
+    everyone = plan["mask"]["mode"] == "AUTO" and plan["mask"]["person"] == EVERYONE
+    if everyone:  # the person matte and the network for each person at once (engine.decompose_everyone)
+        progress.enter("Finding the people in the photo", 0.05)
+        mask, people = None, 0
+    elif previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
             and plan["mask"]["mode"] == "AUTO" \
             and quality.preset(previous.quality).matte_method == quality.preset(plan["quality"]).matte_method:
         # the same photo, person and segmenter as its last Relight: the person matte would be the same again
@@ -118,7 +126,12 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     progress.enter(jobs.NETWORK_STAGE, 0.10)
     network_start = time.monotonic()
     options = quality.network_options(plan["quality"])
-    decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token, **options)
+    if everyone:
+        decomposition = engine.decompose_everyone(relighter, pixels.rgb, plan["long_side"], token,
+                                                  quality.preset(plan["quality"]).matte_method, **options)
+        people = getattr(decomposition, "count", 0) or decomposition.person_matte.count
+    else:
+        decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token, **options)
     light_decomposition = None
     if plan["light_reader"] is not None:
         progress.enter("Estimating the light of the other photo", 0.45)
@@ -226,6 +239,10 @@ def save_meta(session: state.PhotoSession) -> dict:
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
     """Write one photo's decomposition; a failure is appended to `failures` as (photo, reason)."""
+    if len(people_of(session.decomposition)) > 1:  # one saved decomposition holds one person
+        session.saved_to = ""
+        failures.append((session.source, "everyone relit together is not kept in the saved relight yet"))
+        return
     try:
         # a small photo is its own preview: kept too, so reopening shows the result without the file
         engine.save_decomposition(path, session.decomposition, meta, session.preview or session.decomposition)

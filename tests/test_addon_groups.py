@@ -1,0 +1,162 @@
+"""Relight Photo add-on: everyone in the photo (issue 47).
+
+Person "Everyone" (the default) relights every person the person matte finds with one press, under
+the photo's one light (relight.network.group, as `relight image` without --person); Person N relights
+that person alone; Save Layers writes the whole group's layers and one matte pass per person. The
+photo: two bundled people pasted apart on a smooth background (evaluation/pasted_groups._cutout),
+398 x 300; the person matte is the shipped one (Draft: its selfie segmenter finds both), the
+relighting network the tests' random-weight tiny model.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import bpy
+
+from blender_addon.blender import bl_light
+from blender_addon.logic import quality
+from blender_addon.worker import engine, people, save_layers
+from relight.files.exr import read_exr
+from addon_support import addon_in_empty_scene, draw_panel, photo_session, pixels
+
+H, W, GAP = 300, 398, 40
+
+
+def _write_two_people(path) -> None:
+    """obama_standing (260 px tall) and grace_hopper (200 px) standing 40 px apart, sRGB PNG."""
+    from PIL import Image
+
+    from evaluation.pasted_groups import _cutout
+
+    img = np.empty((H, W, 3), np.float32)
+    img[:] = np.linspace(0.55, 0.7, W)[None, :, None] * np.array([0.9, 0.95, 1.0])
+    x = GAP
+    for name, height in (("obama_standing", 260), ("grace_hopper", 200)):
+        rgb, alpha = _cutout(name, height)
+        w = rgb.shape[1]
+        under = img[H - height:, x:x + w]
+        img[H - height:, x:x + w] = rgb * alpha[..., None] + under * (1 - alpha[..., None])
+        x += w + GAP
+    assert x - GAP <= W
+    Image.fromarray(np.round(img * 255).astype(np.uint8), "RGB").save(path)
+
+
+@pytest.fixture
+def group_photo(model, tmp_path):
+    """The add-on in an empty scene, Mask Automatic at Draft with the tiny model and a turned studio
+    light; the two people's photo loaded. Yields its image name."""
+    with addon_in_empty_scene(tmp_path, model, mask_mode="AUTO", rotation=1.2, exposure=0.3, strength=1.0):
+        _write_two_people(tmp_path / "two.png")
+        yield bpy.data.images.load(str(tmp_path / "two.png")).name
+
+
+def _core_group(run):
+    """The two people as the core decomposes them for `relight image` (everyone, no --person)."""
+    from relight.network.group import decompose_people
+
+    s = bpy.context.scene.relight_photo
+    preset = quality.preset(s.quality)
+    return decompose_people(engine.open_relighter(run.model_path), run.photo, matte_method=preset.matte_method,
+                            working_size=preset.working_size, **quality.network_options(s.quality))
+
+
+def _mattes(run):
+    from relight.person.matte import mattes_of_checked_photo
+
+    return [m.alpha for m in mattes_of_checked_photo(run.photo, method=quality.preset(run.quality).matte_method)]
+
+
+def test_everyone_is_the_default_and_one_press_relights_both_under_one_light(group_photo):
+    name = group_photo
+    s = bpy.context.scene.relight_photo
+    assert s.person == "0"  # Everyone
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    run = photo_session(name)
+    assert isinstance(run.decomposition, people.People) and len(run.decomposition.people) == 2
+    assert (s.people_found, s.people_relit, run.people) == (2, 2, 2)
+    assert any("2 people found, 2 relit" in text for kind, text in draw_panel(name) if kind == "label")
+    assert bpy.context.window_manager.relight_photo_status.message.startswith(f"Relit '{name}' (2 people, one light) in")
+
+    first, second = _mattes(run)
+    relit = pixels(f"{name}.relit")[..., :3]
+    nobody = (first == 0) & (second == 0)
+    np.testing.assert_array_equal(relit[nobody], run.photo[nobody])  # the background is untouched
+    for matte in (first, second):  # each person's pixels change
+        inside = matte > 0.99
+        assert inside.sum() > 2000
+        assert np.abs(relit[inside] - run.photo[inside]).mean() > 0.02
+    # the image is the core's group relight (relight image, everyone): one light for both
+    group = _core_group(run)
+    np.testing.assert_array_equal(run.decomposition.people[0].light, run.decomposition.people[1].light)
+    np.testing.assert_allclose(run.decomposition.light, group.people[0].light, atol=1e-6)
+    light, rotation, exposure, _ = bl_light.current_dials(bpy.context, run)
+    want = group.relight_checked(np.asarray(engine.coefficients(run.decomposition, light, rotation), np.float64),
+                                 2.0 ** exposure)
+    np.testing.assert_allclose(relit, want, atol=1e-5)
+    # the alpha output is the mattes' sum, the cut-out shows both
+    np.testing.assert_allclose(pixels(f"{name}.alpha")[..., 0], first + second, atol=1e-6)
+    np.testing.assert_allclose(pixels(f"{name}.matte")[..., 3], first + second, atol=1e-6)
+
+    # a dial relights both again, no network run: +1 EV
+    s.exposure = 1.3
+    again = pixels(f"{name}.relit")[..., :3]
+    np.testing.assert_array_equal(again[nobody], run.photo[nobody])
+    coeffs = np.asarray(engine.coefficients(run.decomposition, light, rotation), np.float64)
+    np.testing.assert_allclose(again, group.relight_checked(coeffs, 2.0 ** 1.3), atol=1e-5)
+    for matte in (first, second):  # each person twice as bright, up to the soft edge's share of the photo
+        inside = matte > 0.99
+        assert 1.9 < again[inside].mean() / relit[inside].mean() < 2.01
+
+    # Photo Light -> World takes the group's one light
+    assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+
+
+def test_person_two_relights_only_them(group_photo):
+    name = group_photo
+    s = bpy.context.scene.relight_photo
+    s.people_found = 2
+    s.person = "2"
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    run = photo_session(name)
+    assert not isinstance(run.decomposition, people.People)
+    first, second = _mattes(run)
+    np.testing.assert_array_equal(run.decomposition.mask, second)
+    relit = pixels(f"{name}.relit")[..., :3]
+    outside = second == 0
+    np.testing.assert_array_equal(relit[outside], run.photo[outside])  # the first person too
+    assert (first[outside] > 0.99).sum() > 2000
+    inside = second > 0.99
+    assert np.abs(relit[inside] - run.photo[inside]).mean() > 0.02
+
+
+def test_save_layers_writes_the_group_and_a_matte_per_person(group_photo, tmp_path):
+    name = group_photo
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    run = photo_session(name)
+    target = tmp_path / "layers.exr"
+    assert bpy.ops.relight_photo.save_layers(filepath=str(target), image_name=name) == {"FINISHED"}
+    exr = read_exr(target)
+    assert sorted(exr) == sorted(save_layers.channel_names(2))
+    p1, p2 = exr["Relight.Person1.A"], exr["Relight.Person2.A"]
+    first, second = _mattes(run)
+    np.testing.assert_allclose(p1, first, atol=1e-6)
+    np.testing.assert_allclose(p2, second, atol=1e-6)
+    # the mattes sum to the Alpha pass (float32 round-off of one addition)
+    np.testing.assert_allclose(p1 + p2, exr["Relight.Alpha.A"], atol=1e-6)
+    # albedo, shading: the people's sum; shadow: the product of theirs; relit: the image
+    light, rotation, exposure, _ = bl_light.current_dials(bpy.context, run)
+    coeffs = engine.coefficients(run.decomposition, light, rotation)
+    a, b = run.decomposition.people
+    for layer in ("albedo", "shading"):
+        got = np.dstack([exr[f"Relight.{layer.capitalize()}.{c}"] for c in "RGB"])
+        np.testing.assert_allclose(got, a.layer(layer, coeffs, exposure) + b.layer(layer, coeffs, exposure),
+                                   atol=1e-5)
+    np.testing.assert_allclose(exr["Relight.Shadow.X"],
+                               a.shadow_layer(coeffs, exposure) * b.shadow_layer(coeffs, exposure), atol=1e-6)
+    relit = np.dstack([exr[f"Relight.Relit.{c}"] for c in "RGB"])
+    np.testing.assert_allclose(relit, pixels(f"{name}.relit")[..., :3], atol=1e-6)
+    assert math.isclose(float(exr["Relight.Relit.A"].min()), 1.0)
