@@ -160,3 +160,53 @@ def test_save_layers_writes_the_group_and_a_matte_per_person(group_photo, tmp_pa
     relit = np.dstack([exr[f"Relight.Relit.{c}"] for c in "RGB"])
     np.testing.assert_allclose(relit, pixels(f"{name}.relit")[..., :3], atol=1e-6)
     assert math.isclose(float(exr["Relight.Relit.A"].min()), 1.0)
+
+
+def _as_saved(run, photo, masks):
+    """The core's Group of the session's people with the maps the saved relight holds (float16:
+    engine._HALF; light and alpha float32) over `photo` with `masks`: what a restore must relight."""
+    from relight.network.decomposition import Decomposition
+    from relight.network.group import Group
+
+    def half(a):
+        return np.asarray(a).astype(np.float16).astype(np.float32)
+
+    return Group(people=[Decomposition(albedo=half(d.albedo), transport=half(d.transport), residual=half(d.residual),
+                                       light=d.light, alpha=d.alpha, box=d.box, working_size=d.working_size,
+                                       photo=photo, photo_working=half(d.photo_working), mask=mask,
+                                       sh_order=d.sh_order) for d, mask in zip(run.decomposition.people, masks)])
+
+
+def test_everyone_relit_survives_save_and_reopen_with_and_without_the_photo(group_photo, tmp_path):
+    from blender_addon.blender import bl_images
+    from blender_addon.worker import state
+
+    name = group_photo
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    run = photo_session(name)
+    masks = [d.mask for d in run.decomposition.people]
+    light, rotation, exposure, _ = bl_light.current_dials(bpy.context, run)
+    coeffs = np.asarray(engine.coefficients(run.decomposition, light, rotation), np.float64)
+    # with the photo: the photo read again, each person's matte found again; without it: the
+    # saved copy of the photo and the mattes (float16)
+    want = {"photo": _as_saved(run, run.photo, masks).relight_checked(coeffs, 2.0 ** exposure)}
+    saved_photo = run.photo.astype(np.float16).astype(np.float32)
+    want["saved"] = _as_saved(run, saved_photo, [m.astype(np.float16).astype(np.float32) for m in masks]) \
+        .relight_checked(coeffs, 2.0 ** exposure)
+    pid = bpy.data.images[name][bl_images.PHOTO_ID]
+    blend = tmp_path / "group.blend"
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(blend)) == {"FINISHED"}
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    run = state.SESSIONS[pid]
+    assert run.saved_to and isinstance(run.decomposition, people.People)  # restored, not relit
+    assert len(run.decomposition.people) == 2 and run.people == 2
+    for d, mask in zip(run.decomposition.people, masks):
+        np.testing.assert_array_equal(d.mask, mask)
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], want["photo"], atol=1e-5)
+    np.testing.assert_allclose(pixels(f"{name}.alpha")[..., 0], masks[0] + masks[1], atol=1e-6)
+    # without the photo: every output from the saved relight alone, both people relit
+    (tmp_path / "two.png").rename(tmp_path / "moved.png")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    run = state.SESSIONS[pid]
+    assert run.photo_missing and isinstance(run.decomposition, people.People)
+    np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], want["saved"], atol=1e-5)

@@ -259,19 +259,30 @@ def save_decomposition(path: str | os.PathLike, decomposition, meta: dict, previ
     """Write the decomposition (network outputs at working resolution, no photo; the
     preview's screen-sized photo when given) as a compressed .npz, atomically; `meta`
     (plain values) is stored with it."""
+    from .people import people_of
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {name: getattr(decomposition, name).astype(np.float16 if name in _HALF else np.float32)
-              for name in (*_HALF, "alpha", "light")}
-    info = dict(meta, format=SAVE_FORMAT, box=list(decomposition.box),
-                working_size=list(decomposition.working_size), sh_order=int(decomposition.sh_order))
+    # everyone relit (people.People): the largest person as one person is kept, each other person's
+    # maps beside it under "person<k>." and their crops in info["people"] (one entry per person)
+    everyone = people_of(decomposition)
+    arrays, info = {}, dict(meta, format=SAVE_FORMAT, box=list(everyone[0].box),
+                            working_size=list(everyone[0].working_size), sh_order=int(decomposition.sh_order))
+    for k, d in enumerate(everyone, 1):
+        arrays.update({_person_key(k, name): getattr(d, name).astype(np.float16 if name in _HALF else np.float32)
+                       for name in (*_HALF, "alpha", "light")})
+    if len(everyone) > 1:
+        info["count"] = int(decomposition.count)
+        info["people"] = [dict(index=int(d.choices.get("person", k)), box=list(d.box),
+                               working_size=list(d.working_size)) for k, d in enumerate(everyone, 1)]
     if preview is not None:
         # the screen-sized photo (and mask) too: reopening shows a relit preview
         # and the dials work before the full photo has been read again
         arrays["preview_photo"] = preview.photo.astype(np.float16)
-        if preview.mask is not None:
-            arrays["preview_mask"] = preview.mask.astype(np.float16)
-        info["preview_box"] = list(preview.box)
+        for k, p in enumerate(people_of(preview), 1):
+            if p.mask is not None:
+                arrays[_person_key(k, "preview_mask")] = p.mask.astype(np.float16)
+            (info if k == 1 else info["people"][k - 1])["preview_box"] = list(p.box)
     from relight.files.fileio import atomic_path
 
     with atomic_path(path, ".npz") as tmp:
@@ -316,23 +327,58 @@ def load_decomposition_arrays(path: str | os.PathLike) -> tuple[dict, dict]:
     return arrays, meta
 
 
+def _person_key(k: int, name: str) -> str:
+    """A saved array's key: person k's (1 = the largest) when everyone was relit; the first's as one person's."""
+    return name if k == 1 else f"person{k}.{name}"
+
+
 def rebuild_decomposition(arrays: dict, meta: dict, photo: np.ndarray, mask: np.ndarray | None,
-                          box: tuple | None = None):
-    """A relight.network.decomposition.Decomposition from saved arrays over the (re-read) photo."""
+                          box: tuple | None = None, k: int = 1):
+    """A relight.network.decomposition.Decomposition from saved arrays over the (re-read) photo
+    (`k`: which person of everyone relit)."""
     from relight.network.decomposition import Decomposition
 
-    return Decomposition(albedo=arrays["albedo"], transport=arrays["transport"], residual=arrays["residual"],
-                         light=arrays["light"], alpha=arrays["alpha"], box=tuple(box or meta["box"]),
-                         working_size=tuple(meta["working_size"]), photo=photo,
-                         photo_working=arrays["photo_working"], mask=mask, sh_order=int(meta["sh_order"]))
+    entry = meta if k == 1 else meta["people"][k - 1]
+    a = {name: arrays[_person_key(k, name)] for name in (*_HALF, "alpha", "light")}
+    d = Decomposition(albedo=a["albedo"], transport=a["transport"], residual=a["residual"],
+                      light=a["light"], alpha=a["alpha"], box=tuple(box or entry["box"]),
+                      working_size=tuple(entry["working_size"]), photo=photo,
+                      photo_working=a["photo_working"], mask=mask, sh_order=int(meta["sh_order"]))
+    if "people" in meta:
+        d.choices["person"] = int(meta["people"][k - 1]["index"])
+    return d
+
+
+def rebuild_people(arrays: dict, meta: dict, photo: np.ndarray, masks: list, preview: bool = False):
+    """Everyone relit (people.People) from saved arrays, each person over `photo` with their matte."""
+    from relight.network.group import Group
+
+    from .people import People
+
+    people = [rebuild_decomposition(arrays, meta, photo, mask, k=k,
+                                    box=tuple((meta if k == 1 else meta["people"][k - 1])["preview_box"])
+                                    if preview else None) for k, mask in enumerate(masks, 1)]
+    return People(Group(people=people, count=int(meta["count"])))
+
+
+def people_mattes(photo: np.ndarray, method: str) -> dict:
+    """{person index (1 = the largest): full-size matte} of everyone the person matte finds."""
+    from relight.person.linear_photo import check_photo
+    from relight.person.matte import MIN_SIDE, mattes_of_checked_photo
+
+    photo = check_photo(photo, MIN_SIDE, finite=False, purpose="a person matte")
+    return {m.index: m.alpha for m in mattes_of_checked_photo(photo, method=method)}
 
 
 def saved_preview(arrays: dict, meta: dict):
     """The preview decomposition kept by save_decomposition, or None."""
     if "preview_photo" not in arrays:
         return None
-    return rebuild_decomposition(arrays, meta, np.ascontiguousarray(arrays["preview_photo"]),
-                                 arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
+    photo = np.ascontiguousarray(arrays["preview_photo"])
+    if "people" in meta:
+        return rebuild_people(arrays, meta, photo, [arrays.get(_person_key(k, "preview_mask"))
+                                                    for k in range(1, len(meta["people"]) + 1)], preview=True)
+    return rebuild_decomposition(arrays, meta, photo, arrays.get("preview_mask"), box=tuple(meta["preview_box"]))
 
 
 def expected_seconds(model_path: str, working_size: int, augment=(), refine: int = 0,

@@ -14,7 +14,6 @@ import time
 import numpy as np
 
 from . import engine, jobs, state
-from .people import people_of
 from ..logic import light_sources, mask_choice, output_names, photo_checks, photo_pixels, pixel_buffers, quality
 
 EVERYONE = 0  # the panel's Person "Everyone": all the people found, under the photo's one light
@@ -185,8 +184,16 @@ def restore_work(plan: dict) -> tuple:
     pixels = plan["reader"]()
     if pixels.digest != meta["digest"]:
         raise PhotoChanged(f"The photo '{plan['source']}' changed since it was relit.")
-    mask, people = make_mask(plan["mask"], pixels, meta["quality"])  # the matte it was relit with
-    decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
+    if "people" in meta:  # everyone relit: each person's matte again (the photo's pixels are the same)
+        mattes = engine.people_mattes(pixels.rgb, quality.preset(meta["quality"]).matte_method)
+        wanted = [entry["index"] for entry in meta["people"]]
+        if not all(index in mattes for index in wanted):
+            raise ValueError(f"The people in '{plan['source']}' are not found as they were: press Relight.")
+        decomposition = engine.rebuild_people(plan["arrays"], meta, pixels.rgb, [mattes[i] for i in wanted])
+        people = len(mattes)
+    else:
+        mask, people = make_mask(plan["mask"], pixels, meta["quality"])  # the matte it was relit with
+        decomposition = engine.rebuild_decomposition(plan["arrays"], meta, pixels.rgb, mask)
     session = state.PhotoSession(
         photo_id=meta["photo_id"], source=plan["source"], photo=pixels.rgb, decomposition=decomposition,
         model_path=meta["model_path"], quality=meta["quality"], mask_key=tuple(meta["mask_key"]),
@@ -239,10 +246,6 @@ def save_meta(session: state.PhotoSession) -> dict:
 
 def save_one(session: state.PhotoSession, path: str, meta: dict, failures: list) -> None:
     """Write one photo's decomposition; a failure is appended to `failures` as (photo, reason)."""
-    if len(people_of(session.decomposition)) > 1:  # one saved decomposition holds one person
-        session.saved_to = ""
-        failures.append((session.source, "everyone relit together is not kept in the saved relight yet"))
-        return
     try:
         # a small photo is its own preview: kept too, so reopening shows the result without the file
         engine.save_decomposition(path, session.decomposition, meta, session.preview or session.decomposition)
