@@ -111,8 +111,16 @@ def test_everyone_is_the_default_and_one_press_relights_both_under_one_light(gro
         inside = matte > 0.99
         assert 1.9 < again[inside].mean() / relit[inside].mean() < 2.01
 
-    # Photo Light -> World takes the group's one light
+    # Photo Light -> World takes the group's one light; Compositing Setup's proxy is the largest person's
     assert bpy.ops.relight_photo.light_to_world(image_name=name) == {"FINISHED"}
+    assert bpy.ops.relight_photo.compositing_setup(image_name=name) == {"FINISHED"}
+    from blender_addon.blender import bl_images
+    from blender_addon.logic import person_proxy
+
+    catcher = next(o for o in bpy.data.objects if o.get(bl_images.OUTPUT_OF) == run.photo_id
+                   and o.get(bl_images.OUTPUT_LAYER) == "person")
+    largest = run.decomposition.people[0]
+    assert len(catcher.data.polygons) == int((largest.alpha >= person_proxy.COVERAGE).sum()) > 0
 
 
 def test_person_two_relights_only_them(group_photo):
