@@ -123,6 +123,23 @@ def test_everyone_is_the_default_and_one_press_relights_both_under_one_light(gro
     assert len(catcher.data.polygons) == int((largest.alpha >= person_proxy.COVERAGE).sum()) > 0
 
 
+def test_the_screen_sized_preview_of_a_large_photo_shows_everyone_relit(group_photo):
+    name = group_photo
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    run = photo_session(name)
+    # the preview a dial shows on a photo longer than 1.25 x its long side (here 200 px for 398)
+    preview = engine.preview_decomposition(run.decomposition, 200)
+    assert isinstance(preview, people.People) and preview.size == (151, 200) and len(preview.people) == 2
+    light, rotation, exposure, _ = bl_light.current_dials(bpy.context, run)
+    rgba = engine.relit_rgba(preview, light, rotation, exposure, 1.0).reshape(151, 200, 4)[::-1]
+    nobody = preview.mask == 0
+    np.testing.assert_array_equal(rgba[..., :3][nobody], preview.photo[nobody])
+    for person in preview.people:
+        inside = person.mask > 0.99
+        assert inside.sum() > 500
+        assert np.abs(rgba[..., :3][inside] - preview.photo[inside]).mean() > 0.02
+
+
 def test_person_two_relights_only_them(group_photo):
     name = group_photo
     s = bpy.context.scene.relight_photo
