@@ -146,6 +146,7 @@ def test_relight_again_shares_the_photo_and_its_person_matte_but_not_a_changed_p
     photo = bpy.data.images.load(str(addon / "grace.png"))
     settings = bpy.context.scene.relight_photo
     settings.mask_mode = "AUTO"
+    settings.person = "1"  # one person's matte is kept for the next press (Everyone finds everyone again)
     assert _relight(photo.name) == {"FINISHED"}
     pid = photo[bl_images.PHOTO_ID]
     first = state.SESSIONS[pid]
