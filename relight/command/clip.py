@@ -288,7 +288,7 @@ class ClipRelighter:
         seen, left = [], []
         for m in mattes:
             side = max(m.box.height, m.box.width)
-            if side < MIN_PERSON_PX:
+            if side < MIN_PERSON_PX and m.index > 1:  # the largest is always relit (relight.network.group)
                 left.append({"person": m.index, "px": int(side),
                              "why": f"too small to relight ({side} < {MIN_PERSON_PX} px)"})
                 continue

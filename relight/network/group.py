@@ -9,8 +9,8 @@ of those estimates, each person counted once, and every person's albedo then fol
 biases more than noise, and the pixels' weighting let the brightest person's bias win (on farm group
 scenes: +0.47 dB against +0.27 over each person's own light; docs/EVALUATION.md, "Group photos"). The people are composited over the photo one after the other,
 each adding alpha_i (person_i - photo) within its own box; their mattes sum to at most 1
-(relight.person.matte.mattes_of_checked_photo). A person too small to relight (MIN_PERSON_PX) is
-left as they are and the record says so. One person found: the one-person path, unchanged.
+(relight.person.matte.mattes_of_checked_photo). A person too small to relight (MIN_PERSON_PX) beside a
+larger one is left as they are and the record says so; the largest is always relit. One person found: the one-person path, unchanged.
 """
 
 from __future__ import annotations
@@ -79,15 +79,13 @@ def decompose_people(relighter, photo, *, matte_method: str = "ensemble", **opti
     for m in mattes:
         y0, y1, x0, x1 = m.box
         side = max(y1 - y0, x1 - x0)
-        if side < MIN_PERSON_PX:
+        if side < MIN_PERSON_PX and m.index > 1:  # the largest is always relit, as one person alone is
             left.append({"person": m.index, "px": int(side), "why": f"too small to relight ({side} < {MIN_PERSON_PX} px)"})
             continue
         d = relighter.decompose(photo, m.alpha, matte_method=matte_method, **options)
         d.person_matte = m
         d.choices.update(matte=f"person ({matte_method})", person=m.index)
         people.append(d)
-    if not people:
-        raise segmenter.NoPersonError(f"every person found is too small to relight (under {MIN_PERSON_PX} px)")
     if len(people) > 1:
         light = joint_light(people)
         people = [d.with_light(light) for d in people]
