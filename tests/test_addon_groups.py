@@ -235,3 +235,28 @@ def test_everyone_relit_survives_save_and_reopen_with_and_without_the_photo(grou
     run = state.SESSIONS[pid]
     assert run.photo_missing and isinstance(run.decomposition, people.People)
     np.testing.assert_allclose(pixels(f"{name}.relit")[..., :3], want["saved"], atol=1e-5)
+
+
+def test_relight_again_under_everyone_does_not_look_for_the_people_again(group_photo, monkeypatch):
+    """A second press on the same photo under Everyone reuses the people the first found (the person
+    matte is not run again) and gives the same people; another segmenter looks for them again."""
+    from relight.person import matte as segmenter
+
+    name = group_photo
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    first = photo_session(name)
+    found, find = [], segmenter.mattes_of_checked_photo
+    monkeypatch.setattr(segmenter, "mattes_of_checked_photo", lambda *a, **k: found.append(1) or find(*a, **k))
+    s = bpy.context.scene.relight_photo
+    s.rotation = math.radians(60.0)
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    again = photo_session(name)
+    assert found == [] and isinstance(again.decomposition, people.People)
+    assert [m.alpha is n.alpha for m, n in zip(again.decomposition.group.mattes, first.decomposition.group.mattes)] \
+        == [True, True]
+    from relight.network.quality import PRESETS
+
+    other = next(p for p in PRESETS if p.matte_method != quality.preset(s.quality).matte_method)
+    s.quality = other.key.upper()
+    assert bpy.ops.relight_photo.relight(image_name=name, synchronous=True) == {"FINISHED"}
+    assert found == [1]

@@ -168,3 +168,18 @@ def test_relight_light_is_the_light_of_everyone(tmp_path, capsys):
     group = decompose_people(Relighter(working_size=128), read_photo(path)[0], **DRAFT)  # the photo as saved
     expected = np.mean([np.asarray(d.light, np.float64) for d in group.people], axis=0)
     assert np.abs(np.asarray(record["coeffs"]) - expected).max() < 1e-6 * max(1.0, float(np.abs(expected).max()))
+
+
+def test_mattes_found_before_are_not_looked_for_again(relighter, monkeypatch):
+    """decompose_people(mattes=group.mattes): the same people, bit for bit, without the segmenters."""
+    photo, _ = _pair(("obama", "biden"), 40)
+    first = decompose_people(relighter, photo, **DRAFT)
+
+    def segment(*args, **kwargs):
+        raise AssertionError("the person matte ran again")
+
+    monkeypatch.setattr(segmenter, "mattes_of_checked_photo", segment)
+    again = decompose_people(relighter, photo, mattes=first.mattes, **DRAFT)
+    light = np.asarray(sh_light("sunset", 4), np.float64)
+    assert again.count == first.count == len(first.mattes) == 2
+    assert np.array_equal(again.relight_checked(light, 1.0), first.relight_checked(light, 1.0))

@@ -137,10 +137,11 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
 
 
 def decompose_everyone(relighter, photo: np.ndarray, working_size: int, cancel: CancelToken | None = None,
-                       matte_method: str = "ensemble", **options):
+                       matte_method: str = "ensemble", mattes: list | None = None, **options):
     """Everyone in the photo (relight.network.group.decompose_people: each person at their own crop,
     the photo's one light from all of them) under the quality preset's `options`, as `relight image`
     does without --person: the Decomposition alone when one person is relit, else a people.People.
+    `mattes`: the people's mattes found by the last press on this photo (not looked for again).
     Esc terminates a running network pass, as in decompose()."""
     from relight.network.group import decompose_people
     from relight.network.session import cancellable
@@ -154,7 +155,7 @@ def decompose_everyone(relighter, photo: np.ndarray, working_size: int, cancel: 
     try:
         with cancellable(networks if cancel is not None else (), cancel.run_options() if cancel else None):
             group = decompose_people(relighter, photo, matte_method=matte_method, working_size=working_size,
-                                     **options)
+                                     mattes=mattes, **options)
     except NoPersonError:
         raise ValueError(NO_PERSON) from None
     except Exception:

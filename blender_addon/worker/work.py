@@ -35,6 +35,17 @@ def make_mask(inputs: dict, pixels: photo_pixels.PhotoPixels, quality_key: str) 
                                 inputs["name"]), 0
 
 
+def mattes_found_before(decomposition) -> list | None:
+    """Everyone's person mattes of the last Relight of this photo under Everyone (a group's, or the one
+    person found), for the next press not to look for the people again; None when not all are known."""
+    group = getattr(decomposition, "group", None)
+    if group is not None:
+        mattes = list(getattr(group, "mattes", ()))
+        return mattes if mattes and len(mattes) == group.count else None
+    matte = getattr(decomposition, "person_matte", None)
+    return [matte] if matte is not None and matte.count == 1 else None
+
+
 def mask_key(inputs: dict) -> tuple:
     """What the mask was made from: (mode, mask image name, or the person's number for AUTO)."""
     return (inputs["mode"], str(inputs["person"]) if inputs["mode"] == "AUTO" else inputs["name"])
@@ -109,12 +120,15 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
             light_sources.hdr_file_light(value, relighter.sh_order)
     previous = plan.get("previous")
     everyone = plan["mask"]["mode"] == "AUTO" and plan["mask"]["person"] == EVERYONE
+    same_matte = previous is not None and previous.digest == pixels.digest \
+        and previous.mask_key == mask_key(plan["mask"]) and plan["mask"]["mode"] == "AUTO" \
+        and quality.preset(previous.quality).matte_method == quality.preset(plan["quality"]).matte_method
+    found_before = mattes_found_before(previous.decomposition) if everyone and same_matte else None
     if everyone:  # the person matte and the network for each person at once (engine.decompose_everyone)
-        progress.enter("Finding the people in the photo", 0.05)
+        if found_before is None:
+            progress.enter("Finding the people in the photo", 0.05)
         mask, people = None, 0
-    elif previous is not None and previous.digest == pixels.digest and previous.mask_key == mask_key(plan["mask"]) \
-            and plan["mask"]["mode"] == "AUTO" \
-            and quality.preset(previous.quality).matte_method == quality.preset(plan["quality"]).matte_method:
+    elif same_matte:
         # the same photo, person and segmenter as its last Relight: the person matte would be the same again
         mask, people = previous.decomposition.mask, previous.people
     else:
@@ -127,7 +141,8 @@ def relight_work(plan: dict, progress: jobs.Progress, token: engine.CancelToken)
     options = quality.network_options(plan["quality"])
     if everyone:
         decomposition = engine.decompose_everyone(relighter, pixels.rgb, plan["long_side"], token,
-                                                  quality.preset(plan["quality"]).matte_method, **options)
+                                                  quality.preset(plan["quality"]).matte_method, found_before,
+                                                  **options)
         people = getattr(decomposition, "count", 0) or decomposition.person_matte.count
     else:
         decomposition = engine.decompose(relighter, pixels.rgb, mask, plan["long_side"], token, **options)

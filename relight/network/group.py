@@ -37,6 +37,7 @@ class Group:
     people: list[Decomposition]
     left: list[dict] = field(default_factory=list)
     count: int = 0
+    mattes: list = field(default_factory=list, repr=False)   # everyone's PersonMatte, found or given
 
     def record(self) -> dict:
         """What was done, for the output's metadata: people found, relit (1 = the largest), left."""
@@ -69,12 +70,15 @@ def joint_light(people: list[Decomposition]) -> np.ndarray:
     return np.mean([np.asarray(d.light, np.float64) for d in people], axis=0).astype(np.float32)
 
 
-def decompose_people(relighter, photo, *, matte_method: str = "ensemble", **options) -> Group:
+def decompose_people(relighter, photo, *, matte_method: str = "ensemble", mattes: list | None = None,
+                     **options) -> Group:
     """Every person in `photo` (linear float32 [H, W, 3]) decomposed at their own crop and working size
     (Relighter.decompose's `options`, as for one person), the photo's one light fitted from all of
-    them; NoPersonError when there is nobody."""
+    them; NoPersonError when there is nobody. `mattes`: the people's PersonMattes of this photo found
+    before (a Group's `mattes`: the add-on's next press on the same photo), not looked for again."""
     photo = check_photo(photo, segmenter.MIN_SIDE, finite=False, purpose="a person matte")
-    mattes = segmenter.mattes_of_checked_photo(photo, method=matte_method, threads=relighter._open["threads"])
+    if mattes is None:
+        mattes = segmenter.mattes_of_checked_photo(photo, method=matte_method, threads=relighter._open["threads"])
     people, left = [], []
     for m in mattes:
         y0, y1, x0, x1 = m.box
@@ -89,4 +93,4 @@ def decompose_people(relighter, photo, *, matte_method: str = "ensemble", **opti
     if len(people) > 1:
         light = joint_light(people)
         people = [d.with_light(light) for d in people]
-    return Group(people=people, left=left, count=len(mattes))
+    return Group(people=people, left=left, count=len(mattes), mattes=list(mattes))
