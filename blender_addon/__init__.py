@@ -1,10 +1,10 @@
 """Relight Photo: relight a person in a photo from Blender's Image Editor.
 
-The Blender-facing modules (bl_*, in blender/) are thin; the logic lives in plain-Python
-modules (worker/, logic/ and beside this file: output_names, photo_pixels, photo_checks, pixel_buffers, mask_choice,
-light_sources, work, quality, jobs, state, engine, sequence, photo_light, build,
-manifest) that import
-without bpy, so `python -m blender_addon.build` runs outside Blender.
+The Blender-facing modules (bl_*, in blender/) are thin; everything else is plain Python that imports
+without bpy: logic/ (the add-on's decisions: photo checks and pixels, masks, light sources, quality,
+output names, the photo's light, the person proxy's mesh), worker/ (the work off Blender's main thread:
+engine, jobs, state, work, people, save_layers, sequence) and, beside this file, build and manifest, so
+`python -m blender_addon.build` runs outside Blender.
 """
 
 _REGISTERED = []
