@@ -35,6 +35,19 @@ def write_person_png(path: Path, with_alpha: bool = False) -> None:
         Image.fromarray(rgb, "RGB").save(path)
 
 
+def cube(location, size: float):
+    """A cube mesh object of edge `size` (m) centred at `location`, linked to the scene."""
+    mesh = bpy.data.meshes.new("cube")
+    h = size / 2
+    corners = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    mesh.from_pydata(corners, [], faces)
+    obj = bpy.data.objects.new("cube", mesh)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
 def new_node_world(name: str):
     """A World with a node tree on every Blender: 5.0+ always has one, 4.2 - 4.5 only with use_nodes."""
     world = bpy.data.worlds.new(name)

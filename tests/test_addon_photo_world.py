@@ -22,7 +22,7 @@ from relight.files import exr
 from relight.lighting import sh
 from relight.lighting.light import directional_light
 from relight.lighting.key_light import split_light
-from addon_support import H, W, draft_photo, photo_session, relit_photo, world_map_pixels
+from addon_support import H, W, cube, draft_photo, photo_session, relit_photo, world_map_pixels
 
 
 def _refusal(operator, name) -> str:
@@ -198,16 +198,6 @@ def test_compositing_setup_pressed_again_keeps_the_resolution_percentage(addon, 
 
 # ------------------------------------------------------------------ a render over the photo
 
-def _cube(location, size):
-    mesh = bpy.data.meshes.new("cube")
-    h = size / 2
-    corners = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
-    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    mesh.from_pydata(corners, [], faces)
-    obj = bpy.data.objects.new("cube", mesh)
-    obj.location = location
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
 
 
 def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(addon, model):
@@ -222,7 +212,7 @@ def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(ad
     camera = scene.camera.data
     # a 1 m cube on the floor, 8 m ahead: in the photo camera (f = W * lens / sensor pixels, the
     # horizon on the middle row) its base is at row H/2 + f * 1.5 / 7.5, its sides at W/2 -+ f * 0.5 / 7.5
-    _cube((0.0, 8.0, 0.5), 1.0)
+    cube((0.0, 8.0, 0.5), 1.0)
     f = W * camera.lens / camera.sensor_width
     base = H / 2 + f * photo_light.CAMERA_HEIGHT / 7.5
     half = f * 0.5 / 7.5

@@ -24,7 +24,7 @@ from blender_addon.blender import bl_images
 from blender_addon.logic import person_proxy
 from relight.files import exr
 from relight.lighting.light import directional_light
-from addon_support import H, W, draft_photo, photo_session, write_person_png
+from addon_support import H, W, cube, draft_photo, photo_session, write_person_png
 
 SAMPLES = 8
 SUN = dict(azimuth_deg=-45.0, elevation_deg=30.0)  # from the camera's left, in front of the person
@@ -185,16 +185,6 @@ def _render(folder, tag: str) -> np.ndarray:
     return np.stack([planes[c] for c in "RGB"], -1)
 
 
-def _cube(location, size):
-    mesh = bpy.data.meshes.new("cube")
-    h = size / 2
-    corners = [(x, y, z) for x in (-h, h) for y in (-h, h) for z in (-h, h)]
-    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    mesh.from_pydata(corners, [], faces)
-    obj = bpy.data.objects.new("cube", mesh)
-    obj.location = location
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
 
 
 def _ellipsoid_relief(alpha: np.ndarray) -> np.ndarray:
@@ -286,8 +276,8 @@ def test_a_cg_object_between_the_sun_and_the_person_darkens_the_person(addon, mo
     alone = _ratio(_render(addon, "with"), photo)
     points = np.array([tuple(person.matrix_world @ v.co) for v in person.data.vertices])
     middle = mathutils.Vector(points.mean(axis=0))
-    cube = _cube(middle + 2.5 * toward_sun, 0.6)
-    r, c = _pixel(cube.location)
+    blocker = cube(middle + 2.5 * toward_sun, 0.6)
+    r, c = _pixel(blocker.location)
     assert not (0 <= r < H and 0 <= c < W)  # the cube itself is out of the frame
     cube_with = _ratio(_render(addon, "cube_with"), photo)
     for obj in objects.values():

@@ -138,12 +138,12 @@ def decompose_photo(relighter, image, mask, args):
     options: everyone under the photo's one light (relight.network.group) unless a mask, --matte network
     or --person N says whom; then that one person alone."""
     options = decompose_options(args)
-    if mask is None and options.pop("matte") == "person" and options.pop("person") is None:
+    if mask is None and options["matte"] == "person" and options["person"] is None:
         from relight.network.group import decompose_people
 
-        group = decompose_people(relighter, image, **options)
+        group = decompose_people(relighter, image, **{k: v for k, v in options.items() if k not in ("matte", "person")})
         return group.people[0], group
-    return relighter.decompose(image, mask, **decompose_options(args)), None
+    return relighter.decompose(image, mask, **options), None
 
 
 def record(args, relighter, d) -> dict:

@@ -59,11 +59,6 @@ class Group:
             d.relight_checked(light, scale, out=out, shadows=shadows, accumulate=True)
         return out
 
-    @property
-    def last_stats(self):
-        """The largest person's last relight's statistics (what a one-person record shows)."""
-        return self.people[0].last_stats
-
 
 def joint_light(people: list[Decomposition]) -> np.ndarray:
     """The one light [n, 3] of the module docstring: the mean of each person's own estimate."""

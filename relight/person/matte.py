@@ -181,9 +181,14 @@ def mattes_of_checked_photo(photo: np.ndarray, *, threads: int | None = None, re
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     small, grid, people = _found(photo, method, threads, registry_path)
     mattes = [_full_matte(small, grid, p, refine, photo.shape[:2], i, len(people)) for i, p in enumerate(people, 1)]
-    total = np.sum([m.alpha for m in mattes], axis=0) if len(mattes) > 1 else np.zeros(1)
-    for m in mattes if (total > 1.0).any() else ():
-        m.alpha[total > 1.0] /= total[total > 1.0]
+    if len(mattes) > 1:
+        total = mattes[0].alpha.copy()  # summed in place: one full-size array however many people
+        for m in mattes[1:]:
+            total += m.alpha
+        over = total > 1.0
+        if over.any():
+            for m in mattes:
+                m.alpha[over] /= total[over]
     return mattes
 
 

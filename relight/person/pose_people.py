@@ -150,18 +150,19 @@ def pose_people(detector, pose_session, small: np.ndarray, grid_shape, k: int, f
     h, w = grid_shape
     image = small
     poses: list[np.ndarray] = []
+    known: list[np.ndarray] = []  # each found person's mask, grown: made once, compared with every candidate
     for _ in range(MAX_PEOPLE):
         fresh = []
-        for keypoints, score, _ in candidates(detector, image, DETECT_SCORE if not poses else REDETECT_AGREED):
+        for keypoints, score in candidates(detector, image, DETECT_SCORE if not poses else REDETECT_AGREED):
             mask = pose_mask(pose_session, small, keypoints, (h, w), k)
             inside = mask > threshold
             if np.count_nonzero(inside) < floor:
                 continue
             if poses and score < REDETECT_SCORE and (selfie is None or selfie[inside].mean() < threshold):
                 continue  # a weak second look (people painted out) that the selfie model does not back
-            known = [dilate(m > threshold, keep_radius) for m in poses + fresh]
             if max((np.count_nonzero(inside & m) / np.count_nonzero(inside) for m in known), default=0.0) < SAME_PERSON:
                 fresh.append(mask)  # mostly outside everyone found: someone new
+                known.append(dilate(inside, keep_radius))
         if not fresh:
             break
         poses += fresh
@@ -171,8 +172,8 @@ def pose_people(detector, pose_session, small: np.ndarray, grid_shape, k: int, f
     return poses
 
 
-def candidates(detector, image: np.ndarray, min_score: float) -> list[tuple[np.ndarray, float, bool]]:
-    """(keypoints in the image's pixels, score, seen whole) of the people the detector sees in the whole
+def candidates(detector, image: np.ndarray, min_score: float) -> list[tuple[np.ndarray, float]]:
+    """(keypoints in the image's pixels, score) of the people the detector sees in the whole
     image (at min_score) and in square windows half a side apart, WINDOW_SCALES of its shorter side (at
     REDETECT_AGREED at least): letterboxed whole, a row of five people leaves each a few detector
     pixels, and a small person beside a tall one is missed. The whole image's first, then by score."""
@@ -190,4 +191,4 @@ def candidates(detector, image: np.ndarray, min_score: float) -> list[tuple[np.n
             for keypoints in detect(detector, image[y:y + side, x:x + side], max(min_score, REDETECT_AGREED), scores):
                 found.append(keypoints + np.array([x, y], np.float64))
     order = list(range(whole)) + sorted(range(whole, len(found)), key=lambda i: -scores[i])
-    return [(found[i], scores[i], i < whole) for i in order]
+    return [(found[i], scores[i]) for i in order]
