@@ -12,8 +12,8 @@ PYTHON313 ?= $(firstword $(foreach p,$(wildcard $(HOME)/.pyenv/versions/3.13*/bi
 # what runs under the other Blenders: the add-on (install, operators, save and reopen) and the golden
 # relight; under 5.2 also the farm's Blender layer (Cycles AOVs, World mapping, skies; the farm uses
 # Blender 5.0's API, so not 4.2; its bodies need torch, which Python 3.13 lacks here: -m "not anny")
-ADDON_TESTS = $(wildcard tests/test_addon_*.py) tests/test_relit_golden.py
-FARM_BPY_TESTS = tests/test_blender_mapping.py tests/test_farm_scene.py -m "not anny"
+ADDON_TESTS = $(wildcard tests/blender_addon/test_addon_*.py) tests/relight/network/test_relit_golden.py
+FARM_BPY_TESTS = tests/farm/test_blender_mapping.py tests/farm/test_farm_scene.py -m "not anny"
 
 .PHONY: demo test fuzz bench clean-venv
 
@@ -52,5 +52,5 @@ clean-venv:
 # 4 GiB address-space limit (an allocation sized by a forged header fails the run) and an
 # hour's timeout; prints the cases and the outcomes by type.
 fuzz: $(STAMP)
-	ulimit -v 4194304 && RELIGHT_FUZZ_PROFILE=fuzz PYTHONPATH=tests timeout 3600 \
-		$(PY) -m pytest -q -p fuzz_support tests/test_fuzz_loaders.py tests/test_fuzz_sh.py tests/test_fuzz_cli.py tests/test_fuzz_video.py
+	ulimit -v 4194304 && RELIGHT_FUZZ_PROFILE=fuzz PYTHONPATH=tests/support timeout 3600 \
+		$(PY) -m pytest -q -p fuzz_support tests/relight/files/test_fuzz_loaders.py tests/relight/lighting/test_fuzz_sh.py tests/relight/command/test_fuzz_cli.py tests/relight/command/test_fuzz_video.py

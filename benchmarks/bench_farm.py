@@ -110,7 +110,7 @@ def warm_text(row: dict) -> str:
 
 
 def runner_only(workers: int, scenes: int, tmp_root) -> dict:
-    """The runner's own cost per scene: tests/farm_fault_job.py writes an 8x8 scene at once,
+    """The runner's own cost per scene: tests/support/farm_fault_job.py writes an 8x8 scene at once,
     so what remains is dispatch, the worker round trip, validation and bookkeeping."""
     with tempfile.TemporaryDirectory(prefix="bench_runner_", dir=tmp_root) as tmp:
         out = Path(tmp) / "out"
@@ -118,7 +118,7 @@ def runner_only(workers: int, scenes: int, tmp_root) -> dict:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH")) if p)
         env["FARM_FAULT_DIR"] = tmp
         command = [sys.executable, "-m", "farm", "--out", str(out), "--scenes", str(scenes), "--seed", "0",
-                   "--workers", str(workers), "--recycle", "1000", "--job-module", "tests.farm_fault_job",
+                   "--workers", str(workers), "--recycle", "1000", "--job-module", "tests.support.farm_fault_job",
                    "--no-progress"]
         r = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True)
         if r.returncode != 0:
@@ -145,7 +145,7 @@ def main() -> None:
                         "alternating with this one; rows are labelled")
     p.add_argument("--rounds", type=int, default=1, help="alternating rounds over the trees")
     p.add_argument("--runner-only", type=int, default=0, metavar="N",
-                   help="instead: N instant scenes (tests/farm_fault_job.py) to time the runner itself")
+                   help="instead: N instant scenes (tests/support/farm_fault_job.py) to time the runner itself")
     args = p.parse_args()
     if args.runner_only:
         rows = [runner_only(int(w), args.runner_only, args.tmp) for w in args.workers.split(",")]

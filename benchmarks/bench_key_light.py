@@ -107,7 +107,7 @@ def _material(bpy, name, glossy):
 
 
 def _cycles_support():
-    """tests/cycles_support.py: the Cycles scenes the tests build (imports bpy)."""
+    """tests/support/cycles_support.py: the Cycles scenes the tests build (imports bpy)."""
     import sys
 
     if str(REPO / "tests") not in sys.path:

@@ -7,7 +7,7 @@ be negative. For three sets of lights (the 18 bundled presets projected at
 order 4; with --data, the shipped model's estimates on the held-out scenes'
 path-traced images, the scene's alpha as the mask; three extreme lights: a
 delta, a white directional light without ambient, the camera-left light of
-tests/test_addon_photo_world_cycles.py), each way of making a map >= 0 is scored by
+tests/blender_addon/test_addon_photo_world_cycles.py), each way of making a map >= 0 is scored by
 the irradiance error of its map against the light's SH irradiance
 (relight.lighting.light_map.irradiance_error, relative RMS over all normals) and by how
 often it needed clamping:

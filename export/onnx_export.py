@@ -25,7 +25,7 @@ from relight.models import (CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_
 
 OPSET = 17
 DEFAULT_TRAINING_DATA = "unspecified (weights not trained by this package's pipeline)"
-PARITY_TOLERANCE = 1e-4  # fp32 torch vs onnxruntime: summation order only (tests/test_export.py derives it)
+PARITY_TOLERANCE = 1e-4  # fp32 torch vs onnxruntime: summation order only (tests/export/test_export.py derives it)
 REAL_PHOTO = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples" / "astronaut.jpg"
 
 

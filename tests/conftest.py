@@ -5,7 +5,7 @@ import pytest
 
 @pytest.fixture(scope="session")
 def model(tmp_path_factory):
-    """The tests' tiny exported model (tests/tiny_model.py: random weights, SH order 4), made once
+    """The tests' tiny exported model (tests/support/tiny_model.py: random weights, SH order 4), made once
     per session, as the path string a command line takes; a module that needs another model makes
     it under another fixture's name."""
     from tiny_model import make_tiny_model
@@ -21,7 +21,7 @@ def addon_settings():
 
 @pytest.fixture
 def addon(model, tmp_path, addon_settings):
-    """The add-on registered in an empty scene (tests/addon_support.addon_in_empty_scene): the person
+    """The add-on registered in an empty scene (tests/support/addon_support.addon_in_empty_scene): the person
     photo in tmp_path/person.png, the panel set to the tiny model and `addon_settings`; yields tmp_path."""
     from addon_support import addon_in_empty_scene
     with addon_in_empty_scene(tmp_path, model, **addon_settings):

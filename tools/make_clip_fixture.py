@@ -1,4 +1,4 @@
-"""Cut a small test fixture out of a farm clip: tests/data/farm_clip.npz (tests/test_clip_flicker.py).
+"""Cut a small test fixture out of a farm clip: tests/data/farm_clip.npz (tests/relight/command/test_clip_flicker.py).
 
     python -m farm --out data/clips128_turn --scenes 64 --seed 28 --clip-frames 32 --motion turn \\
         --res 128 --lights 2 --samples 32 --light-pool heldout

@@ -5,9 +5,9 @@
 
 A still shot: one bundled photo (evaluation/data/matte_eval/NAME.jpg, resized to --height) repeated
 --frames times with independent Gaussian noise of 2 codes on its 8-bit sRGB values, seeded
-(tests/clip_support.noisy_still). Measured over the photo's hand-made person matte (its reference
+(tests/support/clip_support.noisy_still). Measured over the photo's hand-made person matte (its reference
 in evaluation/data/matte_eval/reference): the low-pass frame-to-frame change of
-tests/clip_support.lowpass_flicker (model.evaluate_clips.flicker on means over blocks of 1/32 of
+tests/support/clip_support.lowpass_flicker (model.evaluate_clips.flicker on means over blocks of 1/32 of
 the height), as a ratio to the input's own. Relit to the "studio" preset at Balanced (the CLI's
 default), stability 0 (each frame alone) and 0.5 (the default).
 

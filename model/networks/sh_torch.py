@@ -1,7 +1,7 @@
 """Torch twins of the core's rendering layer (relight.network.prt) and the SH ops the model uses.
 
 Channel-first layout: maps are [B, C, H, W], lights [B, n, 3]. Each function
-equals its numpy counterpart in relight (tested in tests/test_model_sh_torch.py).
+equals its numpy counterpart in relight (tested in tests/model/test_model_sh_torch.py).
 """
 
 from __future__ import annotations

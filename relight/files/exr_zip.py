@@ -8,7 +8,7 @@ channel (channels in sorted name order), its bytes split into those at even and 
 positions, each byte replaced by its difference to the one before plus 128, deflated in zlib's
 format. A chunk that deflate does not shrink is stored as it is, which OpenEXR reads as raw
 (a packed size equal to the unpacked size). The OpenEXR library reads these files back bit for
-bit (tests/test_exr_zip.py). Only float32 or float16 channels, one type for the whole file.
+bit (tests/relight/files/test_exr_zip.py). Only float32 or float16 channels, one type for the whole file.
 """
 
 from __future__ import annotations

@@ -123,7 +123,7 @@ def _min_scanline_bytes(width: int) -> int:
 # small format; this reader (numpy only) reads a flat 2048x1024 map in 219 ms (2 loaded cores).
 # It is bounded before allocating: the file's size (4 bytes per texel of the largest map), the
 # declared size against MAX_MAP_PIXELS and free memory, and the bytes the declared size needs
-# (tests/test_hostile_inputs.py, tests/test_fuzz_loaders.py).
+# (tests/relight/command/test_hostile_inputs.py, tests/relight/files/test_fuzz_loaders.py).
 def read_radiance_hdr(path) -> np.ndarray:
     """Read a Radiance RGBE (.hdr/.pic) file into float32 [H, W, 3].
 

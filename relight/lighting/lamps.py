@@ -5,7 +5,7 @@ of half-angle the angle its emitter subtends (a Sun's Angle / 2; asin(radius / D
 a point or spot lamp of Radius at distance D; atan(r / D) for an area lamp, r the
 radius of the disk of the same area, which a disk facing the point is exactly), and of
 integral S with S g_1 the irradiance the lamp gives a surface facing it, in Cycles'
-units (measured in tests/test_addon_lamps.py):
+units (measured in tests/blender_addon/test_addon_lamps.py):
 
     Sun of Strength E          S g_1 = E                       (W/m^2, for any Angle)
     point of Power P           S g_1 = P / (4 pi D^2)
