@@ -27,7 +27,7 @@ import numpy as np
 
 from model.samples.data import network_input
 from model.scoring.predictor import Predictor
-from relight.colour import luminance
+from relight.imaging.colour import luminance
 from relight.files.dataset import list_finished_scenes, read_scene, traced_lights
 from relight.geometry.shadows import cast_visibility
 from relight.lighting.directional import directional_part

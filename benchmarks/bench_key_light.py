@@ -67,7 +67,7 @@ def synthetic(name: str, height: int = 256) -> np.ndarray:
 def brightest(pixels):
     """(direction of the brightest 8 x 8 block, the share of a facing surface's irradiance within 20 deg)."""
     from relight.lighting import sh_projection
-    from relight.colour import luminance
+    from relight.imaging.colour import luminance
 
     pixels = np.asarray(pixels, np.float64)
     h, w = pixels.shape[:2]

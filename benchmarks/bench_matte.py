@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT))
 def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, float]:
     """Median wall time of each step of person_matte (the same private steps, in order)."""
     from relight.person import matte, pose_people
-    from relight.network import resample
-    from relight.colour import srgb_encode
+    from relight.imaging import resample
+    from relight.imaging.colour import srgb_encode
 
     H, W = photo.shape[:2]
     out = {}
@@ -61,7 +61,7 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
 def main(argv=None) -> int:
     from relight.person import matte
     from relight.files.photo import read_photo
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--threads", type=int, default=2)

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 from relight.files import photo as photo_io  # noqa: E402
 from relight.network import quality  # noqa: E402
 from relight.lighting.light import sh_light  # noqa: E402
-from relight.network.resample import resize_linear  # noqa: E402
+from relight.imaging.resample import resize_linear  # noqa: E402
 from relight.network.runtime import Relighter  # noqa: E402
 
 

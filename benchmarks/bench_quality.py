@@ -157,7 +157,7 @@ def accuracy(relighter, pairs, cands) -> dict[Candidate, np.ndarray]:
 def timings(model_path, cands, size: int, threads: int, repeats: int) -> dict[Candidate, float]:
     from relight.files import photo as photo_io
     from relight.lighting.light import sh_light
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
     from relight.network.runtime import Relighter
 
     image = resize_linear(photo_io.read_photo(ROOT / "relight" / "data" / "examples" / "astronaut.jpg")[0],

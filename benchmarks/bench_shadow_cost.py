@@ -13,7 +13,7 @@ import time
 import numpy as np
 from PIL import Image
 
-from relight.colour import srgb_decode
+from relight.imaging.colour import srgb_decode
 from relight.files.photo import read_photo
 from relight.lighting.lamps import sun_light
 from relight.network.quality import PRESETS

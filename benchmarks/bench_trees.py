@@ -30,7 +30,7 @@ import json, statistics, sys, time
 sys.path.insert(0, sys.argv[1])
 from relight import photo as photo_io
 from relight.lighting.light import sh_light
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 from relight.network.runtime import Relighter
 size, threads, model = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 image = resize_linear(photo_io.read_photo(sys.argv[5])[0], size, size)

@@ -58,7 +58,7 @@ def png_before(linear: np.ndarray, f) -> None:
     """The writer before issue 40: the sRGB curve per strip of 256 rows, Pillow at level 4."""
     from PIL import Image
 
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     h, w = linear.shape[:2]
     u8 = np.empty((h, w, 3), np.uint8)
@@ -71,7 +71,7 @@ def bench_png(linear: np.ndarray, repeats: int) -> None:
     from PIL import Image
 
     from relight.files import png_encoder
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     cores = min(4, len(os.sched_getaffinity(0)))
     rows = []

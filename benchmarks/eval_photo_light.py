@@ -71,7 +71,7 @@ def true_map(light: dict, world_to_camera, width: int = MAP_WIDTH) -> np.ndarray
 
 def constant_colour(photo: np.ndarray, target_luminance: float) -> np.ndarray:
     """The photo's mean colour scaled to mean luminance `target_luminance`."""
-    from relight.colour import luminance
+    from relight.imaging.colour import luminance
 
     mean = photo.reshape(-1, 3).astype(np.float64).mean(axis=0)
     return mean * (target_luminance / float(luminance(mean)))

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from relight.colour import srgb_decode
+from relight.imaging.colour import srgb_decode
 
 __all__ = ["PEOPLE", "PastedGroup", "pasted_group"]
 

@@ -6,7 +6,7 @@
 With `tile`, each image is scaled (area filter) to fit a tile x tile cell and
 centred on the backdrop; without, cells are the largest image's size and each
 image sits in its cell's top-left corner at its own size. Linear values are
-clipped to [0, 1] and sRGB-encoded (relight.colour).
+clipped to [0, 1] and sRGB-encoded (relight.imaging.colour).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 
 __all__ = ["contact_sheet", "write_sheet"]
 
@@ -29,7 +29,7 @@ def _srgb8(linear: np.ndarray) -> np.ndarray:
 def _cell(linear: np.ndarray, tile: int | None, backdrop: int) -> np.ndarray:
     if tile is None:
         return _srgb8(linear)
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     h, w = linear.shape[:2]
     s = tile / max(h, w)

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def main(argv=None) -> int:
     from model.evaluate_clips import load_clips
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
     from relight.files.fileio import atomic_path
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -38,7 +38,7 @@ def psnr(a, b, w) -> float:
 
 
 def grid_of(layer, full: np.ndarray) -> np.ndarray:
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     y0, y1, x0, x1 = layer.box
     return resize_linear(np.ascontiguousarray(full[y0:y1, x0:x1]), *layer.weight.shape)
@@ -53,7 +53,7 @@ def skin_psnr(photo_g, shading_g, w) -> float:
 def zoom(img, box, side=160):
     from PIL import Image
 
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     y0, y1, x0, x1 = box
     cut = srgb_encode(np.clip(img[y0:y1, x0:x1], 0, 1))
@@ -69,7 +69,7 @@ def write_crops(folder: Path) -> int:
     from relight.network import face_mesh
     from relight.person import matte
     from relight.files import photo as photo_io
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     folder.mkdir(parents=True, exist_ok=True)
     for path in PHOTOS:

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     from relight.network import face_mesh, face_relight, quality
     from relight.files.dataset import read_scene
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
     from relight.network.runtime import Relighter
 
     preset = quality.preset(args.quality)

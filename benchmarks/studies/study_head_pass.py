@@ -60,7 +60,7 @@ def grid_coords(d):
 def head_in_body_frame(body, head_d, origin) -> np.ndarray:
     """The head run's transport resampled onto the body's working grid (zero outside the head run's
     crop): the body grid's photo coordinates -> the cut's -> the head run's grid."""
-    from relight.network.resample import sample_points
+    from relight.imaging.resample import sample_points
 
     X, Y = grid_coords(body)
     hy0, hy1, hx0, hx1 = head_d.box
@@ -72,7 +72,7 @@ def head_in_body_frame(body, head_d, origin) -> np.ndarray:
 
 def blend_weight(body, head_full: np.ndarray) -> np.ndarray:
     """[h, w] on the body's grid: 1 on the head mask, ramped out over FEATHER of the head's size."""
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
     from relight.person.mask_ops import box_mean, dilate
 
     y0, y1, x0, x1 = body.box
@@ -96,7 +96,7 @@ def fused(body, transport: np.ndarray, weight: np.ndarray):
 def true_transports(body, scene) -> tuple[np.ndarray, np.ndarray]:
     """The scene's transport and the lobe of its normals (the body's visibility) on the body's grid."""
     from relight.network.face_relight import UNOCCLUDED_DC, lobe_transport
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     y0, y1, x0, x1 = body.box
     h, w = body.working_size

@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+from relight.imaging.colour import luminance  # noqa: E402 (after the repository on sys.path)
 
 FLOOR = 1e-4
 
@@ -46,7 +46,7 @@ THUMB = 8  # the appearance features: 8 x 8 matte-weighted means of log albedo, 
 def thumbnails(d) -> np.ndarray:
     """[THUMB * THUMB * 8]: the person's log albedo (3), log shading luminance (1) and log photo (3)
     as matte-weighted means over an 8 x 8 grid of the crop, and the grid's matte coverage (1)."""
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     a = np.asarray(d.alpha, np.float32)[..., None]
     logs = [np.log2(np.maximum(d.albedo, 1e-3)),

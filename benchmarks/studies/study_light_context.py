@@ -31,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+from relight.imaging.colour import luminance  # noqa: E402 (after the repository on sys.path)
 
 INPUTS = ("person", "photo", "background")
 SIZE = 128
@@ -44,7 +44,7 @@ def encode(image: np.ndarray, alpha: np.ndarray, kind: str) -> np.ndarray:
     """[4, s, s] float32 at INPUT_SIZE: the chosen view of the photo (sRGB-encoded to [-1, 1])
     and the matte."""
     from relight.network.prt import to_network_input
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     a = alpha[..., 0] if alpha.ndim == 3 else alpha
     image, a = resize_linear(image, INPUT_SIZE, INPUT_SIZE), np.clip(resize_linear(a, INPUT_SIZE, INPUT_SIZE), 0, 1)
@@ -63,7 +63,7 @@ def load(folder: Path, size: int, with_scene: bool = False):
     """(images [N, h, w, 3], alphas [N, h, w], lights [N, 25, 3], scene index per image)."""
     from model.samples.data_splits import find_scenes
     from relight.files.dataset import read_scene
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     images, alphas, lights, owners = [], [], [], []
     for i, path in enumerate(find_scenes(folder)):

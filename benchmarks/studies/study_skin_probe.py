@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from relight.colour import luminance  # noqa: E402 (after the repository on sys.path)
+from relight.imaging.colour import luminance  # noqa: E402 (after the repository on sys.path)
 
 SKIN_DEPTH_TOLERANCE = 0.002  # metres: the rendered surface is the body itself
 
@@ -70,8 +70,8 @@ def face_disc(photo: np.ndarray, landmarks_model: str, shape) -> np.ndarray | No
     import onnxruntime as ort
 
     from relight.person import matte, pose_people
-    from relight.colour import srgb_encode
-    from relight.network.resample import area_shrink, sample_points
+    from relight.imaging.colour import srgb_encode
+    from relight.imaging.resample import area_shrink, sample_points
 
     small = srgb_encode(area_shrink(photo, matte.GUIDE_SIZE)).astype(np.float32)
     found = pose_people.detect(matte._session("detector"), small)
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     from model.scoring import metrics
     from model.samples.data_splits import find_scenes
     from relight.files.dataset import read_scene
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
     from relight.network.runtime import Relighter
 
     prior = skin_prior_colour()

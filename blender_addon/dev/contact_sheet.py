@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     from PIL import Image, ImageDraw
 
     import blender_addon
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     tmp = Path(tempfile.mkdtemp(prefix="contact_sheet_"))
     model = args.model

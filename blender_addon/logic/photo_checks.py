@@ -11,7 +11,7 @@ import re
 import numpy as np
 
 from relight.files import image_limits
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 
 MIN_PHOTO_SIDE = 32      # pixels: below this on either side a photo cannot show a person
 BLACK_LEVEL = 3e-3       # linear luminance (sRGB code ~11/255): a photo whose brightest pixel is below is black

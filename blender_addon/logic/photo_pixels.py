@@ -1,7 +1,7 @@
 """A photo's pixels as the add-on reads them: a file through the core's reader
 (relight.files.photo.read_photo, as `relight image` reads it: EXIF orientation, 8 and 16 bits, EXR, its
 size limits), Blender's image buffers decoded to linear float32 by the core's one sRGB decoder
-(relight.colour.decode_srgb_codes), both upright, with the file's EXIF orientation to turn results
+(relight.imaging.colour.decode_srgb_codes), both upright, with the file's EXIF orientation to turn results
 back to the pixels Blender shows, and a digest of the upright linear values. Plain Python."""
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: b
     8-bit sRGB images hold code / 255: the codes are recovered exactly and
     decoded by table; float images are taken as scene-linear.
     """
-    from relight.colour import decode_alpha_codes, decode_srgb_codes  # the CLI's decoder: the same floats
+    from relight.imaging.colour import decode_alpha_codes, decode_srgb_codes  # the CLI's decoder: the same floats
 
     h, w, c = shape
     px = pixel_buffers.upright(flat.reshape(h, w, c)[::-1], orientation)

@@ -110,11 +110,11 @@ def decompose(relighter, photo: np.ndarray, mask: np.ndarray | None, working_siz
     photo whose light it takes.
 
     With `cancel`, each inference runs with onnxruntime RunOptions that
-    CancelToken.cancel() terminates (relight.network.session.cancellable, on this network and the
+    CancelToken.cancel() terminates (relight.models.session.cancellable, on this network and the
     ensemble's), so Esc stops even a running network pass.
     """
     start = time.monotonic()
-    from relight.network.session import cancellable
+    from relight.models.session import cancellable
 
     networks = [relighter] + [relighter.member(name) for name in ensemble]
     if cancel is not None:
@@ -144,7 +144,7 @@ def decompose_everyone(relighter, photo: np.ndarray, working_size: int, cancel: 
     `mattes`: the people's mattes found by the last press on this photo (not looked for again).
     Esc terminates a running network pass, as in decompose()."""
     from relight.network.group import decompose_people
-    from relight.network.session import cancellable
+    from relight.models.session import cancellable
     from relight.person.matte import NoPersonError
 
     from .people import People
@@ -195,7 +195,7 @@ def preview_decomposition(decomposition, long_side: int):
     result, only smaller.
     """
     from relight.network.decomposition import Decomposition
-    from relight.network.resample import fit_longest, resize_linear
+    from relight.imaging.resample import fit_longest, resize_linear
 
     from .people import People
 

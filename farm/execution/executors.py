@@ -35,7 +35,7 @@ import time
 from farm.execution.outputs import WORKER_LOG_DIR, check_scene, disk_room, plan_run, remove_partial_files
 from farm.execution.pool import _Worker, worker_command, worker_cpus
 from farm.execution.run_config import FarmError, RunConfig
-from relight.network.session import cores_available
+from relight.models.session import cores_available
 from farm.execution.runbook import RunBook, Summary
 
 MAX_START_FAILURES = 3

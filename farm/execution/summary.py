@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import luminance, srgb_encode
+from relight.imaging.colour import luminance, srgb_encode
 
 TEXTURE_THRESHOLD = 0.04
 TEXTURE_WINDOW = 5

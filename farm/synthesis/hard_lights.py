@@ -21,7 +21,7 @@ import numpy as np
 
 from relight.lighting import sh, sh_rotation
 from relight.lighting.light import SHLight
-from relight.colour import luminance
+from relight.imaging.colour import luminance
 from relight.lighting.sh_projection import equirect_directions
 
 HARD_KINDS = ("sun", "studio", "lamp")

@@ -8,7 +8,7 @@ import colorsys
 
 import numpy as np
 
-from relight.colour import srgb_decode
+from relight.imaging.colour import srgb_decode
 
 # Linear-RGB skin reflectance anchors, very light to very dark (roughly the
 # range of measured skin albedos).

@@ -166,7 +166,7 @@ class GeometryNet(nn.Module):
 
 def mean_luminance(light: torch.Tensor) -> torch.Tensor:
     """[B] solid-angle mean luminance of lights [B,n,3] (Rec.709 Y of the DC term)."""
-    from relight.colour import LUMINANCE_WEIGHTS
+    from relight.imaging.colour import LUMINANCE_WEIGHTS
 
     r, g, b = (float(w) for w in LUMINANCE_WEIGHTS)  # plain floats: constants in a traced graph
     dc = light[:, 0, :]

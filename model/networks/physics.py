@@ -27,7 +27,7 @@ import torch
 
 from relight.network import prt
 from relight.lighting import sh as sh_np
-from relight.colour import SRGB_ENCODED_KNEE, SRGB_GAMMA, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
+from relight.imaging.colour import SRGB_ENCODED_KNEE, SRGB_GAMMA, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
 from relight.network.prt import ALBEDO_MIN_MEAN, ALBEDO_RELIABLE
 
 
@@ -91,7 +91,7 @@ def visibility_from_transport(transport: torch.Tensor) -> torch.Tensor:
 
 
 def srgb_decode(encoded: torch.Tensor) -> torch.Tensor:
-    """sRGB-encoded [0, 1] -> linear (relight.colour.srgb_decode), clipped to [0, 1] first."""
+    """sRGB-encoded [0, 1] -> linear (relight.imaging.colour.srgb_decode), clipped to [0, 1] first."""
     x = encoded.clamp(0.0, 1.0)
     high = torch.pow((x.clamp(min=SRGB_ENCODED_KNEE) + SRGB_OFFSET) / SRGB_SCALE, SRGB_GAMMA)
     return torch.where(x <= SRGB_ENCODED_KNEE, x / SRGB_SLOPE, high)

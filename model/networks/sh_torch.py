@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from relight.lighting import sh_rotation
-from relight.colour import LUMINANCE_WEIGHTS, SRGB_GAMMA, SRGB_LINEAR_KNEE, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
+from relight.imaging.colour import LUMINANCE_WEIGHTS, SRGB_GAMMA, SRGB_LINEAR_KNEE, SRGB_OFFSET, SRGB_SCALE, SRGB_SLOPE
 
 
 def shading(transport: torch.Tensor, light: torch.Tensor) -> torch.Tensor:
@@ -51,7 +51,7 @@ def rotate_light(light: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
 
 
 def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
-    """Linear -> sRGB-encoded, clipped to [0, 1] first (as relight.colour.srgb_encode)."""
+    """Linear -> sRGB-encoded, clipped to [0, 1] first (as relight.imaging.colour.srgb_encode)."""
     x = linear.clamp(0.0, 1.0)
     high = SRGB_SCALE * torch.pow(x.clamp(min=SRGB_LINEAR_KNEE), 1.0 / SRGB_GAMMA) - SRGB_OFFSET
     return torch.where(x <= SRGB_LINEAR_KNEE, x * SRGB_SLOPE, high)

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from relight.colour import luminance, srgb_decode, srgb_encode
+from relight.imaging.colour import luminance, srgb_decode, srgb_encode
 
 BACKGROUND_P = 0.5
 PITCH_DEG = 15.0

@@ -12,7 +12,7 @@ import torch
 from torch.nn import functional as F
 
 from model.samples.data_splits import held_out_light_names
-from relight.colour import luminance, srgb_decode
+from relight.imaging.colour import luminance, srgb_decode
 from relight.lighting.light import SHLight
 
 REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range

@@ -15,7 +15,7 @@ from torch.nn import functional as F
 
 from model.samples.data_splits import held_out_light_names, is_held_out, light_name
 from relight.lighting import sh as sh_np
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.files.dataset import read_scene, read_sidecar
 
 DEFAULT_PADDING = 20  # pixels around the mask bbox, as in the paper
@@ -23,7 +23,7 @@ DEFAULT_PADDING = 20  # pixels around the mask bbox, as in the paper
 
 def crop_box(alpha: np.ndarray, padding: int) -> Box:
     """A square around the mask's box plus padding, centred on it (may leave the image): a
-    relight.person.box.Box, rows then columns."""
+    relight.imaging.box.Box, rows then columns."""
     found = Box.around(alpha, 0.0)
     if found is None:
         raise ValueError("scene has an empty alpha mask: no person to crop")

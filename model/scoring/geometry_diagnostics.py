@@ -89,7 +89,7 @@ def geometry_metrics(pred: dict, sample: dict) -> dict[str, float]:
 def relit_level_stops(pred: dict, sample: dict) -> float:
     """|log2| of the relit person's mean luminance over the target's (metric weight): how far
     its level is off, whatever its pattern."""
-    from relight.colour import luminance
+    from relight.imaging.colour import luminance
 
     w = channels_last(metric_weight(sample))[..., 0].astype(np.float64)
     relit = relit_np(pred["albedo"], pred["transport"], pred.get("residual"), sample["target_light"])

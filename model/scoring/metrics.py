@@ -54,7 +54,7 @@ def spatial_change(first, second, mask=None) -> float:
 def luminance_ratio(numerator, denominator, mask=None) -> float:
     """Mask-weighted mean Rec.709 luminance of `numerator` over that of `denominator` (how much
     darker one relit image is than another: a light from behind against one from the front)."""
-    from relight.colour import luminance
+    from relight.imaging.colour import luminance
 
     a = luminance(np.asarray(numerator, np.float64).reshape(-1, 3))
     b = luminance(np.asarray(denominator, np.float64).reshape(-1, 3))

@@ -15,7 +15,7 @@ OUTPUTS = ("albedo", "transport", "residual", "light", "alpha")
 class Predictor:
     """Runs a checkpoint (torch, eval mode) or an ONNX file on [B,3,H,W] float32 inputs.
 
-    An ONNX file opens through relight.network.session.ModelSession, as in the runtime: its
+    An ONNX file opens through relight.models.session.ModelSession, as in the runtime: its
     SHA-256 (registry or .sha256 file beside it), metadata and graph names are checked."""
 
     def __init__(self, path: str | os.PathLike):
@@ -23,7 +23,7 @@ class Predictor:
         if not self.path.is_file():
             raise ValueError(f"model not found: {self.path}")
         if self.path.suffix == ".onnx":
-            from relight.network.session import ModelSession
+            from relight.models.session import ModelSession
             from relight.lighting.sh import num_coeffs
 
             self.session = ModelSession(self.path)

@@ -86,7 +86,7 @@ def add_photo_options(p) -> None:
     from relight.network.quality import DEFAULT, PRESETS
     from relight.files.image_limits import DEFAULT_MAX_PIXELS, MAX_PIXELS
     from relight.network.runtime import MATTE_SOURCES
-    from relight.network.session import cores_available
+    from relight.models.session import cores_available
 
     p.add_argument("--mask", default=None, help="person mask image (white = person), same size as the photo")
     p.add_argument("--matte", choices=MATTE_SOURCES, default="person",

@@ -187,7 +187,7 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
     from relight.network import quality
     from relight.command.cli_image import open_relighter, target_light
     from relight.command.clip import ClipRelighter
-    from relight.network.session import cores_available
+    from relight.models.session import cores_available
     from relight.files.video_io import frame_spans
     from relight.files.video_out import VideoWriter
 

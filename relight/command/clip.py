@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.command.clip_maps import (
     FILTER_MODES, MapSmoother, MatteSmoother, Stillness, grid_grey, history_weight, regridded as _regridded,
     with_mask as _with_mask,
@@ -132,7 +132,7 @@ class CutDetector:
 
     @staticmethod
     def histogram(frame: np.ndarray) -> np.ndarray:
-        from relight.colour import srgb_encode
+        from relight.imaging.colour import srgb_encode
 
         step = max(1, max(frame.shape[:2]) // CUT_THUMB)
         thumb = srgb_encode(np.ascontiguousarray(frame[::step, ::step]))

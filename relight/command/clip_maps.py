@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from relight.network.decomposition import Decomposition
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.person.mask_ops import box_mean
 
 __all__ = ["MapSmoother", "MatteSmoother", "Stillness", "grid_grey", "with_mask", "regridded", "FILTER_MODES",
@@ -44,7 +44,7 @@ STILL_BLOCKS = 256  # blocks along the frame's longer side: the stillness test's
 def grid_grey(photo_working: np.ndarray) -> np.ndarray:
     """sRGB grey [h, w] float32 of a working-resolution linear crop (what flow and the
     agreement test compare)."""
-    from relight.colour import luminance, srgb_encode
+    from relight.imaging.colour import luminance, srgb_encode
 
     grey = luminance(photo_working)
     return srgb_encode(grey.astype(np.float32)).astype(np.float32)
@@ -190,7 +190,7 @@ class MatteSmoother:
         self.previous, self.box = None, None
 
     def update(self, alpha: np.ndarray, box=None, still=None) -> np.ndarray:
-        """The smoothed matte of this frame; `box` (relight.person.box.Box), when known, holds every
+        """The smoothed matte of this frame; `box` (relight.imaging.box.Box), when known, holds every
         non-zero pixel of `alpha` (the person matte's box: spares a full-frame search); `still`
         (Stillness.at): (rows, cols) -> the picture's stillness at those pixels, None: nowhere."""
         prev = self.previous
@@ -238,7 +238,7 @@ class Stillness:
 
     def update(self, frame: np.ndarray, box) -> None:
         """Judge `frame` (linear [H, W, 3]) around `box` (y0, y1, x0, x1) against the reference."""
-        from relight.colour import luminance, srgb_encode
+        from relight.imaging.colour import luminance, srgb_encode
 
         H, W = frame.shape[:2]
         q = max(1, int(round(max(H, W) / STILL_BLOCKS)))
@@ -298,7 +298,7 @@ class Stillness:
 def with_mask(d: Decomposition, mask: np.ndarray) -> Decomposition:
     """`d` with another full-resolution matte (the smoothed one), its working-resolution alpha
     resampled from it as decompose() does."""
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     y0, y1, x0, x1 = d.box
     h, w = d.working_size
@@ -312,7 +312,7 @@ def regridded(d: Decomposition, box: Box, size: tuple) -> Decomposition:
     """`d` on another grid of its photo (the crop `box` resized to `size`): the network's maps
     resampled bilinearly (edge values held past the old crop), the working photo cut and
     resized again from the frame as decompose() does."""
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     gy, gx = grid_axes(d.box, d.working_size, box, size)
     h, w = d.working_size

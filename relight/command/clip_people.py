@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight.person.box import Box
+from relight.imaging.box import Box
 
 __all__ = ["ShotLight", "Track", "Tracker", "MIN_IOU", "MISSED_FRAMES", "box_iou", "shared_mattes"]
 

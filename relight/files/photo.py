@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import decode_alpha_codes, decode_srgb_codes
+from relight.imaging.colour import decode_alpha_codes, decode_srgb_codes
 from relight.files.fileio import atomic_path
 from relight.files.image_limits import check_declared_size
 from relight.files.png_decoder import check_png_chunks, read_png16
@@ -185,7 +185,7 @@ def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         grey = np.asarray(im, dtype=np.float32)
         if not np.all(np.isfinite(grey)):
             raise ValueError(f"{path}: image contains NaN or Inf")
-        from relight.colour import srgb_decode
+        from relight.imaging.colour import srgb_decode
 
         lin = srgb_decode(grey).astype(np.float32)
         return np.repeat(lin[..., None], 3, axis=2), None

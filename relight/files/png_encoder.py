@@ -36,7 +36,7 @@ def _encode_tables() -> tuple[np.ndarray, np.ndarray]:
     linear value where code k + 1 begins, k = 0..255)."""
     global _ENCODE
     if _ENCODE is None:
-        from relight.colour import srgb_decode
+        from relight.imaging.colour import srgb_decode
 
         # rint(255 srgb_encode(x)) steps from k to k + 1 where srgb_encode(x) = (k + 0.5) / 255
         steps = srgb_decode((np.arange(255, dtype=np.float64) + 0.5) / 255.0)

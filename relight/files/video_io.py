@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relight.colour import decode_srgb_codes
+from relight.imaging.colour import decode_srgb_codes
 
 __all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
            "DEFAULT_FPS", "MAX_FPS", "frame_number", "frame_spans", "decode_srgb", "import_av", "open_container",
@@ -85,7 +85,7 @@ def frame_number(name: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
-# a frame's 8- or 16-bit sRGB codes -> linear float32: the one decoder (relight.colour), the photo's too
+# a frame's 8- or 16-bit sRGB codes -> linear float32: the one decoder (relight.imaging.colour), the photo's too
 decode_srgb = decode_srgb_codes
 
 

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.lighting import sh
 from relight.lighting.key_light import KeyLight, cone_profile, fit_key
 

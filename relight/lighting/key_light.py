@@ -46,7 +46,7 @@ import numpy as np
 
 from relight.lighting import sh, sh_projection
 from relight.lighting.light_colour import bound_saturation, chroma_spread
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 
 __all__ = ["KeyLight", "LightSplit", "cone_profile", "lobe_coeffs", "key_direction", "fit_key", "key_coeffs",
            "smooth_world", "split_light", "split_irradiance_error", "chroma_spread", "direction_from_angles",

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.lighting import sh, sh_projection
 
 __all__ = ["saturation", "colour_envelope", "project_colours", "bound_saturation", "chroma_spread"]

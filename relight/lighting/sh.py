@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 
 MAX_ORDER = 64  # recurrences are stable far beyond this; the cap catches typos
 REFERENCE_LUMINANCE = 0.8  # the mean luminance a map is scaled to (docs/conventions.md, exposure): the one definition

@@ -17,7 +17,7 @@ import os
 
 import numpy as np
 
-from relight.network.resample import Bilinear, SourceRows
+from relight.imaging.resample import Bilinear, SourceRows
 
 __all__ = ["ALPHA_FLOOR", "DETAIL_EPS", "composite"]
 

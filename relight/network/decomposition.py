@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from relight.lighting import sh
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.network.composite import ALPHA_FLOOR, DETAIL_EPS, composite
 from relight.network.foreground import foreground, smooth_colours
 from relight.lighting.light import fit_checked
 from relight.person.mask_ops import dilate
-from relight.network.resample import Bilinear
+from relight.imaging.resample import Bilinear
 from relight.network.shadowing import ShadowCaster, key_of
 
 __all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "checked_light",
@@ -83,7 +83,7 @@ class Decomposition:
     """What the network saw in one photo, kept at working resolution.
 
     albedo [h, w, 3], transport [h, w, n], residual [h, w, n], alpha [h, w]
-    and light [n, 3] belong to the crop `box` (relight.person.box.Box: y0, y1, x0, x1) of the
+    and light [n, 3] belong to the crop `box` (relight.imaging.box.Box: y0, y1, x0, x1) of the
     photo resized to `working_size` = (h, w). `photo` is the original (not copied).
     residual=None: the model has no residual E (its metadata says so): the field then
     reads as zeros without holding any, and E . L' is never evaluated. Built once per
@@ -110,7 +110,7 @@ class Decomposition:
         h, w = self.working_size
         n = sh.num_coeffs(self.sh_order)
         zero_residual = self.residual is None
-        if zero_residual:  # the model has no E (relight.network.session.ModelSession.residual_is_zero): no array
+        if zero_residual:  # the model has no E (relight.models.session.ModelSession.residual_is_zero): no array
             self.residual = np.broadcast_to(np.zeros((), np.float32), (h, w, n))  # zeros, no memory
         # matte pixels grown by one: the bilinear taps of every full-resolution
         # pixel inside the matte then read relit values, never the zeros around

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 from relight.models import REGISTRY_PATH
-from relight.network.resample import sample_points
+from relight.imaging.resample import sample_points
 
 MODEL_NAME = "face-landmark"              # registry entry of the landmark network
 MODEL_FILE = "face_landmark.onnx"
@@ -102,9 +102,9 @@ def triangles() -> np.ndarray:
 
 
 def session(threads: int | None = None, registry_path=REGISTRY_PATH):
-    """The landmark network's onnxruntime session (hash-checked by relight.network.session), shared."""
+    """The landmark network's onnxruntime session (hash-checked by relight.models.session), shared."""
     from relight.models import load_registry
-    from relight.network.session import open_session
+    from relight.models.session import open_session
 
     entry = load_registry(registry_path)["models"].get(MODEL_NAME)
     path = Path(registry_path).parent / (entry.get("file", MODEL_FILE) if isinstance(entry, dict) else MODEL_FILE)

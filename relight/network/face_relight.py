@@ -26,7 +26,7 @@ from relight.network import face_mesh
 from relight.lighting import sh
 from relight.person.mask_ops import box_mean, label
 from relight.network.refine import MIN_MEAN, RELIABLE, SATURATED
-from relight.network.resample import Bilinear, resize_linear, sample_points
+from relight.imaging.resample import Bilinear, resize_linear, sample_points
 
 RIDGE = 0.1             # the network's (its network_config's ridge)
 GRID_MAX = 160          # px: the longest side of the face grid

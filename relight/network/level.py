@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 
 __all__ = ["LevelPrior", "METADATA_KEY", "features", "fit_prior", "apply", "leveled"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 from relight.lighting.sh import order_from_num_coeffs
 
 __all__ = ["shading", "render", "to_network_input", "lambert_transport", "photo_consistent_albedo",

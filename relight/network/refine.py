@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relight.colour import srgb_decode, srgb_encode
+from relight.imaging.colour import srgb_decode, srgb_encode
 from relight.network.prt import ALBEDO_MIN_MEAN, ALBEDO_RELIABLE, photo_consistent_albedo
 
 __all__ = ["RefineReport", "albedo_from_input", "consistent_albedo", "refine", "refine_light"]

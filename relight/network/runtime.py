@@ -8,9 +8,9 @@ The network runs on a crop around the person resized to the working size
 (longest side; the quality presets of relight/network/quality.py), so its cost and
 memory do not grow with the photo. This module finds the person, crops,
 resizes and runs the network; the rooms around it each do one job:
-relight.network.session (the hash-checked onnxruntime session), relight.network.decomposition
+relight.models.session (the hash-checked onnxruntime session), relight.network.decomposition
 (the network's outputs and the relighting formula), relight.network.composite (the
-threaded, tiled compositing at full resolution), relight.network.resample (the
+threaded, tiled compositing at full resolution), relight.imaging.resample (the
 resizers), relight.lighting.light (any light -> SH coefficients). docs/runtime.md
 explains the choices. Nothing here imports torch or bpy.
 """
@@ -24,15 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from relight.network import quality
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.network.composite import ALPHA_FLOOR
 from relight.network.decomposition import Decomposition, RelightStats  # the runtime's result types
 from relight.network.level import METADATA_KEY, LevelPrior, leveled
 from relight.person.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path
 from relight.network.prt import to_network_input
-from relight.network.resample import fit_longest, resize_linear
-from relight.network.session import ModelSession
+from relight.imaging.resample import fit_longest, resize_linear
+from relight.models.session import ModelSession
 
 __all__ = ["Relighter", "Decomposition", "RelightStats", "MATTE_SOURCES", "check_working_size"]
 
@@ -82,7 +82,7 @@ def check_working_size(size) -> int:
 
 
 class Relighter(ModelSession):
-    """A relighting network (relight.network.session.ModelSession: SHA-256 and metadata checked) that
+    """A relighting network (relight.models.session.ModelSession: SHA-256 and metadata checked) that
     decomposes photos.
 
     model_path: the .onnx file (default: the registry's default model);

@@ -18,7 +18,7 @@ import functools
 import numpy as np
 
 from relight.lighting import sh
-from relight.network.resample import fit_longest, resize_linear
+from relight.imaging.resample import fit_longest, resize_linear
 
 __all__ = ["mirror_x", "average", "averaged", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
 

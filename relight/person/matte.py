@@ -2,12 +2,12 @@
 
     m = person_matte(photo)            # photo: linear float32 [H, W, 3]
     m.alpha                            # [H, W] float32 in [0, 1], soft edges, hair kept
-    m.box                              # relight.person.box.Box (y0, y1, x0, x1): pixels where alpha > 0
+    m.box                              # relight.imaging.box.Box (y0, y1, x0, x1): pixels where alpha > 0
     m.index, m.count                   # this person (1 = the largest) of how many found
 
 Three MediaPipe networks (Apache-2.0, from the mediapipe 0.10.21 wheel),
 converted to ONNX by tools/convert_mediapipe_matte.py and loaded through the
-same hash-checked path as the relighting models (relight.network.session.open_session):
+same hash-checked path as the relighting models (relight.models.session.open_session):
 
 * selfie segmentation: a person probability for the whole frame, squeezed
   to 256 x 256;
@@ -34,12 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.person.box import Box
+from relight.imaging.box import Box
 from relight.person.linear_photo import check_photo
 from relight.person.mask_ops import box_mean, dilate, label
 from relight.models import REGISTRY_PATH
 from relight.person.pose_people import DETECT_SIDE, POSE_SIDE, SAME_PERSON, nchw, pose_people
-from relight.network.resample import area_shrink, bilinear_rows, resize_linear, upsample_support
+from relight.imaging.resample import area_shrink, bilinear_rows, resize_linear, upsample_support
 
 __all__ = ["PersonMatte", "NoPersonError", "person_matte", "matte_of_checked_photo", "mattes_of_checked_photo",
            "METHODS", "MODELS", "model_paths"]
@@ -113,7 +113,7 @@ def model_paths(registry_path=REGISTRY_PATH) -> dict[str, Path]:
 
 def _session(kind: str, threads: int | None = None, registry_path=REGISTRY_PATH):
     """One network's onnxruntime session, hash-checked once per process and then shared."""
-    from relight.network.session import open_session
+    from relight.models.session import open_session
 
     path = model_paths(registry_path)[kind]
     key = (kind, str(path.resolve()), threads, str(Path(registry_path).resolve()))
@@ -200,7 +200,7 @@ def _found(photo: np.ndarray, method: str, threads, registry_path):
     # refused too), so one check of the small image covers the photo at a fraction of the cost
     if not np.all(np.isfinite(small)):
         raise ValueError("photo contains NaN or Inf (or values too large to average)")
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     small_srgb = srgb_encode(small).astype(np.float32)
     grid = area_shrink(small_srgb, NET_SIDE)
@@ -297,7 +297,7 @@ def _edge(small: np.ndarray, grid: np.ndarray, p: np.ndarray, refine: bool) -> n
     same = grid.shape[:2] == (h, w)
     if not refine:
         return p.copy() if same else bilinear_rows(p, h, w)
-    from relight.colour import luminance
+    from relight.imaging.colour import luminance
 
     # grey guides, roughly perceptual: the grid is sRGB already; at the small size the
     # sqrt of linear luminance stands in for the sRGB curve (cheaper)

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from relight.person.mask_ops import dilate
-from relight.network.resample import bilinear_rows, resize_linear, sample_points
+from relight.imaging.resample import bilinear_rows, resize_linear, sample_points
 
 __all__ = ["DETECT_SIDE", "POSE_SIDE", "SAME_PERSON", "detect", "nchw", "pose_mask", "pose_people", "roi"]
 

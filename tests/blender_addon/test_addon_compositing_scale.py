@@ -16,7 +16,7 @@ import pytest
 import bpy
 
 from relight.files import exr
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 from addon_support import H, W
 
 

@@ -23,7 +23,7 @@ from blender_addon.logic import pixel_buffers
 from relight.lighting import sh
 from relight.network.decomposition import Decomposition
 from relight.lighting.light import sh_light
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 from addon_support import pixels
 
 ORDER = 4

@@ -168,7 +168,7 @@ def test_ordinary_and_dark_but_real_photos_pass_the_checks():
 
 
 def test_blender_pixels_decode_like_the_file_and_round_trip():
-    from relight.colour import srgb_decode
+    from relight.imaging.colour import srgb_decode
 
     rng = np.random.default_rng(1)
     codes = rng.integers(0, 256, (5, 7, 4)).astype(np.uint8)
@@ -197,11 +197,11 @@ def test_blender_pixels_decode_like_the_file_and_round_trip():
 
 
 def test_the_cli_and_the_addon_read_a_png_to_the_same_floats(tmp_path):
-    """One decoder of 8-bit sRGB (relight.colour.decode_srgb_codes): `relight image` (relight.files.photo),
+    """One decoder of 8-bit sRGB (relight.imaging.colour.decode_srgb_codes): `relight image` (relight.files.photo),
     the add-on's file reader and the pixels Blender hands over (code / 255) give the same floats."""
     from PIL import Image
 
-    from relight.colour import srgb_decode
+    from relight.imaging.colour import srgb_decode
     from relight.files.photo import read_photo
 
     codes = np.zeros((16, 64, 4), np.uint8)

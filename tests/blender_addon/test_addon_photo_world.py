@@ -234,7 +234,7 @@ def test_a_cg_object_renders_over_the_photo_and_casts_its_shadow_on_the_floor(ad
     object_ = (np.abs(cols - W / 2) < half - 1) & (rows > base - f / 7.5 + 1) & (rows < base - 1)
     shadow = (np.abs(cols - W / 2) < half - 1) & (rows > base + 1)
     far_floor = (rows > H / 2 + 2) & (np.abs(cols - W / 2) > 3 * half)
-    # sRGB decoded by Blender's colour management and by relight.colour agree to ~1e-4
+    # sRGB decoded by Blender's colour management and by relight.imaging.colour agree to ~1e-4
     np.testing.assert_allclose(composite[sky], photo[sky], atol=2e-3)
     ratio = composite.sum(-1) / photo.sum(-1)
     print(f"composite / photo: shadow {ratio[shadow].mean():.3f} ({shadow.sum()} px), open floor "

@@ -11,7 +11,7 @@ The photos: a bundled person photo (evaluation/data/matte_eval/biden.jpg, halved
 PNG, as a JPEG stored turned with EXIF Orientation 6 and one with 8 (a phone held one way or the
 other), as a 16-bit PNG (Blender decodes it to float by its own colour management, 0.07 off at
 most after relighting before the add-on read files through the core; the command by
-relight.colour's table) and as a linear EXR. Both relight at Draft under the studio preset with the
+relight.imaging.colour's table) and as a linear EXR. Both relight at Draft under the studio preset with the
 person matte (the panel's Automatic mask, the command's default --matte person) and the same
 tiny model; the command writes float EXR (no 8-bit rounding), so the two must agree to float32
 rounding: the same float32 operations on the same values, composited into a strided buffer in

@@ -1,4 +1,4 @@
-"""farm/execution/summary.py's colour flags use relight.colour (one sRGB, one luminance)."""
+"""farm/execution/summary.py's colour flags use relight.imaging.colour (one sRGB, one luminance)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from farm.execution import summary
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 
 
 @pytest.mark.parametrize("rgb, dark", [((0.01, 0.01, 0.01), True), ((0.0, 0.027, 0.0), True),

@@ -9,7 +9,7 @@ import pytest
 
 from model.samples import capture
 from relight.lighting import presets
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 
 
 def _scene(size=32):

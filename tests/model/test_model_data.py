@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from model.samples import data, data_augment, data_crops, data_splits
-from relight.person.box import Box
+from relight.imaging.box import Box
 from model.samples.synthetic import GLOSS, write_analytic_dataset
 from relight.lighting import presets
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.network.prt import to_network_input
 
 HELD_OUT = frozenset(presets.HELD_OUT)

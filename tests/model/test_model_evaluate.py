@@ -280,7 +280,7 @@ def test_interior_mask_drops_partly_covered_pixels():
 
 def test_onnx_predictor_opens_the_hash_checked_session(tmp_path):
     from export.random_model import export_random_model
-    from relight.network.session import ModelSession
+    from relight.models.session import ModelSession
 
     path, _, _ = export_random_model(tmp_path / "m.onnx", seed=1, sh_order=2, width=4, depth=2)
     x = np.random.default_rng(0).uniform(-1, 1, (1, 3, 32, 32)).astype(np.float32)

@@ -12,7 +12,7 @@ import torch
 
 from farm.rendering import bake
 from model.networks import physics
-from relight import colour
+from relight.imaging import colour
 from relight.network import prt
 from relight.lighting import sh
 

@@ -15,7 +15,7 @@ H, W = 90, 160
 
 def _person(height: int) -> np.ndarray:
     from relight.files.photo import read_photo
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     img, _ = read_photo(PHOTO)
     return resize_linear(img, height, int(round(img.shape[1] * height / img.shape[0])))
@@ -105,9 +105,9 @@ def noisy_still(n: int, height: int = 256, sigma: float = NOISE_SIGMA, seed: int
     """n linear float32 frames [height, w, 3] of one still photo: its sRGB codes (resized to
     `height`) plus independent Gaussian noise of `sigma` codes per pixel, channel and frame,
     rounded and clipped to 8 bits as a video's frames are (seeded: the same frames every run)."""
-    from relight.colour import srgb_decode, srgb_encode
+    from relight.imaging.colour import srgb_decode, srgb_encode
     from relight.files.photo import read_photo
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     img, _ = read_photo(photo)
     codes = srgb_encode(resize_linear(img, height, int(round(img.shape[1] * height / img.shape[0])))) * 255.0
@@ -120,7 +120,7 @@ def still_region(height: int = 256, matte: Path = STILL_MATTE, photo: Path = STI
     """[height, w] float32 in {0, 1}: the photo's person (its reference matte > 0.5), where the
     still shot's flicker is measured: fixed, so the measure does not move with the relighter's matte."""
     from relight.files.photo import read_photo
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     img, _ = read_photo(photo)
     ref, _ = read_photo(matte)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.lighting import sh_projection
 from relight.lighting.light_colour import saturation
 

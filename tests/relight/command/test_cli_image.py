@@ -6,7 +6,7 @@ import numpy as np
 from PIL import Image
 
 from relight.cli import main
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 from relight.files.exr import read_exr, write_exr
 from relight.files.photo import read_photo
 from relight.lighting.light import sh_light

@@ -21,7 +21,7 @@ from fuzz_support import exr_bytes, jpeg_bytes, png_bytes, radiance_hdr, uniform
 from relight.lighting import envmap, sh_projection
 from relight.files import image_limits, photo
 from relight.cli import main
-from relight.colour import srgb_encode
+from relight.imaging.colour import srgb_encode
 from relight.models import write_sidecar
 from relight.lighting.light import sh_light
 from relight.network.runtime import Relighter

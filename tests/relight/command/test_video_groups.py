@@ -11,7 +11,7 @@ import pytest
 
 from clip_support import person_clip, write_frames
 from relight.cli import main
-from relight.colour import srgb_decode, srgb_encode
+from relight.imaging.colour import srgb_decode, srgb_encode
 from relight.command import cli_video
 from relight.command.clip import ClipRelighter
 from relight.command.clip_people import MISSED_FRAMES, Tracker

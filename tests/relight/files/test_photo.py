@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from relight.files import photo as ph
-from relight.colour import srgb_decode, srgb_encode
+from relight.imaging.colour import srgb_decode, srgb_encode
 from relight.files.exr import read_exr, write_exr
 
 

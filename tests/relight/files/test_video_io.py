@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from clip_support import write_video
-from relight.colour import srgb_decode, srgb_encode
+from relight.imaging.colour import srgb_decode, srgb_encode
 from relight.files.video_io import ClipInfo, FrameFolder, decode_srgb, frame_number, open_clip
 from relight.files.video_out import FrameFolderWriter, VideoWriter, encode_srgb8
 

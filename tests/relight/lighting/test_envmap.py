@@ -208,7 +208,7 @@ def test_unknown_preset(name):
 
 def test_core_imports_neither_bpy_nor_torch():
     code = (
-        "import sys, relight, relight.lighting.sh, relight.network.prt, relight.colour, relight.files.exr, relight.lighting.envmap, "
+        "import sys, relight, relight.lighting.sh, relight.network.prt, relight.imaging.colour, relight.files.exr, relight.lighting.envmap, "
         "relight.files.dataset, relight.lighting.presets, relight.cli; relight.lighting.presets.list_presets(); "
         "relight.cli.build_parser(); "
         "bad = [m for m in ('bpy', 'torch') if m in sys.modules]; assert not bad, bad"

@@ -12,7 +12,7 @@ from numpy.polynomial import legendre
 
 from relight.lighting import key_light as kl
 from relight.lighting import lamps, sh, sh_projection
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.lighting.light import directional_light, sh_light
 from relight.lighting.light_map import light_map
 

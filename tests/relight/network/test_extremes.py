@@ -25,7 +25,7 @@ from relight.lighting import envmap, presets, sh, sh_projection
 from relight.network.prt import lambert_transport
 from relight.network.decomposition import DETAIL_EPS, DETAIL_MAX, Decomposition
 from relight.lighting.light import sh_light
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 from relight.network.runtime import Relighter
 from relight.network.quality import preset
 

@@ -8,7 +8,7 @@ import pytest
 
 from relight.network.decomposition import Decomposition
 from relight.network.foreground import foreground, smooth_colours
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 
 N = 25  # SH order 4
 U = 2.0 ** -24

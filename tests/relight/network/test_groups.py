@@ -16,7 +16,7 @@ from relight.network.group import MIN_PERSON_PX, decompose_people
 from relight.network.quality import preset
 from relight.network.runtime import Relighter
 from relight.person import matte as segmenter
-from relight.person.box import Box
+from relight.imaging.box import Box
 
 DRAFT = preset("draft").decompose_options(working_size=False)
 
@@ -37,7 +37,7 @@ def _pair(names, gap):
     for k, (rgb, m, x) in enumerate(((a_rgb, a, 0), (b_rgb, b, a.shape[1] + gap))):
         canvas[:, x:x + m.shape[1]] = m[..., None] * rgb + (1 - m[..., None]) * canvas[:, x:x + m.shape[1]]
         mattes[k, :, x:x + m.shape[1]] = m
-    from relight.colour import srgb_decode
+    from relight.imaging.colour import srgb_decode
     return srgb_decode(canvas).astype(np.float32), mattes
 
 

@@ -10,7 +10,7 @@ import pytest
 from refine_support import lobe_light, synthetic
 
 from relight.network import level
-from relight.colour import LUMINANCE_WEIGHTS
+from relight.imaging.colour import LUMINANCE_WEIGHTS
 from relight.network.level import LevelPrior
 
 PRIOR = LevelPrior(((0.3, 0.6, -0.4), (0.2, 0.4, 0.2), (0.25, 0.3, 0.0)), pairs=10)

@@ -38,7 +38,7 @@ from relight.person import matte as segmenter
 from relight.files import photo as photo_io
 from relight.network import quality, tta
 from relight.lighting.light import directional_light
-from relight.network.resample import resize_linear
+from relight.imaging.resample import resize_linear
 from relight.network.runtime import Relighter
 
 ROOT = Path(__file__).resolve().parents[3]

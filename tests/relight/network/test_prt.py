@@ -1,10 +1,10 @@
-"""relight.network.prt (rendering layer, network input) and relight.colour."""
+"""relight.network.prt (rendering layer, network input) and relight.imaging.colour."""
 
 import numpy as np
 import pytest
 from numpy.polynomial.legendre import leggauss
 
-from relight import colour
+from relight.imaging import colour
 from relight.network import prt
 from relight.lighting import sh
 

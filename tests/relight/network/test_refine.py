@@ -155,7 +155,7 @@ class _Answers:
 
     def run_crop(self, crop, matte):
         self.calls += 1
-        from relight.network.resample import resize_linear
+        from relight.imaging.resample import resize_linear
 
         h, w = crop.shape[:2]
         t = self.d.transport if (h, w) == self.d.working_size else resize_linear(self.d.transport, h, w)

@@ -79,7 +79,7 @@ def graph_rounding_bound(fan_ins: list[int]) -> float:
 
 
 def _srgb8(linear: np.ndarray) -> np.ndarray:
-    from relight.colour import srgb_encode
+    from relight.imaging.colour import srgb_encode
 
     return np.round(np.clip(srgb_encode(np.clip(linear, 0.0, 1.0)), 0.0, 1.0) * 255).astype(np.int16)
 

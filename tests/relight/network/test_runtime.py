@@ -15,7 +15,7 @@ from relight.files.exr import write_exr
 from relight.network.prt import to_network_input
 from relight.network.decomposition import DETAIL_EPS, DETAIL_MAX
 from relight.lighting.light import LightCache, sh_light
-from relight.network.resample import bilinear_rows
+from relight.imaging.resample import bilinear_rows
 from relight.network.runtime import Relighter
 
 ORDER = 4
@@ -315,7 +315,7 @@ def test_bad_light_source(kwargs, message):
 
 
 def test_bad_session_options(model_path):
-    from relight.network.session import cores_available
+    from relight.models.session import cores_available
 
     cores = cores_available()
     for threads in (0, -1, cores + 1, 1.5, True, "2"):  # bounded like `relight image --threads`
@@ -333,7 +333,7 @@ def test_sessions_do_not_spin_between_runs(model_path):
     busy-waiting off: its pool threads would otherwise take the cores from the numpy work
     between runs (docs/TRADEOFFS.md measures what it cost)."""
     from relight.person import matte
-    from relight.network.session import SPINNING_KEY
+    from relight.models.session import SPINNING_KEY
 
     sessions = [Relighter(model_path, threads=1).session] + \
         [matte._session(kind) for kind in ("selfie", "detector", "pose")]
@@ -443,7 +443,7 @@ def test_albedo_layer_carries_the_photos_full_resolution_texture():
     quotient albedo / photo of working resolution, so under a smooth shading S it is the
     textured photo / S, which plain upsampling of the working albedo would blur away."""
     from relight.network.decomposition import Decomposition
-    from relight.network.resample import resize_linear
+    from relight.imaging.resample import resize_linear
 
     H, W, h, w = 64, 96, 16, 24
     rng = np.random.default_rng(3)

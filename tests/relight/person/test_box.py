@@ -1,4 +1,4 @@
-"""relight/person/box.py: the one box type (rows then columns, end exclusive) and the boxes the
+"""relight/imaging/box.py: the one box type (rows then columns, end exclusive) and the boxes the
 matte, the runtime and the clip filters take from it."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from relight.person.box import Box
+from relight.imaging.box import Box
 
 
 def test_around_holds_every_pixel_above_the_threshold_and_no_more():

@@ -119,7 +119,7 @@ class ModelSession:
         raise KeyError(name)
 
     residual_is_zero = False  # set from the metadata (_read_metadata)
-    run_options = None  # onnxruntime RunOptions every run uses (cancellable: relight.network.session.cancellable)
+    run_options = None  # onnxruntime RunOptions every run uses (cancellable: relight.models.session.cancellable)
 
     def run(self, net_input: np.ndarray, run_options=None) -> dict[str, np.ndarray]:
         """Run the graph on [B, 3, H, W] float32 (H, W multiples of size_multiple), with

@@ -180,7 +180,7 @@ def upsample_support(small: np.ndarray, H: int, W: int) -> np.ndarray:
     h, w = small.shape
     if (h, w) == (H, W):
         return small
-    from relight.person.box import Box
+    from relight.imaging.box import Box
 
     out = np.zeros((H, W), np.float32)
     support = Box.around(small)  # small >= 0 (a matte): its non-zero pixels
