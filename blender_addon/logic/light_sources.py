@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..worker.jobs import first_line
+from .messages import first_line
 
 
 LIGHT_KINDS = ("WORLD", "HDR", "PRESET", "IMAGE")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import pixel_buffers
-from ..worker.jobs import first_line
+from .messages import first_line
 
 
 @dataclass

@@ -5,7 +5,7 @@ UI keeps drawing while the network runs. Cancelling marks the job so the
 caller can return at once and any late result is dropped; with a cancel token
 (engine.CancelToken) it also stops the work itself, a running inference
 included. The worker reports its stage through a Progress object. env_flag (run on the
-calling thread?) and first_line (an error's message, shortened) serve the jobs' callers.
+calling thread?) serves the jobs' callers.
 """
 
 from __future__ import annotations
@@ -150,9 +150,3 @@ class BackgroundJob:
 def env_flag(name: str) -> bool:
     """True when environment variable `name` is set to 1/true/yes/on."""
     return os.environ.get(name, "").strip().lower() in {"1", "true", "yes", "on"}
-
-
-def first_line(exc: BaseException) -> str:
-    """The first line of an error's message, without its closing full stop (for the artist's messages)."""
-    text = str(exc).strip().splitlines()
-    return text[0].rstrip(".") if text else type(exc).__name__
