@@ -20,12 +20,8 @@ printed per photo and over all.
     /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/pose_landmark/pose_landmark_full.tflite \\
         relight/models/person_matte_pose_segmentation.onnx PHOTOS...
 
-    # the face landmark network of relight/network/face_mesh.py (issue 37), the same way, on the
-    # bundled photos' face crops as relight.network.face_mesh makes them (3.1e-05 input pixels; the
-    # whole photos resized: 4.6e-05); `benchmarks/studies/study_face_mesh.py --crops /tmp/crops`
-    # writes them (project environment)
-    /tmp/convvenv/bin/python tools/check_matte_onnx.py litert MP/face_landmark/face_landmark.tflite \\
-        relight/models/face_landmark.onnx /tmp/crops/*.png
+    # issue 37's face landmark network (relight/models/face_landmark.onnx at commit 6d8d254), the same
+    # way, on the photos' face crops (3.1e-05 input pixels)
 
 (MP: the mediapipe/modules folder of the unpacked mediapipe 0.10.21 wheel.)
 The pose segmentation is compared as probabilities (sigmoid of the TFLite
@@ -82,7 +78,7 @@ def against_litert(tflite: str, model: str, photos: list[str]) -> float:
         interpreter.set_tensor(inp["index"], (x * 2 - 1 if detector else x)[None])
         interpreter.invoke()
         got = session.run(outputs, {"image": x.transpose(2, 0, 1)[None]})
-        if face is not None:  # relight/network/face_mesh.py's networks: landmarks in input pixels, the face flag a probability
+        if face is not None:  # a face landmark network: landmarks in input pixels, the face flag a probability
             refs = [interpreter.get_tensor(by_name[face[n]]["index"]).astype(np.float64) for n in outputs]
             if "face_flag" in outputs:
                 refs[1] = 1.0 / (1.0 + np.exp(-np.clip(refs[1], -80, 80)))

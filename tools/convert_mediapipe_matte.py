@@ -17,18 +17,12 @@ scratch virtual environment (never the project's: mediapipe pins numpy<2 and pro
         --output Identity_2:mask --sigmoid --fp16-weights \
         --out relight/models/person_matte_pose_segmentation.onnx
 
-The face mesh's landmark network (relight/network/face_mesh.py, issue 37; the wheel's short-range face
-detector converts the same way, --output regressors:boxes --output classificators:scores
---signed-input, within 1.1e-3 of the TFLite reference, but is not shipped: the first crop comes
-from the person matte's head):
-    $PY tools/convert_mediapipe_matte.py $MP/face_landmark/face_landmark.tflite \
-        --output conv2d_21:landmarks --output conv2d_31:face_flag --sigmoid-output face_flag \
-        --fp16-weights --out relight/models/face_landmark.onnx
-and its triangles (relight/models/face_mesh_triangles.json) from the wheel's
-mediapipe/python/solutions/face_mesh_connections.py: tools/face_mesh_triangles.py.
+The face mesh's landmark network (issue 37's study; it left the tree in issue 49, at commit 6d8d254)
+converted the same way: --output conv2d_21:landmarks --output conv2d_31:face_flag --sigmoid-output
+face_flag (docs/EVALUATION.md, "The face mesh").
 
-The same network with its 33 body landmarks too (not shipped; benchmarks/studies/study_skin_probe.py
-measured a face probe with it): --output Identity_2:mask --output Identity:landmarks
+The pose landmark network with its 33 body landmarks too (not shipped; issue 25's skin-probe study
+measured a face probe with it: docs/EVALUATION.md): --output Identity_2:mask --output Identity:landmarks
 --sigmoid-output mask (within 1.4e-3 of the TFLite reference kernels, landmarks in pixels of
 the 256 x 256 input; 29% more time than the mask alone).
 
