@@ -52,11 +52,11 @@ __all__ = ["KeyLight", "LightSplit", "cone_profile", "lobe_coeffs", "key_directi
            "smooth_world", "split_light", "split_irradiance_error", "chroma_spread", "direction_from_angles",
            "angles_from_direction", "DIRECTION_BANDS", "WORLD_ORDER", "WIDE_ANGLE_DEG"]
 
-DIRECTION_BANDS = 4      # bands whose windowed luminance peak is the key's direction (benchmarks/bench_key_direction.py)
+DIRECTION_BANDS = 4      # bands whose windowed luminance peak is the key's direction (benchmarks/bench_key_direction.py at 619862d)
 DIRECTION_WINDOW = "hanning"  # relight.lighting.sh.window over those bands: 3 and 4 sharpen, damped
 WORLD_ORDER = 2          # the smooth World's highest band
 CHROMA_ORDER = 1         # the World's chromaticity: SH up to this band (1: linear in the direction)
-WIDTH_FROM_BAND4 = True  # the key's width from bands 2 and 4 when they agree (benchmarks/bench_key_light.py)
+WIDTH_FROM_BAND4 = True  # the key's width from bands 2 and 4 when they agree (benchmarks/bench_key_light.py at 619862d)
 WIDTH_STEPS = 50         # bisection steps of that width
 WIDE_ANGLE_DEG = 90.0    # a key wider than this (full angle) becomes an area light in Blender
 SEARCH_POINTS = 2048     # Fibonacci directions of the coarse peak search (about 4.5 degrees apart)
@@ -132,7 +132,7 @@ def key_direction(coeffs, bands: int = DIRECTION_BANDS, window: str | None = DIR
     weighted; band 0 is a constant and does not move the peak). Band 1 alone: the band-1 vector,
     in closed form. Otherwise a search over SEARCH_POINTS directions refined locally. On
     estimated lights bands 1-4 Hanning-windowed point the key nearer the true light than bands
-    1-2 unwindowed (benchmarks/bench_key_direction.py; docs/EVALUATION.md)."""
+    1-2 unwindowed (benchmarks/bench_key_direction.py at 619862d; docs/EVALUATION.md)."""
     L = sh.validate_coeffs(coeffs, "light")
     order = sh.order_from_num_coeffs(L.shape[0])
     bands = max(1, min(int(bands), order))

@@ -18,7 +18,7 @@ Lambertian surface as the runtime's SH does, up to what the clamp adds in
 bands above the light's order (the irradiance error, `irradiance_error`).
 Band 3 (A_3 = 0) is left free: no diffuse surface sees it, and fitting it
 costs irradiance accuracy. Why not a per-band window: docs/conventions.md
-("The light as a World map"), measured by benchmarks/bench_light_map.py.
+("The light as a World map"), measured by benchmarks/bench_light_map.py (at commit 619862d).
 
 Clamped per channel, each channel rings on its own and the map gets fringes of
 colours the light does not have; so a fitted map is P(sum c Y) instead, P the
@@ -46,11 +46,11 @@ MIN_WIDTH, MAX_WIDTH = 8, 4096
 # lambda above: 1e-5 .. 1e-3 give the same irradiance error (within 0.001 on the
 # held-out estimates, 0.003 on the presets); larger lambda smooths the hot spot of a
 # sharp light (peak / mean 123 at 1e-4, 569 at 1e-6) and then costs accuracy
-# (benchmarks/bench_light_map.py --lambdas)
+# (benchmarks/bench_light_map.py --lambdas, at commit 619862d)
 REGULARISATION = 1e-4
 # the Newton solve runs on a 128 x 64 grid (or the map's, when smaller); two more steps on a
 # 512 x 256 map's own grid change the irradiance error by < 0.0001 and cost 3x the time
-# (benchmarks/bench_light_map.py)
+# (benchmarks/bench_light_map.py, at commit 619862d)
 FIT_HEIGHT = 64
 # the three channels' fit (_fit_colours) on 64 x 32: 5x faster than on 128 x 64, the irradiance error the same
 # to 0.01 points on the presets (0.05 on the bundled photos' estimates)

@@ -21,7 +21,7 @@ __all__ = ["smooth_colours", "foreground", "RADIUS"]
 
 # working-resolution pixels: the window over which the person's and the background's local
 # colours are averaged (a 128 px person: 7 px is a hand's width). Edge error on the held-out
-# scenes (benchmarks/bench_edge_colour.py) for radius 1 / 2 / 3 / 4 / 6: 0.154 / 0.134 / 0.129 /
+# scenes (benchmarks/bench_edge_colour.py at 619862d) for radius 1 / 2 / 3 / 4 / 6: 0.154 / 0.134 / 0.129 /
 # 0.128 / 0.128, against 0.224 for the photo itself
 RADIUS = 3
 WEIGHT_FLOOR = 1e-3  # the pixel's own weight in its window's means (see smooth_colours)
