@@ -43,14 +43,9 @@ REAL_PHOTO = REPO / "evaluation" / "data" / "matte_eval" / "obama_standing.jpg"
 
 def make_real_photo(path: Path, height: int, width: int) -> None:
     """The bundled photo enlarged to cover height x width, centre-cropped."""
-    from PIL import Image
+    from photos import enlarged_photo  # benchmarks/photos.py
 
-    with Image.open(REAL_PHOTO) as im:
-        scale = max(height / im.height, width / im.width)
-        big = im.convert("RGB").resize((round(im.width * scale), round(im.height * scale)),
-                                       Image.Resampling.LANCZOS)
-    x0, y0 = (big.width - width) // 2, (big.height - height) // 2
-    big.crop((x0, y0, x0 + width, y0 + height)).save(path, quality=92)
+    enlarged_photo(path, size=(width, height), source=REAL_PHOTO)
 
 
 def make_photo(path: Path, height: int, width: int) -> None:

@@ -93,12 +93,6 @@ def _ours(frame) -> str:
     return " < ".join(names)
 
 
-def make_photo(path: Path, height: int, width: int) -> None:
-    from benchmarks.bench_addon import make_real_photo
-
-    make_real_photo(path, height, width)
-
-
 def child(flow: str, photo: str, quality: str, mask: str, out: str) -> None:
     import bpy
 
@@ -227,7 +221,9 @@ def main(argv=None) -> int:
     load = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="bench_mem_") as tmp:
         photo = Path(tmp) / "photo.jpg"
-        make_photo(photo, height, width)
+        from benchmarks.bench_addon import make_real_photo
+
+        make_real_photo(photo, height, width)
         rows = []
         for flow in args.flows.split(","):
             out = Path(tmp) / f"{flow}.json"

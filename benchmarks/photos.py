@@ -13,16 +13,21 @@ ASTRONAUT = REPO / "relight" / "data" / "examples" / "astronaut.jpg"
 
 def enlarged_photo(out: Path, *, megapixels: float | None = None, size: tuple[int, int] | None = None,
                    source: Path = ASTRONAUT) -> tuple[int, int]:
-    """Write `source` resized to `size` (width, height), or to about `megapixels`, to the JPEG `out`
-    (quality 92); returns the size written."""
+    """Write `source` enlarged to about `megapixels`, or to cover `size` (width, height) and
+    centre-cropped to it (its aspect kept), to the JPEG `out` (quality 92); returns the size written."""
     from PIL import Image
 
     with Image.open(source) as im:
         rgb = im.convert("RGB")
     if size is None:
         scale = (megapixels * 1e6 / (rgb.width * rgb.height)) ** 0.5
-        size = (round(rgb.width * scale), round(rgb.height * scale))
-    rgb.resize(size, Image.LANCZOS).save(out, quality=92)
+        size = cover = (round(rgb.width * scale), round(rgb.height * scale))
+    else:
+        scale = max(size[0] / rgb.width, size[1] / rgb.height)
+        cover = (round(rgb.width * scale), round(rgb.height * scale))
+    big = rgb.resize(cover, Image.Resampling.LANCZOS)
+    x0, y0 = (big.width - size[0]) // 2, (big.height - size[1]) // 2
+    big.crop((x0, y0, x0 + size[0], y0 + size[1])).save(out, quality=92)
     return size
 
 
