@@ -12,7 +12,7 @@ studio key / lamp), the photo relit at the scene's size under b's SH light, five
 
 Reported per variant: PSNR over the person (interior pixels), and the light's response: the least-squares
 slope and the correlation of the relit log-luminance change (relit / photo) against the true change
-(target / photo), means removed (1 and 1 = physics).
+(target / photo), means removed (1 and 1 = physics; model.scoring.metrics.light_response).
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_cast_shadows.py DATA [DATA ...] [--model M.onnx]
 """
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from model.samples.data import network_input
+from model.scoring.metrics import light_response
 from model.scoring.predictor import Predictor
-from relight.imaging.colour import luminance
 from relight.files.dataset import list_finished_scenes, read_scene, traced_lights
 from relight.geometry.shadows import cast_visibility
 from relight.lighting.directional import directional_part
@@ -38,20 +38,6 @@ from relight.network.shadowing import ShadowCaster
 
 VARIANTS = ("network", "network+relief", "network+depth", "truth", "truth+depth", "truth+relief", "network+truerelief")
 THICKNESS_M = 0.3   # metres an occluder of the true depth pass reaches behind its front (a torso's depth)
-LOG_FLOOR = 1e-3    # linear luminance floor of the log change (an 8-bit step near black)
-
-
-def light_response(photo: np.ndarray, relit: np.ndarray, target: np.ndarray, weight: np.ndarray) -> tuple[float, float]:
-    """(slope, correlation) of log lum(relit / photo) against log lum(target / photo) over weight > 0."""
-    base = np.log(np.maximum(luminance(photo), LOG_FLOOR))
-    x = np.log(np.maximum(luminance(target), LOG_FLOOR)) - base
-    y = np.log(np.maximum(luminance(relit), LOG_FLOOR)) - base
-    m = weight > 0
-    x, y = x[m] - x[m].mean(), y[m] - y[m].mean()
-    var = float(x @ x)
-    if var <= 0:
-        return float("nan"), float("nan")
-    return float(x @ y) / var, float(x @ y) / math.sqrt(var * max(float(y @ y), 1e-30))
 
 
 def psnr(pred: np.ndarray, gt: np.ndarray, weight: np.ndarray) -> float:
@@ -114,7 +100,7 @@ def run_scene(path: Path, predictor: Predictor, rows: dict) -> None:
         }
         for name, image in relit.items():
             image = np.maximum(image, 0.0)
-            slope, corr = light_response(photo, image, target, weight)
+            slope, corr, _ = light_response(photo, image, target, weight)
             rows[name].append((psnr(image, target, weight), slope, corr))
 
 

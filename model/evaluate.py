@@ -34,6 +34,7 @@ from relight.files.fileio import atomic_write_text
 from model.samples.data import EvaluationPairs
 from model.scoring.face_region import FaceRows
 from model.samples.data_splits import find_scenes, held_out_light_names
+from relight.files.dataset import read_sidecar
 from model.scoring.geometry_diagnostics import (
     TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table, parametric_transport_error, transport_normal,
 )
@@ -41,6 +42,7 @@ from model.scoring.pair_metrics import (
     MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction, gain_fitted, oracle_prt,
     render_np, shading_np, with_metric_weight,
 )
+from model.scoring.metrics import light_response
 from model.scoring.predictor import Predictor
 from model.scoring.report_cli import run_report
 
@@ -131,6 +133,49 @@ def numpy_sample(item: dict) -> dict:
     return {k: (v.numpy() if isinstance(v, torch.Tensor) else v) for k, v in item.items()}
 
 
+def framing_of(json_path) -> str:
+    """The scene's framing as its sidecar records it ("-" for scenes from before framings)."""
+    return str(read_sidecar(json_path).get("camera", {}).get("framing") or "-")
+
+
+def pair_light_response(sample: dict, pred: dict, tstar: bool) -> dict:
+    """The relit PSNR and the light's response (model.scoring.metrics.light_response: slope and
+    correlation of the relit log-luminance change against the true one) of one pair."""
+    relit = render_np(pred, sample["target_light"], tstar)
+    target, weight = channels_last(sample["target_image"]), channels_last(sample["metric_weight"])
+    response = light_response(channels_last(sample["input_linear"]), relit, target, weight)
+    return {"psnr": evaluate_prediction(pred, sample, tstar)["relighting/image"]["psnr"],
+            "slope": response.slope, "correlation": response.correlation}
+
+
+def light_response_table(records: dict[str, dict[str, list[dict]]]) -> dict:
+    """{method: {framing: {"pairs", "psnr", "slope", "correlation"}}}: means over the pairs (slope and
+    correlation over the pairs where the truth changes: light_response's NaN pairs left out)."""
+    out: dict = {}
+    for method, by_framing in records.items():
+        for framing, rows in sorted(by_framing.items()):
+            slopes = [r["slope"] for r in rows if np.isfinite(r["slope"])]
+            corrs = [r["correlation"] for r in rows if np.isfinite(r["correlation"])]
+            out.setdefault(method, {})[framing] = {
+                "pairs": len(rows), "psnr": float(np.mean([r["psnr"] for r in rows])),
+                "slope": float(np.mean(slopes)) if slopes else float("nan"),
+                "correlation": float(np.mean(corrs)) if corrs else float("nan")}
+    return out
+
+
+def light_response_markdown(table: dict) -> str:
+    lines = ["\n## The light's response, per framing\n",
+             "Relit log-luminance change (relit / photo) against the true change (truth under b / photo), "
+             "means removed, over the same pixels: least-squares slope and correlation (1 and 1 = physics; "
+             "identity 0; model.scoring.metrics.light_response).\n",
+             "| method | framing | pairs | relit PSNR | slope | correlation |", "|---|---|---|---|---|---|"]
+    for method, by_framing in table.items():
+        for framing, v in by_framing.items():
+            lines.append(f"| {method} | {framing} | {v['pairs']} | {v['psnr']:.2f} | {v['slope']:.2f} | "
+                         f"{v['correlation']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 def pair_record(sample: dict, ours: dict, breakdown: dict | None, geometry: dict | None) -> dict:
     """One pair's maps and our relit scores (plain, SI; with the true input light and the light's
     colour error where the geometry is known): the means of evaluation.json, split any way a study
@@ -178,8 +223,11 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     geometry, breakdown, transport_err = defaultdict(list), defaultdict(list), []
     sheet, per_pair = [], []
     face = FaceRows(size)
+    responses: dict = defaultdict(lambda: defaultdict(list))
+    framings = [framing_of(path) for path in pairs.paths]
     for i in range(len(pairs)):
         sample = with_metric_weight(numpy_sample(pairs[i]), mask)
+        framing = framings[pairs.pairs[i][0]]
         pred = {k: v[0] for k, v in ours(sample["input"][None]).items()}
         face_rows(face, pred, sample, pairs.paths[pairs.pairs[i][0]], ours.tstar, order)
         rows["ours"].append(evaluate_prediction(pred, sample, ours.tstar))
@@ -194,13 +242,17 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
             for name, value in pair_breakdown.items():
                 breakdown[name].append(value)
             transport_err.append(parametric_transport_error(sample, order))
-        per_pair.append(pair_record(sample, rows["ours"][-1], pair_breakdown, pair_geometry))
+        response = pair_light_response(sample, pred, ours.tstar)
+        responses["ours"][framing].append(response)
+        per_pair.append({**pair_record(sample, rows["ours"][-1], pair_breakdown, pair_geometry), "framing": framing,
+                         "light_slope": response["slope"], "light_correlation": response["correlation"]})
         for name, _, b in bases:
             b_order = b.order if b.order is not None else order
             bs = sample if b_order == order else with_metric_weight(
                 numpy_sample(pairs_by_order[b_order][i]), mask)
             bpred = {k: v[0] for k, v in b(bs["input"][None]).items()}
             rows[name].append(evaluate_prediction(bpred, bs, b.tstar))
+            responses[name][framing].append(pair_light_response(bs, bpred, b.tstar))
             if "normal" in bs and not b.tstar:
                 geometry[name].append(geometry_metrics(bpred, bs))
         if len(sheet) < sheet_rows:
@@ -218,6 +270,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
            for method, rs in geometry.items() if rs and rs[0]}
     broken = {method: _mean_table(r) for method, r in breakdown.items()}
     ceiling = float(np.nanmean(transport_err)) if transport_err else float("nan")
+    response_table = light_response_table(responses)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     text = markdown_table(results, len(pairs), str(data), mask)
@@ -228,6 +281,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
                  .split("\n\n", 2)[2])
     if geo:
         text += "\n## Geometry and light\n\n" + geometry_table(geo, ceiling)
+    text += light_response_markdown(response_table)
     text += face.markdown()
     atomic_write_text(out / "evaluation.md", text +
                        "\nContact sheet columns: input, ours relit (over the GT background), GT, "
@@ -236,10 +290,10 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
          "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
          "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs],
-         "per_pair": per_pair, "face": face.summary()}, indent=1) + "\n")
+         "per_pair": per_pair, "face": face.summary(), "light_response": response_table}, indent=1) + "\n")
     write_sheet(out / "contact_sheet.png", contact_sheet(sheet))
     return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
-            "parametric_transport_rel_l2": ceiling, "face": face.summary()}
+            "parametric_transport_rel_l2": ceiling, "face": face.summary(), "light_response": response_table}
 
 
 def face_rows(face: FaceRows, pred: dict, sample: dict, json_path, tstar: bool, order: int) -> None:

@@ -1,4 +1,5 @@
-"""Evaluation metrics over the person's pixels: L1, L2 (MSE) and PSNR.
+"""Evaluation metrics over the person's pixels: L1, L2 (MSE), PSNR, and the light's response
+(light_response: how much of a change of light the relit person follows).
 
 Convention (docs/model.md): metrics compare *linear* values as they are (no
 clipping, no tone mapping); each pixel is weighted by the ground-truth alpha
@@ -11,6 +12,7 @@ identical images. Sums run in float64, so values up to ~1e150 stay finite.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -61,6 +63,57 @@ def luminance_ratio(numerator, denominator, mask=None) -> float:
     w = np.ones(len(a)) if mask is None else np.asarray(mask, np.float64).reshape(-1)
     below = float((b * w).sum())
     return float((a * w).sum()) / below if below > 0 else float("nan")
+
+
+LOG_FLOOR = 1e-3   # linear luminance floor of light_response's log change (an 8-bit step near black)
+# a centred log change whose RMS is below this is no change: float32 images resolve a ratio to ~1e-7,
+# so an exposure-only change (a constant log ratio) leaves a residue of that order, not a pattern
+NO_CHANGE_RMS = 1e-6
+
+
+class LightResponse(NamedTuple):
+    """light_response's result: the slope and correlation, and the number of pixels measured."""
+
+    slope: float
+    correlation: float
+    pixels: int
+
+
+def light_response(photo, relit, target, mask=None, floor: float = LOG_FLOOR) -> LightResponse:
+    """How the relit person's change of light follows the true one (issue 45).
+
+    x = log lum(target) - log lum(photo), the true change from the photo's light a to light b;
+    y = log lum(relit) - log lum(photo), the relit change (lum: Rec.709 luminance, floored at
+    `floor`). Over the mask's pixels (weighted by it), each with its weighted mean removed (an
+    exposure change is no pattern):
+      slope = sum w x y / sum w x^2       (least squares of y on x; 1 = physics, 0 = no response)
+      correlation = sum w x y / sqrt(sum w x^2 * sum w y^2)   (the pattern, whatever its size).
+    A relit change of k times the true one gives slope k and correlation sign(k); adding noise n
+    uncorrelated with x keeps the slope and gives correlation k sx / sqrt(k^2 sx^2 + sn^2).
+    Degenerate cases: a true change under NO_CHANGE_RMS (b is a's exposure change, or the same
+    light) has nothing to follow: slope and correlation NaN; a relit change under it while the
+    truth changes (the photo returned as it is) responds with 0 and 0. An empty mask and NaN or
+    Inf pixels raise ValueError, as the other metrics do.
+    """
+    from relight.imaging.colour import luminance
+
+    p, r, m, _ = _prepare(photo, relit, mask)
+    t, _, _, _ = _prepare(target, photo, mask)
+    w = m.reshape(-1)
+    keep = w > 0
+    w = w[keep]
+    base = np.log(np.maximum(luminance(p).reshape(-1)[keep], floor))
+    x = np.log(np.maximum(luminance(t).reshape(-1)[keep], floor)) - base
+    y = np.log(np.maximum(luminance(r).reshape(-1)[keep], floor)) - base
+    total = w.sum()
+    x = x - (w * x).sum() / total
+    y = y - (w * y).sum() / total
+    sxx, syy, sxy = (w * x * x).sum(), (w * y * y).sum(), (w * x * y).sum()
+    if not math.sqrt(sxx / total) >= NO_CHANGE_RMS:
+        return LightResponse(float("nan"), float("nan"), int(keep.sum()))
+    if not math.sqrt(syy / total) >= NO_CHANGE_RMS:
+        return LightResponse(0.0, 0.0, int(keep.sum()))
+    return LightResponse(float(sxy / sxx), float(np.clip(sxy / math.sqrt(sxx * syy), -1.0, 1.0)), int(keep.sum()))
 
 
 PSNR_PEAK = 1.0

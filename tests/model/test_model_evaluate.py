@@ -49,6 +49,30 @@ def test_identity_baselines_hand_values():
     assert plain["l1"] == pytest.approx(want, rel=1e-12)
 
 
+def test_pair_light_response_of_the_truth_is_physics_and_of_the_photo_is_none():
+    """The relit image equal to the truth under b responds with slope 1, correlation 1; the photo
+    returned as it is (the identity) with 0 and 0; the per-framing means leave NaN pairs out."""
+    sample, pred = _sample(h=8, w=9)
+    sample["metric_weight"], sample["input_linear"] = sample["alpha"], sample["image"]
+    for k in ("image", "target_image"):  # log luminance needs positive pixels
+        sample[k] = np.abs(sample[k]) + 0.05
+    pred = dict(pred, albedo=sample["target_image"], transport=np.zeros_like(pred["transport"]),
+                residual=np.zeros_like(pred["residual"]))
+    pred["transport"][0] = 1.0  # a constant shading; the albedo below makes the render the truth
+    pred["albedo"] = sample["target_image"] / np.einsum("nhw,nc->chw", pred["transport"], sample["target_light"])
+    truth = evaluate.pair_light_response(sample, pred, tstar=False)
+    assert truth["slope"] == pytest.approx(1.0, abs=1e-9) and truth["correlation"] == pytest.approx(1.0, abs=1e-9)
+    assert truth["psnr"] == pytest.approx(100.0)
+    photo = dict(pred, albedo=sample["input_linear"] / np.einsum("nhw,nc->chw", pred["transport"],
+                                                                  sample["target_light"]))
+    none = evaluate.pair_light_response(sample, photo, tstar=False)
+    assert (none["slope"], none["correlation"]) == (0.0, 0.0)
+    table = evaluate.light_response_table({"ours": {"waist-up": [truth, none, dict(none, slope=np.nan,
+                                                                                      correlation=np.nan)]}})
+    assert table["ours"]["waist-up"]["pairs"] == 3
+    assert table["ours"]["waist-up"]["slope"] == pytest.approx(0.5) and table["ours"]["waist-up"]["correlation"] == 0.5
+
+
 def test_gain_fitted_diagnostic_removes_exactly_a_colour_cast():
     sample, pred = _sample()
     for d in (sample, pred):  # no residual: the relit image is then linear in the albedo
@@ -136,6 +160,17 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     assert np.mean([p["relit_si_psnr"] for p in per_pair]) == pytest.approx(ours_relit["si_psnr"], rel=1e-12)
     quotient = record["breakdown"][geometry_diagnostics.TRUE_LIGHT_ROW]["relighting/image"]["psnr"]
     assert np.mean([p["true_light_psnr"] for p in per_pair]) == pytest.approx(quotient, rel=1e-12)
+    # the light's response beside the relit PSNR, per framing (analytic scenes record none: "-"),
+    # for ours and every baseline; its means are the per-pair records'
+    response = record["light_response"]
+    assert set(response) == {"ours", "small", ke_name} and set(response["ours"]) == {"-"}
+    ours_response = response["ours"]["-"]
+    assert ours_response["pairs"] == record["pairs"]
+    assert ours_response["psnr"] == pytest.approx(ours_relit["psnr"], rel=1e-12)
+    assert ours_response["slope"] == pytest.approx(np.nanmean([p["light_slope"] for p in per_pair]), rel=1e-12)
+    assert ours_response["correlation"] == pytest.approx(
+        np.nanmean([p["light_correlation"] for p in per_pair]), rel=1e-12)
+    assert f"| ours | - | {record['pairs']} | {ours_relit['psnr']:.2f} |" in md
     together = record["methods"]
     for name, path in (("small", small), (ke_name, ke)):
         alone = evaluate.evaluate(path, data, tmp_path / name.split()[0], size=32, sheet_rows=1)

@@ -125,3 +125,79 @@ def test_scale_invariant_psnr_ignores_colour_and_level_only():
     assert metrics.scale_invariant_psnr(wrong, target, mask) == pytest.approx(10 * math.log10(1 / mse), rel=1e-9)
     assert metrics.scale_invariant_psnr(wrong, target, mask) >= metrics.psnr(wrong, target, mask)
     assert set(metrics.all_metrics(wrong, target, mask)) == {"l1", "l2", "psnr", "si_psnr"}
+
+
+def _response_images(seed: int = 0, shape=(24, 32)):
+    """A grey photo, a true log change x (centred, RMS 0.3) and a noise n orthogonal to x and to
+    the constant (so the derivation's expectations hold exactly, not only on average)."""
+    rng = np.random.default_rng(seed)
+    photo = rng.uniform(0.05, 0.9, shape)[..., None] * np.ones(3)
+    x = rng.normal(0.0, 1.0, shape)
+    x -= x.mean()
+    x *= 0.3 / np.sqrt((x * x).mean())
+    n = rng.normal(0.0, 1.0, shape)
+    n -= n.mean()
+    n -= (n * x).sum() / (x * x).sum() * x
+    return photo, x, n / np.sqrt((n * n).mean())
+
+
+@pytest.mark.parametrize("k", [1.0, 0.44, 2.5, -0.7])
+def test_light_response_of_k_times_the_true_change_is_slope_k_correlation_one(k):
+    photo, x, _ = _response_images()
+    target = photo * np.exp(x)[..., None]
+    # an exposure change on top (a constant log change) is no pattern: means are removed
+    relit = photo * np.exp(k * x + 0.8)[..., None]
+    r = metrics.light_response(photo, relit, target)
+    assert r.slope == pytest.approx(k, abs=1e-9)
+    assert r.correlation == pytest.approx(np.sign(k), abs=1e-9)
+    assert r.pixels == x.size
+
+
+@pytest.mark.parametrize("k, sn", [(1.0, 0.3), (0.5, 0.3), (1.0, 0.1), (0.44, 0.6)])
+def test_light_response_noise_keeps_the_slope_and_lowers_the_correlation_as_derived(k, sn):
+    """y = k x + n, n uncorrelated with x: slope k, correlation k sx / sqrt(k^2 sx^2 + sn^2)."""
+    photo, x, n = _response_images(1)
+    sx = 0.3
+    relit = photo * np.exp(k * x + sn * n)[..., None]
+    r = metrics.light_response(photo, relit, photo * np.exp(x)[..., None])
+    assert r.slope == pytest.approx(k, abs=1e-9)
+    assert r.correlation == pytest.approx(k * sx / np.sqrt(k * k * sx * sx + sn * sn), abs=1e-9)
+
+
+def test_light_response_counts_only_the_masks_pixels_weighted():
+    """Outside the mask the relit change may be anything; a weight of 2 counts a pixel twice."""
+    photo, x, _ = _response_images(2)
+    mask = np.zeros(x.shape)
+    mask[:, :16] = 1.0
+    relit = photo * np.exp(np.where(mask > 0, 0.6 * x, -3.0 * x))[..., None]
+    r = metrics.light_response(photo, relit, photo * np.exp(x)[..., None], mask)
+    assert r.slope == pytest.approx(0.6, abs=1e-9) and r.pixels == 24 * 16
+    # weighted least squares: the same pixel set duplicated equals a weight of 2
+    a, b, t = photo[:, :2], relit[:, :2], (photo * np.exp(x)[..., None])[:, :2]
+    w = np.array([[2.0, 1.0]] * 24)
+    doubled = metrics.light_response(np.concatenate([a, a[:, :1]], 1), np.concatenate([b, b[:, :1]], 1),
+                                     np.concatenate([t, t[:, :1]], 1))
+    assert metrics.light_response(a, b, t, w).slope == pytest.approx(doubled.slope, abs=1e-12)
+
+
+def test_light_response_degenerate_inputs():
+    photo, x, _ = _response_images(3)
+    target = photo * np.exp(x)[..., None]
+    # the photo returned as it is (identity, or an exposure change of it): no response, 0 and 0
+    assert metrics.light_response(photo, photo, target)[:2] == (0.0, 0.0)
+    assert metrics.light_response(photo, photo * 1.7, target)[:2] == (0.0, 0.0)
+    # nothing to follow (the truth is the photo up to exposure): NaN, left out of means
+    none = metrics.light_response(photo, photo * np.exp(x)[..., None], photo * 2.0)
+    assert np.isnan(none.slope) and np.isnan(none.correlation)
+    # black pixels are floored (LOG_FLOOR), not -inf
+    dark = metrics.light_response(photo * 0.0, photo, target)
+    assert np.isfinite(dark.slope) and np.isfinite(dark.correlation)
+    with pytest.raises(ValueError, match="mask is empty"):
+        metrics.light_response(photo, photo, target, np.zeros(x.shape))
+    bad = target.copy()
+    bad[0, 0, 1] = np.nan
+    for args in ((bad, photo, target), (photo, bad, target), (photo, photo, bad)):
+        with pytest.raises(ValueError, match="NaN or Inf"):
+            metrics.light_response(*args)
+    with pytest.raises(ValueError, match="shape"):
+        metrics.light_response(photo, photo[:, :3], target)
