@@ -1,12 +1,11 @@
 """Is there a person to relight? A photo too small, too large, black, blown out or one flat
 colour is refused, in the artist's words, before the network runs (a size before anything
-decodes the pixels). Plain Python."""
+decodes the pixels). The size limits are the core's (relight.files.image_limits; the header
+read by relight.files.photo_header): this module only words their refusals. Plain Python."""
 
 from __future__ import annotations
 
 import math
-import os
-import re
 
 import numpy as np
 
@@ -27,41 +26,53 @@ def check_photo_size(width: int, height: int) -> None:
                          f"use a photo at least {MIN_PHOTO_SIDE} pixels on each side.")
 
 
-EXR_MAGIC = b"\x76\x2f\x31\x01"  # relight.files.photo's: an OpenEXR file's first four bytes
 DEFAULT_MEGAPIXELS = image_limits.DEFAULT_MAX_PIXELS // 1_000_000  # the panel's Max Photo Size
 MOST_MEGAPIXELS = image_limits.MAX_PIXELS // 1_000_000
 GB_PER_MEGAPIXEL = 0.16  # Relight + Save Layers of a 24 MP photo: 3.4 GB, the whole UI flow more (docs/benchmarks/addon.md)
 
 
-def check_photo_pixels(width: int, height: int, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS,
-                       file_bytes: int | None = None, fmt: str | None = None) -> None:
-    """ValueError in the artist's words when a photo of this size (as its header declares it)
-    must not be decoded: the core's limits (relight.files.image_limits), with what allows it.
-    `max_megapixels` is the panel's Max Photo Size; set above its default it also lets a header
-    that claims more pixels than its file can hold (as `--max-pixels` does for `relight image`)."""
-    pixels = width * height
+def size_limits(max_megapixels: int) -> dict:
+    """The core's size check's arguments for the panel's Max Photo Size: its pixels, and, at or
+    below its default, the file's length weighed (set above, it also lets a header that claims more
+    pixels than its file can hold, as `--max-pixels` does for `relight image`)."""
+    return {"max_pixels": min(image_limits.MAX_PIXELS, int(max_megapixels) * 1_000_000),
+            "weigh_file_size": max_megapixels <= DEFAULT_MEGAPIXELS}
+
+
+def size_refused(exc: image_limits.ImageSizeError, name: str, max_megapixels: int) -> ValueError:
+    """The core's refusal of a photo's size (relight.files.image_limits.check_declared_size) in the
+    artist's words, with what allows it."""
+    width, height, pixels = exc.width, exc.height, exc.pixels
+    if width is None:  # Pillow's own bomb check spoke: the pixel count alone is known
+        return _too_large(f"'{name}' is {'over ' if pixels is None else ''}"
+                          f"{(pixels or image_limits.MAX_PIXELS) / 1e6:.3g} MP")
     mp = pixels / 1e6
     said = f"'{name}' is {width} x {height} pixels ({mp:.3g} MP)"
-    if width > image_limits.MAX_SIDE or height > image_limits.MAX_SIDE or pixels > image_limits.MAX_PIXELS:
-        raise _too_large(said)
-    if pixels > max_megapixels * 1_000_000:
+    if exc.limit == "side" or exc.limit == "pixels" and pixels > image_limits.MAX_PIXELS:
+        return _too_large(said)
+    if exc.limit == "pixels":
         need = math.ceil(mp)
-        raise ValueError(f"{said}, over Max Photo Size ({max_megapixels} MP): to relight it, raise Max Photo "
-                         f"Size in the panel to {need} MP (it will need about {need * GB_PER_MEGAPIXEL:.0f} GB "
-                         "of memory), or scale the photo down.")
-    explicit = max_megapixels > DEFAULT_MEGAPIXELS
-    if not explicit and file_bytes is not None and pixels > image_limits.PLAUSIBLE_FROM:
-        per_byte = image_limits.MAX_PIXELS_PER_BYTE.get(fmt or "", image_limits.MAX_PIXELS_PER_BYTE_OTHER)
-        if pixels > file_bytes * per_byte:
-            raise ValueError(f"'{name}' claims {width} x {height} pixels ({mp:.3g} MP) in a file of "
-                             f"{file_bytes:,} bytes, more than such a file can hold: it is damaged or forged. "
-                             f"Open another photo (or, if it is whole, set Max Photo Size above "
-                             f"{DEFAULT_MEGAPIXELS} MP to decode it anyway).")
-    free = image_limits.memory_available()
-    need = pixels * image_limits.BYTES_PER_PIXEL
-    if free is not None and need > free:
-        raise ValueError(f"{said} needs about {need / 2**30:.1f} GB of memory to read, and only "
-                         f"{free / 2**30:.1f} GB is free: close other programs or scale the photo down.")
+        return ValueError(f"{said}, over Max Photo Size ({max_megapixels} MP): to relight it, raise Max Photo "
+                          f"Size in the panel to {need} MP (it will need about {need * GB_PER_MEGAPIXEL:.0f} GB "
+                          "of memory), or scale the photo down.")
+    if exc.limit == "file":
+        return ValueError(f"'{name}' claims {width} x {height} pixels ({mp:.3g} MP) in a file of "
+                          f"{exc.file_bytes:,} bytes, more than such a file can hold: it is damaged or forged. "
+                          f"Open another photo (or, if it is whole, set Max Photo Size above "
+                          f"{DEFAULT_MEGAPIXELS} MP to decode it anyway).")
+    if exc.limit == "memory":
+        return ValueError(f"{said} needs about {exc.need_bytes / 2**30:.1f} GB of memory to read, and only "
+                          f"{exc.free_bytes / 2**30:.1f} GB is free: close other programs or scale the photo down.")
+    return ValueError(f"'{name}' is {width} x {height} pixels: it holds no image.")
+
+
+def check_photo_pixels(width: int, height: int, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS) -> None:
+    """ValueError in the artist's words when a photo of this size (as Blender holds it) must not be
+    decoded: the core's limits (relight.files.image_limits), with what allows it."""
+    try:
+        image_limits.check_declared_size(width, height, name, **size_limits(max_megapixels))
+    except image_limits.ImageSizeError as exc:
+        raise size_refused(exc, name, max_megapixels) from None
 
 
 def _too_large(said: str) -> ValueError:
@@ -70,39 +81,19 @@ def _too_large(said: str) -> ValueError:
                       "the smaller copy.")
 
 
-def check_photo_file(path: str, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS) -> None:
-    """check_photo_pixels on the size a photo file's header declares, before anything decodes
-    it (Blender would decode a forged 20000 x 20000 JPEG into 1.6 GB, Pillow refuses it with an
-    error of its own). A file Pillow cannot read is left to the decoder's own message."""
-    import warnings
+def check_photo_file(path: str, name: str, max_megapixels: int = DEFAULT_MEGAPIXELS):
+    """The photo file's header (relight.files.photo_header.PhotoHeader) once its size passed the
+    core's limits, before anything decodes it (Blender would decode a forged 20000 x 20000 JPEG
+    into 1.6 GB); ValueError in the artist's words when it did not. None for a file the header
+    reader refuses for another cause: Blender's loading or the decoder says what is wrong."""
+    from relight.files.photo_header import read_header
 
-    from PIL import Image
-
-    with open(path, "rb") as f:
-        magic = f.read(4)
-    if magic == EXR_MAGIC:  # Pillow does not read EXR: its header says the size as cheaply
-        from relight.files.exr import exr_size
-
-        try:
-            width, height = exr_size(path)
-        except ValueError:
-            return  # a damaged EXR: Blender's loading says so
-        check_photo_pixels(width, height, name, max_megapixels, os.path.getsize(path), "EXR")
-        return
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # Pillow's DecompressionBombWarning: weighed here instead
-            with Image.open(path) as im:
-                (width, height), fmt = im.size, im.format
-    except Image.DecompressionBombError as exc:  # over twice Pillow's own limit, so over ours too
-        said = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow names the pixel count, not the sides
-        pixels = int(said.group(1)) if said else 2 * Image.MAX_IMAGE_PIXELS
-        raise _too_large(f"'{name}' is {'' if said else 'over '}{pixels / 1e6:.3g} MP") from None
-    except Exception as exc:  # not an image Pillow knows (or unreadable): the decoder will say
-        if isinstance(exc, MemoryError):
-            raise
-        return
-    check_photo_pixels(width, height, name, max_megapixels, os.path.getsize(path), fmt)
+        return read_header(path, **size_limits(max_megapixels))
+    except image_limits.ImageSizeError as exc:
+        raise size_refused(exc, name, max_megapixels) from None
+    except image_limits.ImageFileError:
+        return None
 
 
 def check_photo_content(photo: np.ndarray) -> None:

@@ -28,8 +28,6 @@ SUN_DISTANCE = 5.0          # metres from the person toward the light: where the
                             # no position; only its direction lights)
 AREA_DISTANCE = 4.0         # metres from the person: where a wide key's area lamp stands
 AREA_MAX_HALF_ANGLE = math.radians(75.0)  # a wider key is drawn as a disk of this half-angle (same irradiance)
-_EXIF_IFD = 0x8769           # the Exif sub-IFD
-_FOCAL_35MM = 0xA405         # FocalLengthIn35mmFilm
 
 
 def datablock_name(photo_name: str, what: str) -> str:
@@ -76,20 +74,16 @@ def floor_corners() -> list[tuple[float, float, float]]:
 
 
 def focal_35mm(path: str) -> float | None:
-    """The photo file's 35 mm-equivalent focal length (EXIF FocalLengthIn35mmFilm), or None
-    (no such file, no EXIF, no tag, an unreadable file). Reads the header only."""
-    from PIL import Image
+    """The photo file's 35 mm-equivalent focal length (EXIF FocalLengthIn35mmFilm) as its header
+    says it (relight.files.photo_header), or None (no such file, no EXIF, no tag, "unknown", an
+    unreadable file)."""
+    from relight.files.image_limits import ImageFileError
+    from relight.files.photo_header import read_header
 
     try:
-        with Image.open(path) as im:
-            value = im.getexif().get_ifd(_EXIF_IFD).get(_FOCAL_35MM)
-    except (OSError, ValueError, SyntaxError):  # Pillow's errors for unreadable files and EXIF
+        return read_header(path, weigh=False).focal_35mm
+    except (ImageFileError, OSError):
         return None
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return None
-    return value if 1.0 <= value <= 2000.0 else None  # 0 means "unknown" in EXIF
 
 
 def write_light_map(light, path: str, width: int = MAP_WIDTH, lamp_free: bool = False):

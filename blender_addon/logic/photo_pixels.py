@@ -1,6 +1,6 @@
 """A photo's pixels as the add-on reads them: a file through the core's reader
-(relight.files.photo.read_photo, as `relight image` reads it: EXIF orientation, 8 and 16 bits, EXR, its
-size limits), Blender's image buffers decoded to linear float32 by the core's one sRGB decoder
+(relight.files.photo.read_photo_with_header, as `relight image` reads it: its header read once, EXIF
+orientation, 8 and 16 bits, EXR, its size limits; their refusals worded here), Blender's image buffers decoded to linear float32 by the core's one sRGB decoder
 (relight.imaging.colour.decode_srgb_codes), both upright, with the file's EXIF orientation to turn results
 back to the pixels Blender shows, and a digest of the upright linear values. Plain Python."""
 
@@ -45,57 +45,36 @@ def _pixels(rgb: np.ndarray, alpha: np.ndarray | None, orientation: int,
     return PhotoPixels(rgb, alpha, digest, orientation)
 
 
-def _is_image_file(path: str) -> bool:
-    """Whether the file is an image at all (an EXR, or one Pillow identifies), to say which failed:
-    the file's kind or its content."""
-    import warnings
-
-    from PIL import Image, UnidentifiedImageError
-
-    from .photo_checks import EXR_MAGIC
-
-    try:
-        with open(path, "rb") as f:
-            if f.read(4) == EXR_MAGIC:
-                return True
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            Image.open(path).close()
-    except UnidentifiedImageError:
-        return False
-    except Exception:  # unreadable, or too large for Pillow: an image all the same
-        return True
-    return True
-
-
 def read_file(path: str, shape: tuple[int, int] | None, with_alpha: bool, name: str,
               reuse: PhotoPixels | None = None, max_megapixels: int | None = None) -> PhotoPixels:
-    """Read a photo file upright through the core's reader (worker thread), as `relight image` does.
+    """Read a photo file upright through the core's reader (worker thread), as `relight image` does,
+    its header read once (relight.files.photo_header: size, orientation) and its refusals worded here.
 
     `shape` is (H, W) as Blender loaded it (stored, not turned), or None when Blender has not
     loaded the image. `with_alpha`: keep the file's alpha. `reuse`: the photo as decoded before,
     shared when its pixels are the same. `max_megapixels`: the panel's Max Photo Size, weighed
     against the file's header first."""
-    from relight.files.image_limits import MAX_PIXELS
-    from relight.files.photo import exif_orientation, read_photo
+    from relight.files.image_limits import ImageSizeError
+    from relight.files.photo import read_photo_with_header
+    from relight.files.photo_header import ImageNotFound, NotAnImage
 
-    from .photo_checks import DEFAULT_MEGAPIXELS, check_photo_file
+    from .photo_checks import DEFAULT_MEGAPIXELS, size_limits, size_refused
 
     megapixels = DEFAULT_MEGAPIXELS if max_megapixels is None else max_megapixels
-    check_photo_file(path, name, megapixels)  # in the artist's words, before the core's own check
     try:
-        orientation = exif_orientation(path)
-        rgb, alpha = read_photo(path, max_pixels=min(MAX_PIXELS, int(megapixels * 1_000_000)))
-    except FileNotFoundError:
+        rgb, alpha, header = read_photo_with_header(path, **size_limits(megapixels))
+    except ImageSizeError as exc:
+        raise size_refused(exc, name, megapixels) from None
+    except ImageNotFound:
         raise ValueError(f"The photo file of '{name}' is missing.") from None
+    except NotAnImage:
+        raise ValueError(f"'{name}' is not an image Blender can read ({os.path.basename(path)}).") from None
     except (ValueError, OSError) as exc:
-        if not _is_image_file(path):
-            raise ValueError(f"'{name}' is not an image Blender can read ({os.path.basename(path)}).") from None
         raise ValueError(f"The photo file of '{name}' cannot be read ({first_line(exc)}).") from None
-    if shape is not None and pixel_buffers.stored_size(rgb.shape[:2], orientation) != tuple(shape):
+    if shape is not None and pixel_buffers.stored_size(rgb.shape[:2], header.orientation) != tuple(shape):
         raise ValueError(f"The photo file of '{name}' changed on disk since Blender loaded it: "
                          "reload the image (Image > Reload) and relight.")
-    return _pixels(rgb, alpha if with_alpha else None, orientation, reuse)
+    return _pixels(rgb, alpha if with_alpha else None, header.orientation, reuse)
 
 
 def photo_from_blender(flat: np.ndarray, shape: tuple[int, int, int], *, srgb: bool, with_alpha: bool,

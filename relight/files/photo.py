@@ -4,10 +4,12 @@ Reads PNG/JPEG/TIFF/WebP (sRGB-encoded; EXIF orientation applied; 8- and
 16-bit; grey expanded to RGB; an alpha channel comes back as the mask) and
 EXR (linear). Writes 8-bit sRGB PNG, linear EXR, and a multi-layer EXR whose
 channels follow Blender's "<layer>.<pass>.<channel>" naming so its Image node
-shows every pass. The declared image size is weighed before any pixel is
-decoded (relight.files.image_limits: a pixel limit, the file's size, the memory
-free); 16-bit colour PNGs, which Pillow cuts to 8 bits, go through
-relight.files.png_decoder. Every failure to read is one ValueError. Writes are atomic.
+shows every pass. The header is read once, by relight.files.photo_header (size,
+format, orientation), and the declared size weighed before any pixel is decoded
+(relight.files.image_limits: a pixel limit, the file's size, the memory free);
+16-bit colour PNGs, which Pillow cuts to 8 bits, go through relight.files.png_decoder.
+Every failure to read is one ValueError (an ImageFileError when the file is at fault).
+Writes are atomic.
 """
 
 from __future__ import annotations
@@ -22,26 +24,18 @@ import numpy as np
 from relight.imaging.colour import decode_alpha_codes, decode_srgb_codes
 from relight.files.fileio import atomic_path
 from relight.files.image_limits import check_declared_size
-from relight.files.png_decoder import check_png_chunks, read_png16
+from relight.files.photo_header import EXR_MAGIC, ImageDamaged, PhotoHeader, open_photo, read_header
+from relight.files.png_decoder import read_png16
 
-__all__ = ["read_photo", "read_mask", "exif_orientation", "upright", "as_stored", "write_image", "write_png", "write_exr_image",
-           "write_layers_exr", "LAYER_NAME", "PHOTO_SUFFIXES"]
+__all__ = ["read_photo", "read_photo_with_header", "read_mask", "exif_orientation", "upright", "as_stored",
+           "write_image", "write_png", "write_exr_image", "write_layers_exr", "EXR_MAGIC", "LAYER_NAME",
+           "PHOTO_SUFFIXES"]
 
 LAYER_NAME = "Relight"       # render-layer name in multi-layer EXRs
 # lossless; on a relit photo's float32 values (not the 256 levels of a decoded JPEG) ZIP is smaller
 # and cheaper than PIZ, RLE and ZIPS (docs/BENCHMARKS.md, "Writing the output")
 EXR_COMPRESSION = "zip"
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp", ".exr")
-EXR_MAGIC = b"\x76\x2f\x31\x01"
-
-
-def _exists(path: Path) -> None:
-    if not path.exists():
-        raise ValueError(f"{path}: file not found")
-    if not path.is_file():
-        raise ValueError(f"{path}: not a file")
-    if path.stat().st_size == 0:
-        raise ValueError(f"{path}: file is empty")
 
 
 def read_photo(path: str | os.PathLike, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -51,86 +45,75 @@ def read_photo(path: str | os.PathLike, max_pixels: int | None = None) -> tuple[
     (default DEFAULT_MAX_PIXELS, at most MAX_PIXELS) bounds the declared size;
     see check_declared_size.
     """
-    path = Path(path)
-    _exists(path)
-    with open(path, "rb") as f:
-        magic = f.read(4)
+    rgb, alpha, _ = read_photo_with_header(path, max_pixels)
+    return rgb, alpha
+
+
+def read_photo_with_header(path: str | os.PathLike, max_pixels: int | None = None, *,
+                           weigh_file_size: bool | None = None) -> tuple[np.ndarray, np.ndarray | None, PhotoHeader]:
+    """read_photo's (rgb, mask), upright, and the file's header (relight.files.photo_header: its
+    size as stored, format, EXIF orientation, focal length), from one read of the header.
+    `weigh_file_size`: check_declared_size's (by default: only without `max_pixels`)."""
     with warnings.catch_warnings():
         # Pillow's warnings (corrupt EXIF, tags past the end, bomb sizes: our check spoke first)
         # would be stray stderr lines; the photo decodes or fails with one ValueError
         warnings.simplefilter("ignore")
-        if magic == EXR_MAGIC:
-            return _read_exr_photo(path, max_pixels)
-        return _read_pillow_photo(path, max_pixels)
+        with open_photo(path, max_pixels, weigh_file_size=weigh_file_size) as (header, im):
+            if im is None:
+                rgb, alpha = _read_exr_photo(header.path, max_pixels)
+            else:
+                rgb, alpha = _read_pillow_photo(im, header, max_pixels)
+    return rgb, alpha, header
 
 
 # ------------------------------------------------------------------ Pillow
 
 
-def _open_pillow(path: Path):
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            im = Image.open(path)
-    except Image.DecompressionBombError:
-        raise ValueError(f"{path}: image is too large (refused before decoding)") from None
-    except Exception as exc:  # Pillow raises UnidentifiedImageError, SyntaxError, struct.error...
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
-    return im
-
-
 @contextmanager
 def _decoder_errors(path: Path, what: str):
-    """Whatever a decoder raises (truncated data, bad EXIF, library errors) becomes
-    ValueError("PATH: WHAT (Type: message)"); our own ValueErrors, already worded,
+    """Whatever a decoder raises (truncated data, library errors) becomes
+    ImageDamaged("PATH: WHAT (Type: message)"); our own ValueErrors, already worded,
     and MemoryError pass unchanged."""
     try:
         yield
     except (ValueError, MemoryError):
         raise
     except Exception as exc:
-        raise ValueError(f"{path}: {what} ({type(exc).__name__}: {exc})") from None
+        raise ImageDamaged(path, f"{path}: {what} ({type(exc).__name__}: {exc})") from None
 
 
-def _read_pillow_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    im = _open_pillow(path)
-    try:
-        with _decoder_errors(path, "corrupt or truncated image"):
-            width, height = im.size
-            check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt=im.format)
-            if im.format == "PNG":
-                check_png_chunks(path)
-            if getattr(im, "n_frames", 1) > 1:
-                im.seek(0)  # animated/multi-page files: the first frame is the photo
-            rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
-            if isinstance(rawmode, tuple):
-                rawmode = rawmode[0]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
-                    # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
-                    decoded = read_png16(path, max_pixels)
-                    if decoded is not None:
-                        orientation = im.getexif().get(0x0112, 1)
-                        rgb, alpha = _decode_16bit(*decoded)
-                        return (np.ascontiguousarray(upright(rgb, orientation)),
-                                None if alpha is None else np.ascontiguousarray(upright(alpha, orientation)))
-                im.load()
-                return _pillow_to_linear(_upright(im), path)
-    finally:
-        im.close()
+def _read_pillow_photo(im, header: PhotoHeader, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The photo Pillow opened (open_photo: its size weighed, a PNG's chunks checked), decoded upright."""
+    path = header.path
+    with _decoder_errors(path, "corrupt or truncated image"):
+        if getattr(im, "n_frames", 1) > 1:
+            im.seek(0)  # animated/multi-page files: the first frame is the photo
+        rawmode = im.tile[0][3] if im.tile and len(im.tile[0]) > 3 else ""
+        if isinstance(rawmode, tuple):
+            rawmode = rawmode[0]
+        if im.format == "PNG" and im.mode in ("RGB", "RGBA") and str(rawmode).endswith(";16B"):
+            # Pillow keeps only 8 bits of 16-bit colour PNGs: decode those ourselves
+            decoded = read_png16(path, max_pixels)
+            if decoded is not None:
+                rgb, alpha = _decode_16bit(*decoded)
+                return (np.ascontiguousarray(upright(rgb, header.orientation)),
+                        None if alpha is None else np.ascontiguousarray(upright(alpha, header.orientation)))
+        im.load()
+        return _pillow_to_linear(_upright(im, header.orientation), path)
 
 
-def _upright(im):
-    """The image turned as its EXIF orientation says; itself when it says nothing (exif_transpose
-    would copy it: 72 MB at 24 MP)."""
-    from PIL import ImageOps
+# Pillow's turn for each EXIF orientation, as PIL.ImageOps.exif_transpose makes it
+_TRANSPOSE = {2: "FLIP_LEFT_RIGHT", 3: "ROTATE_180", 4: "FLIP_TOP_BOTTOM", 5: "TRANSPOSE", 6: "ROTATE_270",
+              7: "TRANSVERSE", 8: "ROTATE_90"}
 
-    return ImageOps.exif_transpose(im) if im.getexif().get(0x0112, 1) not in (0, 1) else im
+
+def _upright(im, orientation: int):
+    """The image turned as its header's EXIF orientation says; itself when it says nothing
+    (exif_transpose would copy it, 72 MB at 24 MP, and read the EXIF again)."""
+    from PIL import Image
+
+    method = _TRANSPOSE.get(orientation)
+    return im if method is None else im.transpose(getattr(Image.Transpose, method))
 
 
 # The EXIF orientation (1 - 8) is the turn from a file's stored pixels to the upright ones, as
@@ -156,19 +139,9 @@ def as_stored(upright_image: np.ndarray, orientation: int) -> np.ndarray:
 def exif_orientation(path: str | os.PathLike) -> int:
     """The EXIF orientation (1 - 8) of a photo file, the turn read_photo gives its pixels to stand
     them upright: 1 when it says none (and for EXR). For a caller that shows the file as stored
-    (Blender) and must turn read_photo's upright pixels back."""
-    path = Path(path)
-    with open(path, "rb") as f:
-        if f.read(4) == EXR_MAGIC:
-            return 1
-    im = _open_pillow(path)
-    try:
-        with _decoder_errors(path, "corrupt EXIF"), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            value = im.getexif().get(0x0112, 1)
-    finally:
-        im.close()
-    return value if value in range(1, 9) else 1
+    (Blender) and must turn read_photo's upright pixels back: its header's
+    (relight.files.photo_header.read_header), its size not weighed."""
+    return read_header(path, weigh=False).orientation
 
 
 def _pillow_to_linear(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -216,11 +189,9 @@ def _pick_rgb(channels: dict[str, np.ndarray], path: Path):
 
 
 def _read_exr_photo(path: Path, max_pixels: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    from relight.files.exr import exr_size, read_exr
+    """The EXR whose header open_photo read and weighed, decoded."""
+    from relight.files.exr import read_exr
 
-    width, height = exr_size(path)
-    # an EXR's header can declare what its (zip-compressed) data cannot hold: same weighing as PNG
-    check_declared_size(width, height, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt="EXR")
     with _decoder_errors(path, "corrupt EXR"):
         try:
             channels = read_exr(path)
@@ -260,16 +231,14 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
     a size mismatch and an all-zero mask.
     """
     path = Path(path)
-    _exists(path)
-    with open(path, "rb") as f:
-        is_exr = f.read(4) == EXR_MAGIC
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # as in read_photo: no stray stderr lines
-        if is_exr:
-            img, alpha = _read_exr_photo(path, max_pixels)
-            mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
-        else:
-            mask = _read_pillow_mask(path, max_pixels)
+        with open_photo(path, max_pixels) as (header, im):
+            if im is None:
+                img, alpha = _read_exr_photo(path, max_pixels)
+                mask = alpha if alpha is not None else np.clip(img.mean(axis=2), 0.0, 1.0)
+            else:
+                mask = _read_pillow_mask(im, header)
     if mask.shape != tuple(shape):
         raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]} but the photo is "
                          f"{shape[1]}x{shape[0]}")
@@ -278,26 +247,18 @@ def read_mask(path: str | os.PathLike, shape: tuple[int, int], max_pixels: int |
     return mask
 
 
-def _read_pillow_mask(path: Path, max_pixels: int | None = None) -> np.ndarray:
-    im = _open_pillow(path)
-    try:
-        with _decoder_errors(path, "corrupt or truncated mask image"):
-            check_declared_size(*im.size, path, max_pixels=max_pixels, file_bytes=path.stat().st_size, fmt=im.format)
-            if im.format == "PNG":
-                check_png_chunks(path)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                im.load()
-                im = _upright(im)
-                if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
-                    return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
-                if im.mode == "F":
-                    return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
-                if "A" in im.mode or "transparency" in im.info:
-                    return decode_alpha_codes(np.asarray(im.convert("RGBA"))[..., 3])
-                return decode_alpha_codes(np.asarray(im.convert("L")))  # grey as stored: white = person
-    finally:
-        im.close()
+def _read_pillow_mask(im, header: PhotoHeader) -> np.ndarray:
+    """The mask Pillow opened (open_photo: its size weighed, a PNG's chunks checked), decoded upright."""
+    with _decoder_errors(header.path, "corrupt or truncated mask image"):
+        im.load()
+        im = _upright(im, header.orientation)
+        if im.mode in ("I;16", "I;16L", "I;16B", "I;16N", "I"):
+            return np.clip(np.asarray(im, dtype=np.float32) / 65535.0, 0.0, 1.0)
+        if im.mode == "F":
+            return np.clip(np.nan_to_num(np.asarray(im, dtype=np.float32), nan=0.0), 0.0, 1.0)
+        if "A" in im.mode or "transparency" in im.info:
+            return decode_alpha_codes(np.asarray(im.convert("RGBA"))[..., 3])
+        return decode_alpha_codes(np.asarray(im.convert("L")))  # grey as stored: white = person
 
 
 # ------------------------------------------------------------------ writing

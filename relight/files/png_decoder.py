@@ -104,11 +104,17 @@ def _png_unfilter(filtered: np.ndarray, kinds: np.ndarray) -> np.ndarray:
     return out[1:, 1:].astype(np.uint8)
 
 
-def check_png_chunks(path: Path) -> None:
+EXIF_CHUNK_LIMIT = 1 << 20  # bytes: an eXIf chunk longer than this is not read (a JPEG's EXIF is under 64 KB)
+
+
+def check_png_chunks(path: Path) -> bytes | None:
     """Every chunk's declared length must fit in the file: Pillow reads the rest of a
     damaged IDAT with one read(length), which allocates `length` bytes (up to 4 GiB)
-    before finding the file shorter. Walks the 8-byte chunk headers only."""
+    before finding the file shorter. Walks the 8-byte chunk headers only, and returns the
+    body of the last eXIf chunk it passes (None when there is none): a PNG's EXIF may follow its
+    pixels, where Pillow finds it only by decoding them."""
     size = path.stat().st_size
+    exif = None
     with open(path, "rb") as f:
         pos = f.seek(len(_PNG_SIGNATURE))
         while pos + 8 <= size:
@@ -117,5 +123,8 @@ def check_png_chunks(path: Path) -> None:
                 raise ValueError(f"{path}: truncated or corrupt PNG (chunk {kind!r} declares {length:,} bytes, "
                                  f"past the end of the {size:,}-byte file)")
             if kind == b"IEND":
-                return
+                break
+            if kind == b"eXIf" and length <= EXIF_CHUNK_LIMIT:  # the last one, as Pillow keeps
+                exif = f.read(length)
             pos = f.seek(pos + 12 + length)
+    return exif
