@@ -152,7 +152,7 @@ def bench_scene(resolution: int, lights: int, samples: int) -> None:
 
 SPP_COUNTS = (16, 32, 64, 128, 256)
 SPP_REFERENCE = 1024
-# (label, denoise, OIDN guide prefilter): farm.options.DENOISE_PREFILTERS
+# (label, denoise, OIDN guide prefilter): farm.synthesis.scene_options.DENOISE_PREFILTERS
 DENOISE_MODES = (("off", False, "fast"), ("OIDN fast", True, "fast"), ("OIDN accurate", True, "accurate"))
 
 

@@ -102,7 +102,7 @@ VARIANTS = ("automatic map", "zip-compressed EXR", "farm", "no denoiser", "no EX
 
 def bench_calls(args) -> None:
     from farm.rendering import passes
-    from farm.options import SceneOptions
+    from farm.synthesis.scene_options import SceneOptions
 
     options = SceneOptions(resolution=args.res, lights=2, samples=args.samples)
     rows = {v: [] for v in VARIANTS}
@@ -144,7 +144,7 @@ REFERENCE_SEED = 7919
 
 def bench_spp(args) -> None:
     from farm.rendering import blender_scene, passes
-    from farm.options import SceneOptions
+    from farm.synthesis.scene_options import SceneOptions
 
     counts = [int(c) for c in args.counts.split(",")]
     maps = args.maps.split(",")  # "automatic" or an oversampling factor of the map's own width

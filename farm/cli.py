@@ -13,14 +13,14 @@ import sys
 from pathlib import Path
 
 from farm.synthesis.camera import FRAMINGS, parse_framings
-from farm.options import DENOISE_PREFILTERS, LIGHT_POOLS, PASS_NAMES, SPECULAR_MODES, SceneOptions
+from farm.synthesis.scene_options import DENOISE_PREFILTERS, LIGHT_POOLS, SPECULAR_MODES, SceneOptions
 from farm.execution.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
-from relight.command.cli_args import bounded_int, finite_float
+from relight.files import scene_passes
+from relight.files.argument_types import bounded_int, finite_float
 
 # Limits the runner enforces before any worker starts. Scene indices are
 # written with six digits (scene_NNNNNN), so first + scenes <= 1,000,000.
 MAX_SCENE_INDEX = 999_999
-KNOWN_PASSES = tuple(sorted(PASS_NAMES))
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -32,10 +32,10 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def _passes(text: str) -> frozenset:
     names = [p.strip() for p in text.split(",") if p.strip()]
-    unknown = sorted(set(names) - set(KNOWN_PASSES))
+    unknown = sorted(set(names) - set(scene_passes.CHOICES))
     if unknown or not names:
         raise argparse.ArgumentTypeError(
-            f"--passes must be a comma list of {','.join(KNOWN_PASSES)}, got {text!r}"
+            f"--passes must be a comma list of {','.join(sorted(scene_passes.CHOICES))}, got {text!r}"
         )
     return frozenset(names)
 
@@ -83,8 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--order", type=bounded_int(1, 8), default=4, help="SH order N")
     s.add_argument("--directions", type=bounded_int(16, 65536), default=256,
                    help="transport bake directions per vertex")
-    s.add_argument("--passes", type=_passes, default=",".join(KNOWN_PASSES),
-                   help="comma list: pt (path traced), prt (transport)")
+    s.add_argument("--passes", type=_passes, default=",".join(sorted(scene_passes.DEFAULT)),
+                   help="comma list of " + "; ".join(f"{p.name}: {p.what}" for p in scene_passes.PASSES
+                                                    if not p.always))
     s.add_argument("--specular", choices=SPECULAR_MODES, default="auto",
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from farm import scene as scene_module
-from farm.options import SceneOptions as _BaseOptions
+from farm.synthesis.scene_options import SceneOptions as _BaseOptions
 
 MOTIONS = ("turn", "sway")
 TURN_DEGREES = 60.0   # a slow turn: 2 degrees a frame over 30 frames (48 degrees/s at 24 fps)
@@ -44,7 +44,7 @@ MAX_CLIP_FRAMES = 1000
 
 @dataclass(frozen=True)
 class SceneOptions(_BaseOptions):
-    """farm.options.SceneOptions plus the clip's length and motion (recorded in every sidecar)."""
+    """farm.synthesis.scene_options.SceneOptions plus the clip's length and motion (recorded in every sidecar)."""
 
     clip_frames: int = 32
     motion: str = "turn"

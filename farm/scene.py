@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from farm.options import SceneOptions  # part of the job-module interface
-from relight.files import dataset
+from farm.synthesis.scene_options import SceneOptions  # part of the job-module interface
+from relight.files import dataset, scene_passes
 from relight.network import prt
 from relight.lighting import sh
 
@@ -379,12 +379,13 @@ def render_buffers(scene, sample: SceneSample, spec, baked: SceneBake, work_dir:
             path_trace_seconds.append(round(pt.seconds, 4))
         timings["path_trace"] = round(time.perf_counter() - t0, 4)
     timings["path_trace_render_calls"] = path_trace_seconds
-    if "body" in options.passes:
-        t0 = time.perf_counter()
-        from farm.rendering.body_pass import scene_body_buffers
+    from farm.rendering.body_pass import RAY_CAST_PASSES
 
-        channels.update(scene_body_buffers(sample).channels())
-        timings["body_pass"] = round(time.perf_counter() - t0, 4)
+    for name, channels_of in RAY_CAST_PASSES.items():
+        if name in options.passes:
+            t0 = time.perf_counter()
+            channels.update(channels_of(sample))
+            timings[f"{name}_pass"] = round(time.perf_counter() - t0, 4)
     return channels, timings
 
 
@@ -426,7 +427,7 @@ def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path, *,
         work.cleanup()
 
     asked = frozenset(options.passes)
-    skipped = [name for name in ("prt", "pt", "body") if name not in asked]
+    skipped = [name for name in scene_passes.CHOICES if name in scene_passes.DEFAULT and name not in asked]
     record, versions = sample.record(), _versions()
     timings["total_before_write"] = round(time.perf_counter() - t_total, 4)
     meta = {

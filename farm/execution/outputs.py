@@ -69,13 +69,9 @@ def check_scene(out: Path, index: int) -> SceneCheck:
     scene = read_scene(json_path(out, index))
     if scene.index != index:
         raise ValueError(f"scene {index}: sidecar says index {scene.index}")
-    arrays = {"alpha": scene.alpha, "albedo": scene.albedo, "normal": scene.normal,
-              "material": scene.material, "depth": scene.depth, "transport": scene.transport}
-    for kind in ("images", "shading", "prt"):
-        for k, plane in enumerate(getattr(scene, kind) or []):
-            arrays[f"{kind}.L{k}"] = plane
-    for name, pixels in arrays.items():
-        if pixels is not None and not np.isfinite(pixels).all():
+    for name, pixels in scene.groups.items():  # every channel group of relight/files/scene_passes.py it has
+        planes = pixels if isinstance(pixels, list) else [pixels]
+        if not all(np.isfinite(plane).all() for plane in planes):
             raise ValueError(f"scene {index}: {name} has NaN or Inf pixels")
     return SceneCheck(
         index=index,

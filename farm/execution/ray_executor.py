@@ -29,7 +29,7 @@ from farm.execution.outputs import (
 from farm.execution.pool import REPO_ROOT
 from farm.execution.run_config import FarmError, RunConfig
 from farm.execution.runbook import RunBook, Summary
-from farm.worker import is_disk_full
+from farm.execution.scene_job import is_disk_full
 
 ATTEMPT_DIR = "attempts"
 
@@ -119,7 +119,7 @@ def _kill_self(out: Path, index: int, timeout: float) -> None:
 def render_task(job_module: str, settings: dict, index: int, seed: int, out: str,
                 timeout: float, need_bytes: int) -> dict:
     """One scene inside a Ray worker process (bpy imported once per process)."""
-    from farm.worker import load_job, render_one
+    from farm.execution.scene_job import load_job, render_one
 
     out_dir = Path(out)
     # Each task holds one CPU of the cluster: one Cycles thread (farm.rendering.passes reads it).

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from farm.options import SceneOptions
+from farm.synthesis.scene_options import SceneOptions
 
 DEFAULT_JOB_MODULE = "farm.scene"
 

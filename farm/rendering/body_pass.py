@@ -11,7 +11,12 @@ a pixel's SUPERSAMPLE^2 rays that hit the body (box filter; Cycles' alpha uses a
 Blackman-Harris filter, so edges differ by about a pixel). `body_normal` is the
 smooth-shaded normal (the mesh's vertex normals, interpolated as Cycles does) averaged
 over the hits and renormalized, 0 where nothing was hit; `body_depth` the mean hit
-distance along the view axis (Y), 0 where nothing was hit.
+distance along the view axis (Y), 0 where nothing was hit. `body_back_depth` (the `body_back`
+pass) is the same mean for the far side, where each ray leaves the body (cast back toward the
+camera from beyond the body): with `body_depth`, the body's thickness along the ray.
+
+RAY_CAST_PASSES is what farm.scene renders from here: a pass of relight/files/scene_passes.py
+-> its channels of a drawn scene.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from farm.synthesis.camera import SENSOR_MM
+from farm.synthesis.meshops import vertex_normals
 
 SUPERSAMPLE = 2  # rays a pixel side: coverage in steps of 1/4
 
@@ -54,16 +60,9 @@ def film_directions(resolution: int, focal_mm: float, supersample: int = SUPERSA
 def body_pass(cam_vertices: np.ndarray, faces: np.ndarray, cam_normals: np.ndarray, resolution: int,
               focal_mm: float, supersample: int = SUPERSAMPLE) -> BodyBuffers:
     """Ray-cast the body mesh (camera frame) from the camera; see the module docstring."""
-    from embreex import rtcore_scene
-    from embreex.mesh_construction import TriangleMesh
-
-    vertices = np.ascontiguousarray(cam_vertices, dtype=np.float32)
     faces = np.ascontiguousarray(faces, dtype=np.int32)
-    scene = rtcore_scene.EmbreeScene()
-    TriangleMesh(scene, vertices, faces)
-    dirs = film_directions(resolution, focal_mm, supersample)
-    flat = dirs.reshape(-1, 3)
-    hit = scene.run(np.zeros_like(flat), flat, output=1)
+    flat = film_directions(resolution, focal_mm, supersample).reshape(-1, 3)
+    hit = _cast(cam_vertices, faces, np.zeros_like(flat), flat)
     prim = np.asarray(hit["primID"])
     inside = prim >= 0
     u, v = np.asarray(hit["u"], np.float64), np.asarray(hit["v"], np.float64)
@@ -82,13 +81,52 @@ def body_pass(cam_vertices: np.ndarray, faces: np.ndarray, cam_normals: np.ndarr
                        depth=depth.astype(np.float32))
 
 
-def scene_body_buffers(sample):
-    """The unclothed body of a farm.scene.SceneSample seen by its camera (BodyBuffers)."""
-    from farm.rendering.bake import vertex_normals
+def _cast(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> dict:
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
 
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene, np.ascontiguousarray(vertices, dtype=np.float32), np.ascontiguousarray(faces, dtype=np.int32))
+    return scene.run(np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(directions, np.float32),
+                     output=1)
+
+
+def body_back_depth(cam_vertices: np.ndarray, faces: np.ndarray, resolution: int, focal_mm: float,
+                    supersample: int = SUPERSAMPLE) -> np.ndarray:
+    """[R, R] float32: the mean view-axis depth where the camera's sub-pixel rays leave the mesh
+    (its last crossing along each ray), 0 where no ray meets it. Each ray is cast back toward the
+    camera from beyond the mesh; its first hit is the ray's last crossing."""
+    flat = film_directions(resolution, focal_mm, supersample).reshape(-1, 3)  # Y component 1: t is depth
+    beyond = float(np.max(cam_vertices[:, 1])) + 1.0
+    hit = _cast(cam_vertices, faces, flat * beyond, -flat)
+    inside = np.asarray(hit["primID"]) >= 0
+    depth = (beyond - np.asarray(hit["tfar"], np.float64)) * inside
+    k = supersample * supersample
+    hits = inside.reshape(resolution, resolution, k).sum(axis=2)
+    return (depth.reshape(resolution, resolution, k).sum(axis=2) / np.maximum(hits, 1)).astype(np.float32)
+
+
+def _camera_body(sample):
     if sample.body_mesh is None:
         raise ValueError(f"scene {sample.index}: no body mesh was drawn (the body pass needs one)")
     vertices, faces = sample.body_mesh
-    cam = sample.camera
-    normals = vertex_normals(vertices, faces) @ cam.world_to_camera.T
-    return body_pass(cam.to_camera(vertices), faces, normals, sample.options.resolution, cam.focal_mm)
+    return sample.camera.to_camera(vertices), faces
+
+
+def scene_body_back(sample) -> dict[str, np.ndarray]:
+    """The `body_back` pass of a farm.scene.SceneSample: its unclothed body's far side."""
+    vertices, faces = _camera_body(sample)
+    return {"body_back_depth": body_back_depth(vertices, faces, sample.options.resolution, sample.camera.focal_mm)}
+
+
+def scene_body_buffers(sample) -> BodyBuffers:
+    """The unclothed body of a farm.scene.SceneSample seen by its camera."""
+    vertices, faces = _camera_body(sample)
+    normals = vertex_normals(*sample.body_mesh) @ sample.camera.world_to_camera.T
+    return body_pass(vertices, faces, normals, sample.options.resolution, sample.camera.focal_mm)
+
+
+RAY_CAST_PASSES = {
+    "body": lambda sample: scene_body_buffers(sample).channels(),
+    "body_back": scene_body_back,
+}

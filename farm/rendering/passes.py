@@ -179,7 +179,7 @@ def render_path_traced(
     if denoise:
         cycles.denoiser = "OPENIMAGEDENOISE"
         cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-        cycles.denoising_prefilter = prefilter.upper()  # farm.options.DENOISE_PREFILTERS
+        cycles.denoising_prefilter = prefilter.upper()  # farm.synthesis.scene_options.DENOISE_PREFILTERS
     cycles.max_bounces = bounces
     cycles.diffuse_bounces = min(4, bounces)
     cycles.glossy_bounces = min(4, bounces)

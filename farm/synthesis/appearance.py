@@ -24,9 +24,8 @@ from farm.synthesis import hair as hair_mod
 from farm.synthesis.material_specs import (
     hsv_linear, jitter_hue, material, sample_fabric_colour, sample_hair_colour, sample_skin,
 )
-from farm.synthesis.meshops import submesh
+from farm.synthesis.meshops import submesh, vertex_normals
 from farm.synthesis.prints import sample_print
-from farm.rendering.bake import vertex_normals
 from farm.synthesis.bodies import Body
 
 TORSO = ("spine01", "spine02", "spine03", "spine04", "spine05", "clavicle", "shoulder01", "pelvis", "root")

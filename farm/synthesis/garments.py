@@ -26,8 +26,7 @@ import math
 
 import numpy as np
 
-from farm.rendering.bake import vertex_normals
-from farm.synthesis.meshops import smooth_noise, submesh
+from farm.synthesis.meshops import smooth_noise, submesh, vertex_normals
 
 # ------------------------------------------------------------------ mesh tools
 

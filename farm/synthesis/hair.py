@@ -22,8 +22,7 @@ import math
 import numpy as np
 
 from farm.synthesis import garments as g
-from farm.rendering.bake import vertex_normals
-from farm.synthesis.meshops import smooth_noise, submesh
+from farm.synthesis.meshops import smooth_noise, submesh, vertex_normals
 
 STYLES = ("bald", "buzz", "short", "medium", "long", "ponytail", "bun", "afro")
 STYLE_P = (0.07, 0.10, 0.24, 0.20, 0.21, 0.07, 0.05, 0.06)

@@ -1,4 +1,4 @@
-"""Small numpy mesh helpers shared by the clothing, hair and appearance modules."""
+"""Small numpy mesh helpers shared by the clothing, hair and appearance modules, the bake and the body pass."""
 
 from __future__ import annotations
 
@@ -30,3 +30,16 @@ def smooth_noise(points: np.ndarray, rng: np.random.Generator, octaves: int = 3,
             total += amp * np.sin(points @ k + phase)
             norm += amp
     return total / norm
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals; isolated vertices get +Z."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], face_n)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    out = np.where(length > 1e-20, n / np.maximum(length, 1e-20), np.array([0.0, 0.0, 1.0]))
+    return out

@@ -4,8 +4,9 @@ shared by its sub-commands (relight/cli.py, relight/command/cli_image.py)."""
 from __future__ import annotations
 
 import argparse
-import math
 import re
+
+from relight.files.argument_types import bounded_int, finite_float  # noqa: F401 (re-exported: the command's types)
 
 EXIT_BAD_INPUT = 2
 ROTATE_LIMIT = 1e6  # degrees either way: beyond, a float's angle mod 360 loses its precision
@@ -24,37 +25,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
-
-
-def finite_float(low: float, high: float, *, low_open: bool = False, what: str = "number"):
-    """argparse type: a finite float in [low, high] ((low, high] when low_open)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
-        if not math.isfinite(value) or value > high or value < low or (low_open and value == low):
-            raise argparse.ArgumentTypeError(
-                f"must be a finite {what} in {'(' if low_open else '['}{low:g}, {high:g}], got {text}")
-        return value
-
-    return parse
-
-
-def bounded_int(low: int, high: int, why: str = ""):
-    """argparse type: an integer in [low, high]."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"must be an integer in [{low}, {high}]{why}, got {text}")
-        return value
-
-    return parse
 
 
 # the --rotate type of `relight sh`, `image`, `video` and `light`: one definition

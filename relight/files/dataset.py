@@ -14,9 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from relight.files import scene_passes
 from relight.files.exr import read_exr, write_exr
 from relight.files.fileio import atomic_write_text, file_sha256
-from relight.lighting.sh import num_coeffs
+from relight.files.scene_passes import GROUPS, PASSES, PER_LIGHT, PER_PERSON, PLAIN, SH
+from relight.files.sh_sizes import num_coeffs
 
 __all__ = [
     "FORMAT",
@@ -36,60 +38,45 @@ __all__ = [
 
 FORMAT = "relight-scene/1"
 _STEM_RE = re.compile(r"^scene_(\d{6,})$")
-# grouped input name -> EXR channel suffixes
-_GEOMETRY = {
-    "alpha": ("A",),
-    "albedo": ("R", "G", "B"),
-    "normal": ("X", "Y", "Z"),
-    "material": ("R", "G", "B"),
-    "depth": ("Z",),
-}
-# optional: the unclothed body under the clothes and hair, seen by the same camera (farm "body" pass)
-_BODY = {
-    "body_normal": ("X", "Y", "Z"),
-    "body_alpha": ("A",),
-    "body_depth": ("Z",),
-}
-# optional: the farm's head mask (issue 37), the share of the pixel's person that is the head's
-# skin or the face's details (eyes, lips, brows); absent in scenes made before it
-_LABELS = {"head": ("A",)}
-# optional: a group scene's per-person masks (issue 47), person.P0.A .. person.P(N-1).A, each the
-# pixel's coverage by that person (the nearest surface wins where people overlap); they sum to alpha.
-# Each mask and each partial sum of up to MAX_PEOPLE of them is rounded once to float32 (a few
+# The channel groups, the passes they belong to and what each means: relight/files/scene_passes.py.
+# A group scene's per-person masks (issue 47), person.P0.A .. person.P(N-1).A, sum to alpha:
+# each mask and each partial sum of up to MAX_PEOPLE of them is rounded once to float32 (a few
 # 1e-7 of a coverage <= 1); the bound leaves room for readers summing in another order.
 PERSON_SUM_TOLERANCE = 1e-5
-_PERSON_RE = re.compile(r"person\.P(\d+)")
-_PER_LIGHT = ("image", "shading", "prt")
-_RGB = ("R", "G", "B")
+_REQUIRED = [g for g in PASSES[0].groups if not g.optional]  # the geometry pass: in every scene
+_REPEATED = re.compile(r"(\w+)\.([LP])(\d+)")  # image.L3, person.P0: a group repeated per light or person
 
 
 @dataclass
 class Scene:
-    """One finished scene. Arrays are float32 [H, W, C]; absent passes are None.
-
-    `images`, `shading`, `prt` are lists indexed by light K (or None);
-    `lights` is the JSON's light list with `sh`/`sh8` as float64 arrays.
+    """One finished scene. `groups` holds every channel group it has (relight/files/scene_passes.py),
+    float32 [H, W, C]; per-light groups as a list by light K, `transport` [H, W, (order+1)^2].
+    A group reads as an attribute (`scene.alpha`, `scene.body_depth`, `scene.shading`), None when
+    the scene lacks it; `images` and `people` are the `image` and `person` groups. `lights` is the
+    JSON's light list with `sh`/`sh8` as float64 arrays.
     """
 
     index: int
     exr_path: Path
     json_path: Path
     meta: dict
-    alpha: np.ndarray
-    albedo: np.ndarray
-    normal: np.ndarray
-    material: np.ndarray
-    depth: np.ndarray
-    transport: np.ndarray | None = None
-    images: list[np.ndarray] | None = None
-    shading: list[np.ndarray] | None = None
-    prt: list[np.ndarray] | None = None
+    groups: dict = field(default_factory=dict)
     lights: list[dict] = field(default_factory=list)
-    body_normal: np.ndarray | None = None  # [H, W, 3] unit, camera frame; 0 where the body is not seen
-    body_alpha: np.ndarray | None = None   # [H, W, 1] coverage of the unclothed body
-    body_depth: np.ndarray | None = None   # [H, W, 1] metres along the view axis; 0 off the body
-    head: np.ndarray | None = None         # [H, W, 1] head mask in [0, 1] (farm scenes since issue 37)
-    people: list[np.ndarray] | None = None  # group scenes (issue 47): per person K, [H, W, 1] coverage; sum = alpha
+
+    def __getattr__(self, name: str):
+        if name in GROUPS:
+            return self.__dict__.get("groups", {}).get(name)
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+
+    @property
+    def images(self) -> list[np.ndarray] | None:
+        """The path-traced images by light K ([H, W, 3] each), None without the pt pass."""
+        return self.groups.get("image")
+
+    @property
+    def people(self) -> list[np.ndarray] | None:
+        """Group scenes (issue 47): per person K, [H, W, 1] coverage summing to alpha; else None."""
+        return self.groups.get("person")
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -109,8 +96,7 @@ def scene_stem(folder, index: int) -> Path:
 
 def transport_channel_names(n: int) -> list[str]:
     """transport.00 .. transport.(n-1), zero-padded to at least two digits."""
-    width = max(2, len(str(n - 1)))
-    return [f"transport.{k:0{width}d}" for k in range(n)]
+    return scene_passes.sh_channel_names("transport", n)
 
 
 def _json_default(obj):
@@ -138,24 +124,40 @@ def _as_planes(name: str, arr, n_planes: int, hw) -> list[np.ndarray]:
     return [a[..., i] for i in range(n_planes)]
 
 
-def _light_key(name: str):
-    """'image.L3' -> ('image', 3); None when the name is not a per-light pass."""
-    m = re.fullmatch(r"(image|shading|prt)\.L(\d+)", name)
-    return (m.group(1), int(m.group(2))) if m else None
+def _group_of(name: str):
+    """A channels key -> (its ChannelGroup, light or person K or None); None when the table lacks it."""
+    group = GROUPS.get(name)
+    if group is not None:
+        return (group, None) if group.kind in (PLAIN, SH) else None
+    m = _REPEATED.fullmatch(name)
+    group = GROUPS.get(m.group(1)) if m else None
+    if group is None or group.kind != {"L": PER_LIGHT, "P": PER_PERSON}[m.group(2)]:
+        return None
+    return group, int(m.group(3))
+
+
+def _check_passes_come_together(present: set) -> None:
+    """A pass's own groups come together; its per-light groups need them (shading needs transport)."""
+    for render_pass in PASSES[1:]:
+        own = [g.name for g in render_pass.groups if g.kind != PER_LIGHT and not g.optional]
+        lit = [g.name for g in render_pass.groups if g.kind == PER_LIGHT]
+        found = [n for n in own + lit if n in present]
+        missing = [n for n in own if n not in present]
+        if found and missing and (len(missing) < len(own) or any(n in present for n in lit)):
+            raise ValueError(f"scene {render_pass.name} passes must come together ({', '.join(own + lit)}): "
+                             f"{found[0]} needs the {missing[0]} pass")
 
 
 def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
     """Write scene_NNNNNN.exr then scene_NNNNNN.json; returns their paths.
 
-    `channels` is grouped by pass, each [H, W, C] (or [H, W] for one plane):
-    alpha (1), albedo (3), normal (3), material (3), depth (1) always;
-    transport ((sh_order+1)^2) optionally; image.LK / shading.LK / prt.LK (3)
-    for lights K = 0..len(meta["lights"])-1 optionally; body_normal (3),
-    body_alpha (1), body_depth (1) optionally, all three or none; head (1, the head mask)
-    optionally; person.PK (1) for people K = 0..N-1 of a group optionally, summing to alpha
-    (and N = meta["people"]["count"] when meta has "people"). `meta` needs `index`,
-    `sh_order`, `lights`; other keys (seed, camera, body, pose, appearance,
-    passes, versions, timings) are stored as given. This function fills
+    `channels` maps each channel group of relight/files/scene_passes.py to [H, W, C] (or [H, W]
+    for one plane): the geometry pass's always (head and the person masks optional); a
+    per-light group as `<group>.LK` for every light K = 0..len(meta["lights"])-1; transport with
+    (sh_order+1)^2 planes; `person.PK` for people K = 0..N-1 of a group, summing to alpha (and
+    N = meta["people"]["count"] when meta has "people"). A pass's groups come together.
+    `meta` needs `index`, `sh_order`, `lights`; other keys (seed, camera, body, pose,
+    appearance, passes, versions, timings) are stored as given. This function fills
     `format`, `resolution`, `channels`, `exr_sha256`.
     """
     stem = Path(path_stem)
@@ -183,44 +185,34 @@ def write_scene(path_stem, channels: dict, meta: dict) -> tuple[Path, Path]:
 
     planes: dict[str, np.ndarray] = {}
     hw = None
-    for group, suffixes in _GEOMETRY.items():
-        if group not in channels:
-            raise ValueError(f"scene channels lack the required pass {group!r}")
-        for suffix, plane in zip(suffixes, _as_planes(group, channels[group], len(suffixes), hw)):
-            planes[f"{group}.{suffix}"] = plane
+    for group in _REQUIRED:
+        if group.name not in channels:
+            raise ValueError(f"scene channels lack the required pass {group.name!r}")
+        for suffix, plane in zip(group.suffixes, _as_planes(group.name, channels[group.name], len(group.suffixes), hw)):
+            planes[f"{group.name}.{suffix}"] = plane
             hw = plane.shape
-    body = [g for g in _BODY if g in channels]
-    if body and len(body) != len(_BODY):
-        raise ValueError(f"scene body passes must come together ({', '.join(_BODY)}), got {body}")
+    keys = {}
+    for name in channels:
+        keys[name] = _group_of(name)
+        if keys[name] is None:
+            raise ValueError(f"unknown scene pass {name!r}")
+    _check_passes_come_together({group.name for group, _ in keys.values()})
     for name, arr in channels.items():
-        if name in _GEOMETRY:
+        group, k = keys[name]
+        if group in _REQUIRED:
             continue
-        if name in _BODY or name in _LABELS:
-            sfx = _BODY.get(name) or _LABELS[name]
-            for suffix, plane in zip(sfx, _as_planes(name, arr, len(sfx), hw)):
-                planes[f"{name}.{suffix}"] = plane
-            continue
-        if name == "transport":
+        if group.kind == SH:
             for cname, plane in zip(transport_channel_names(n), _as_planes(name, arr, n, hw)):
                 planes[cname] = plane
             continue
-        if _PERSON_RE.fullmatch(name):
-            planes[f"{name}.A"] = _as_planes(name, arr, 1, hw)[0]
-            continue
-        key = _light_key(name)
-        if key is None:
-            raise ValueError(f"unknown scene pass {name!r}")
-        if key[1] >= len(lights):
-            raise ValueError(f"pass {name!r} names light {key[1]} but meta has {len(lights)} lights")
-        if key[0] in ("shading", "prt") and "transport" not in channels:
-            raise ValueError(f"pass {name!r} needs the transport pass")
-        for suffix, plane in zip(_RGB, _as_planes(name, arr, 3, hw)):
+        if group.kind == PER_LIGHT and k >= len(lights):
+            raise ValueError(f"pass {name!r} names light {k} but meta has {len(lights)} lights")
+        for suffix, plane in zip(group.suffixes, _as_planes(name, arr, len(group.suffixes), hw)):
             planes[f"{name}.{suffix}"] = plane
-    light_passes = [key for key in map(_light_key, channels) if key is not None]
-    for kind in _PER_LIGHT:
-        present = {k for pass_kind, k in light_passes if pass_kind == kind}
+    for group in GROUPS.values():
+        present = {k for g, k in keys.values() if g is group and g.kind == PER_LIGHT}
         if present and present != set(range(len(lights))):
-            raise ValueError(f"{kind} passes cover lights {sorted(present)}, expected 0..{len(lights) - 1}")
+            raise ValueError(f"{group.name} passes cover lights {sorted(present)}, expected 0..{len(lights) - 1}")
 
     _check_people(planes, meta, f"scene {stem.name}")
 
@@ -365,42 +357,34 @@ def read_scene(path, *, verify_hash: bool = True) -> Scene:
             raise ValueError(f"scene EXR {exr_path.name} lacks channels {missing}")
         return np.stack([planes[c] for c in names], axis=-1)
 
-    geometry = {g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _GEOMETRY.items()}
-    if any(c.startswith("body_") for c in planes):
-        geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _BODY.items()})
-    geometry.update({g: stack([f"{g}.{s}" for s in sfx]) for g, sfx in _LABELS.items() if f"{g}.{sfx[0]}" in planes})
+    groups = {}
+    for render_pass in PASSES:
+        own = [g for g in render_pass.groups if g.kind in (PLAIN, SH)]
+        rendered = render_pass.always or any(c.startswith(f"{g.name}.") for g in own for c in planes)
+        for g in own:
+            if g.optional and not any(c.startswith(f"{g.name}.") for c in planes):
+                continue
+            if rendered and g.kind == SH:
+                if sum(c.startswith(f"{g.name}.") for c in planes) != n:
+                    raise ValueError(f"scene EXR {exr_path.name} has the wrong number of {g.name} channels "
+                                     f"for order {order}")
+                groups[g.name] = stack(scene_passes.sh_channel_names(g.name, n))
+            elif rendered:
+                groups[g.name] = stack([f"{g.name}.{s}" for s in g.suffixes])
+        for g in render_pass.groups:
+            if g.kind == PER_LIGHT and any(c.startswith(f"{g.name}.L") for c in planes):
+                groups[g.name] = [stack([f"{g.name}.L{k}.{s}" for s in g.suffixes]) for k in range(len(lights))]
     masks = _check_people(planes, meta, f"scene EXR {exr_path.name}")
-    people = None if masks is None else [m[..., None] for m in masks]
-    tnames = transport_channel_names(n)
-    has_transport = any(c.startswith("transport.") for c in planes)
-    transport = stack(tnames) if has_transport else None
-    if has_transport and sum(c.startswith("transport.") for c in planes) != n:
-        raise ValueError(f"scene EXR {exr_path.name} has the wrong number of transport channels for order {order}")
-    per_light = {}
-    for kind in _PER_LIGHT:
-        if any(c.startswith(kind + ".L") for c in planes):
-            per_light[kind] = [stack([f"{kind}.L{k}.{s}" for s in _RGB]) for k in range(len(lights))]
-        else:
-            per_light[kind] = None
+    if masks is not None:
+        groups["person"] = [m[..., None] for m in masks]
     parsed_lights = []
     for light in lights:
         entry = dict(light)
         entry["sh"] = np.asarray(light["sh"], dtype=np.float64)
         entry["sh8"] = np.asarray(light["sh8"], dtype=np.float64)
         parsed_lights.append(entry)
-    return Scene(
-        index=int(meta["index"]),
-        exr_path=exr_path,
-        json_path=json_path,
-        meta=meta,
-        transport=transport,
-        images=per_light["image"],
-        shading=per_light["shading"],
-        prt=per_light["prt"],
-        lights=parsed_lights,
-        people=people,
-        **geometry,
-    )
+    return Scene(index=int(meta["index"]), exr_path=exr_path, json_path=json_path, meta=meta, groups=groups,
+                 lights=parsed_lights)
 
 
 def list_finished_scenes(folder) -> list[Path]:

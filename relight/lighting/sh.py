@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
+from relight.files.sh_sizes import MAX_ORDER, check_order, num_coeffs, order_from_num_coeffs
 from relight.imaging.colour import LUMINANCE_WEIGHTS
 
-MAX_ORDER = 64  # recurrences are stable far beyond this; the cap catches typos
 REFERENCE_LUMINANCE = 0.8  # the mean luminance a map is scaled to (docs/conventions.md, exposure): the one definition
 
 __all__ = [
@@ -37,30 +37,7 @@ __all__ = [
 ]
 
 
-# ---------------------------------------------------------------- sizes
-
-
-def check_order(order) -> int:
-    """`order` as an int; ValueError unless it is an integer in [0, MAX_ORDER]."""
-    if isinstance(order, bool) or not isinstance(order, (int, np.integer)):
-        raise ValueError(f"SH order must be an integer, got {order!r}")
-    if not 0 <= order <= MAX_ORDER:
-        raise ValueError(f"SH order must be in [0, {MAX_ORDER}], got {order}")
-    return int(order)
-
-
-def num_coeffs(order: int) -> int:
-    """Number of SH coefficients up to and including band `order`."""
-    order = check_order(order)
-    return (order + 1) ** 2
-
-
-def order_from_num_coeffs(n: int) -> int:
-    """Inverse of num_coeffs; ValueError unless n is a perfect square."""
-    root = math.isqrt(int(n)) if n >= 1 else 0
-    if n < 1 or root * root != n:
-        raise ValueError(f"{n} SH coefficients is not (order+1)^2 for any order")
-    return root - 1
+# ---------------------------------------------------------------- sizes (relight/files/sh_sizes.py)
 
 
 def validate_coeffs(coeffs, name: str = "coeffs") -> np.ndarray:

@@ -9,7 +9,7 @@ import pytest
 
 from farm import clips
 from farm.cli import parse_args
-from farm.options import SceneOptions as StillOptions
+from farm.synthesis.scene_options import SceneOptions as StillOptions
 
 SMALL = {"resolution": 64, "lights": 2, "samples": 4, "denoise": False, "bake_directions": 64}
 

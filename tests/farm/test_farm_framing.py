@@ -16,7 +16,7 @@ except ImportError:
     bpy = None
 
 from farm.synthesis import camera, hard_lights
-from farm.options import SceneOptions
+from farm.synthesis.scene_options import SceneOptions
 from relight.lighting import sh
 from relight.lighting.sh_projection import project_equirect
 

@@ -20,7 +20,7 @@ except ImportError:
 
 from farm.cli import parse_args
 from farm.execution.run_config import UsageError
-from farm.options import SceneOptions
+from farm.synthesis.scene_options import SceneOptions
 from farm.synthesis import camera, people
 from farm.synthesis.appearance import Part
 from relight.files import dataset

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from farm.options import SceneOptions
+from farm.synthesis.scene_options import SceneOptions
 
 
 def test_json_round_trip_is_lossless():

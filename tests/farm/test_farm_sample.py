@@ -14,7 +14,7 @@ SCRIPT = r"""
 import json, sys
 sys.modules["bpy"] = None  # any `import bpy` now raises ImportError
 import numpy as np
-from farm.options import SceneOptions
+from farm.synthesis.scene_options import SceneOptions
 from farm.scene import sample_scene
 
 def sky(params):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from farm.rendering import bake
+from farm.synthesis.meshops import vertex_normals
 from relight.network import prt
 from relight.lighting import sh, sh_projection, sh_rotation
 
@@ -18,7 +19,7 @@ def icosphere(subdivisions=3, radius=1.0, centre=(0.0, 0.0, 0.0)):
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     v = np.asarray(m.vertices, dtype=np.float64) + np.asarray(centre)
     f = np.asarray(m.faces, dtype=np.int64)
-    return v, f, bake.vertex_normals(v, f)
+    return v, f, vertex_normals(v, f)
 
 
 def constant_light(order, radiance=1.0):
@@ -94,7 +95,7 @@ def test_fully_enclosed_point_gets_no_light():
     outer_v, outer_f, _ = icosphere(2, radius=1.0)
     v = np.concatenate([inner_v, outer_v])
     f = np.concatenate([inner_f, outer_f + len(inner_v)])
-    n = np.concatenate([inner_n, -bake.vertex_normals(outer_v, outer_f)])
+    n = np.concatenate([inner_n, -vertex_normals(outer_v, outer_f)])
     result = bake.bake_transport(v, f, n, 2, 128, rng=np.random.default_rng(2))
     assert np.abs(result.transport[: len(inner_v)]).max() == 0.0
 

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from farm.rendering import bake
+from farm.synthesis.meshops import vertex_normals
 from model.networks import physics
 from relight.imaging import colour
 from relight.network import prt
@@ -50,7 +51,7 @@ def icosphere(subdivisions, radius=1.0, centre=(0.0, 0.0, 0.0)):
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     v = np.asarray(m.vertices, dtype=np.float64) + np.asarray(centre)
     f = np.asarray(m.faces, dtype=np.int64)
-    return v, f, bake.vertex_normals(v, f)
+    return v, f, vertex_normals(v, f)
 
 
 def test_parametric_transport_from_true_normal_and_visibility_matches_the_bake():

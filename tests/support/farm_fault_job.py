@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from farm.options import SceneOptions  # the real options: same fields, same JSON
+from farm.synthesis.scene_options import SceneOptions  # the real options: same fields, same JSON
 
 
 def _log(event: str, index: int) -> None:

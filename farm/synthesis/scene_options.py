@@ -1,5 +1,6 @@
 """The per-scene options of the farm: one bpy-free class for the command line,
-the workers and farm.scene (which needs bpy) alike."""
+the workers and farm.scene (which needs bpy) alike. The passes are those of
+relight/files/scene_passes.py, the scene files' one table."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-PASS_NAMES = frozenset({"pt", "prt", "body"})  # body: the unclothed body ray-cast (farm/rendering/body_pass.py)
+from relight.files import scene_passes
+from relight.lighting.sh import num_coeffs
+
 SPECULAR_MODES = ("auto", "on", "off")
 LIGHT_POOLS = ("train", "heldout")
 # OIDN prefilter of the albedo/normal guides: "fast" trusts them as rendered (they are
@@ -27,7 +30,7 @@ class SceneOptions:
     denoise_prefilter: str = "fast"
     sh_order: int = 4
     bake_directions: int = 256
-    passes: frozenset = frozenset({"pt", "prt", "body"})
+    passes: frozenset = scene_passes.DEFAULT
     specular: str = "auto"
     light_pool: str = "train"
     # issue 37: the framings a scene draws from (farm.synthesis.camera.FRAMINGS, "all" or a comma list;
@@ -56,8 +59,9 @@ class SceneOptions:
             raise ValueError(f"SceneOptions.denoise_prefilter must be one of {DENOISE_PREFILTERS}, "
                              f"got {self.denoise_prefilter!r}")
         passes = frozenset(self.passes)
-        if not passes <= PASS_NAMES:
-            raise ValueError(f"SceneOptions.passes must be a subset of {sorted(PASS_NAMES)}, got {sorted(passes)}")
+        if not passes <= set(scene_passes.CHOICES):
+            raise ValueError(f"SceneOptions.passes must be a subset of {sorted(scene_passes.CHOICES)}, "
+                             f"got {sorted(passes)}")
         if self.specular not in SPECULAR_MODES:
             raise ValueError(f"SceneOptions.specular must be one of {SPECULAR_MODES}, got {self.specular!r}")
         from farm.synthesis.camera import parse_framings
@@ -80,7 +84,6 @@ class SceneOptions:
             del d["people"]
         return d
 
-
     @classmethod
     def from_json(cls, settings: dict) -> "SceneOptions":
         # sidecars written before the prefilter was an option rendered with "accurate"
@@ -88,19 +91,11 @@ class SceneOptions:
         return cls(**dict(settings, passes=frozenset(settings["passes"])))
 
     def expected_channels(self) -> int:
-        """Float32 channels a scene EXR holds for these options (docs/ARCHITECTURE.md table)."""
-        n = (self.sh_order + 1) ** 2
-        channels = 1 + 3 + 3 + 3 + 1 + 1  # alpha, albedo, normal, material, depth, head
-        if "prt" in self.passes:
-            channels += n + 3 * self.lights * 2  # transport, shading.LK, prt.LK
-        if "pt" in self.passes:
-            channels += 3 * self.lights  # image.LK
-        if "body" in self.passes:
-            channels += 3 + 1 + 1  # body_normal, body_alpha, body_depth
+        """Float32 channels a scene EXR holds for these options (relight/files/scene_passes.py)."""
         from farm.synthesis.people import parse_people
 
-        most = parse_people(self.people)[1]
-        return channels + (most if most > 1 else 0)  # person.PK, one per person of a group
+        return scene_passes.channel_count(self.passes, num_coeffs(self.sh_order), self.lights,
+                                          parse_people(self.people)[1])
 
     def path_traced_images(self) -> int:
         """Path-traced images one scene yields when nothing is skipped."""
