@@ -51,8 +51,8 @@ def main(argv=None) -> int:
             together_people = [d.with_light(shared) for d in people]
             own_image, joint_image = photo.copy(), photo.copy()
             for d, j in zip(people, together_people):
-                d.relight_checked(light_b, 1.0, out=own_image, accumulate=True)
-                j.relight_checked(light_b, 1.0, out=joint_image, accumulate=True)
+                d.relight(light_b, out=own_image, accumulate=True)
+                j.relight(light_b, out=joint_image, accumulate=True)
             union = np.zeros(photo.shape[:2], bool)
             for m in scene.people:
                 inside = m[..., 0] > 0.99

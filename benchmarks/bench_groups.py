@@ -38,7 +38,7 @@ def main(argv=None) -> int:
         k = len(g.names)
         start = time.perf_counter()
         group = decompose_people(relighter, g.photo, **q.decompose_options(working_size=False))
-        out = group.relight_checked(light, 1.0)
+        out = group.relight(light)
         times.append(time.perf_counter() - start)
         found = [d.person_matte.alpha for d in group.people]
         ok = group.count == k

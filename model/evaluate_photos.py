@@ -94,7 +94,7 @@ def evaluate_photo(relighter: Relighter, path: Path, options: dict | None = None
         dec, source = relighter.decompose(image, matte="network", **options), "network alpha (no person found)"
     # the network's own resolution: the full-resolution result borrows the photo's
     # detail (runtime docstring), which would flatter a reconstruction measured there
-    rerendered = dec.relight_working(dec.light)
+    rerendered = dec.relit_at_working_size(dec.light)
     try:
         recon = metrics.all_metrics(rerendered, dec.photo_working, dec.alpha)
     except ValueError:  # empty matte: the network found no person
@@ -106,7 +106,7 @@ def evaluate_photo(relighter: Relighter, path: Path, options: dict | None = None
     for azimuth in SHEET_DIRECTIONS:
         light = directional_light(azimuth, dec.sh_order)
         tiles.append(dec.relight(light))
-        working[azimuth] = dec.relight_working(light)
+        working[azimuth] = dec.relit_at_working_size(light)
     motion = metrics.spatial_change(working[0.0], working[180.0], dec.alpha) if dec.alpha.any() else 0.0
     backlight = metrics.luminance_ratio(working[180.0], working[0.0], dec.alpha) if dec.alpha.any() else float("nan")
     cast = (float(np.mean([metrics.colour_cast_deg(working[a], dec.photo_working, dec.alpha) for a in working]))

@@ -1,6 +1,6 @@
 """Count the hops a photo takes through the core package while `relight image` relights it.
 
-    python tools/trace_hops.py [PHOTO] [--light sunset] [--quality best] [--list]
+    python tools/trace_hops.py [PHOTO] [--light sunset] [--quality best] [--list] [--from run_image]
 
 Runs `relight image PHOTO --light LIGHT --quality QUALITY --out TMP.png` in this process
 (relight.cli.main) under sys.setprofile / threading.setprofile and reports, for the calls
@@ -22,6 +22,12 @@ its subpackages; not the standard library, not third-party code):
   module that is already in that sequence is one return to a module already left. An
   edge seen first in an earlier thread (threads taken main thread first, then by name)
   is not counted again.
+
+`--from FUNCTION` also counts both within one call: the hops first taken, on any thread, while
+the first project function whose qualified name is FUNCTION (`run_image`: `relight image` from
+its parsed arguments on) runs on the main thread, and their returns, the main thread's sequence
+starting at FUNCTION's module (a module left and entered again within the call is a return;
+what the parser's construction entered before is not).
 
 The counts are a fresh process's: run again in one process, the command skips what its
 first run cached (onnxruntime sessions, tables) and takes fewer hops.
@@ -56,11 +62,15 @@ DEFAULT_PHOTO = PACKAGE / "data" / "examples" / "grace_hopper.jpg"
 class Tracer:
     """The profile function of every thread: per thread, its distinct edges in first-seen order."""
 
-    def __init__(self):
+    def __init__(self, scope: str | None = None):
         self.lock = threading.Lock()
         self.edges: dict[str, list[tuple[str, str]]] = {}  # thread name -> distinct edges in order
         self.seen: dict[str, set] = {}
         self.roots: dict[str, list[str]] = {}  # thread name -> functions entered with no project caller
+        self.scope = scope  # a function's qualified name: the edges first taken while its call runs, too
+        self.scope_frame = None  # that call's frame while it runs on the main thread
+        self.scope_function: str | None = None  # 'module:qualname' of the scope's call
+        self.scoped = Tracer() if scope is not None else None  # the edges and roots within the call
         self.calls = 0  # every call into a project function (raw)
         self.module_changes = 0  # every call that changes the innermost project module (raw)
         self.raw_returns = Counter()  # raw: calls into a module entered before in the same thread
@@ -98,6 +108,9 @@ class Tracer:
         return found
 
     def __call__(self, frame, event, arg):
+        if event == "return" and frame is self.scope_frame:
+            self.scope_frame = None  # the scope's call returned: nothing after it is within
+            return
         if event != "call":
             return
         module = self.module(frame.f_code.co_filename)
@@ -108,6 +121,16 @@ class Tracer:
             return  # import-time code
         callee = f"{module}:{frame.f_code.co_qualname}"
         thread = threading.current_thread().name
+        if self.scoped is not None:
+            if (self.scope_frame is None and self.scope_function is None and thread == "MainThread"
+                    and frame.f_code.co_qualname == self.scope):
+                self.scope_frame, self.scope_function = frame, callee  # the first such call only
+            elif self.scope_frame is not None:
+                self.scoped.record(thread, module, caller_module, caller, callee)
+        self.record(thread, module, caller_module, caller, callee)
+
+    def record(self, thread: str, module: str, caller_module: str | None, caller: str | None, callee: str) -> None:
+        """One call into project function `callee` (of `module`) by `caller` (None: no project caller)."""
         with self.lock:
             self.calls += 1
             self.called[callee] += 1
@@ -132,11 +155,14 @@ def _threads_in_order(names):
     return sorted(names, key=lambda n: (n != "MainThread", n))
 
 
-def count(tracer: Tracer):
-    """(hop list [(thread, caller, callee, returns_to_module or None)], returns per module)."""
+def count(tracer: Tracer, start: str | None = None):
+    """(hop list [(thread, caller, callee, returns_to_module or None)], returns per module); `start`:
+    the main thread's first module ('module:qualname' of the function it starts in), when its edges
+    have no root of their own (a scope's)."""
     hops, returns, done = [], Counter(), set()
     for thread in _threads_in_order(set(tracer.edges) | set(tracer.roots)):
-        sequence = [f.split(":")[0] for f in tracer.roots.get(thread, [])[:1]]
+        first = tracer.roots.get(thread, [])[:1] or ([start] if start and thread == "MainThread" else [])
+        sequence = [f.split(":")[0] for f in first]
         for caller, callee in tracer.edges.get(thread, []):
             if (caller, callee) in done:
                 continue
@@ -154,7 +180,7 @@ def count(tracer: Tracer):
 
 def by_caller(hops) -> str:
     """The hop list one line per caller, callers in the order first seen, `relight/` and `.py`
-    left out: `cli_image.run_image -> cli_output.light_inputs, cli_output.check_not_an_input*`."""
+    left out: `cli_image.run_image -> cli_image.ImageRequest.from_args, cli_output.check_not_an_input`."""
     def short(function: str) -> str:
         module, name = function.split(":", 1)
         return module.removeprefix("relight/").removesuffix(".py").replace("/", ".") + "." + name
@@ -175,6 +201,9 @@ def main(argv=None) -> int:
     parser.add_argument("--by-caller", action="store_true",
                         help="print the hop list one line per caller (as docs/ARCHITECTURE.md shows it): "
                              "module.function [thread] -> its callees, * on a return to a module already left")
+    parser.add_argument("--from", dest="scope", metavar="FUNCTION", default=None,
+                        help="also count the hops and returns within the first call of FUNCTION (a qualified "
+                             "name: run_image) on the main thread, the returns from FUNCTION's module on")
     parser.add_argument("--calls", action="append", default=[], metavar="TEXT",
                         help="also print how often each project function whose 'module:qualname' contains "
                              "TEXT was called (every call, any caller: how often a check ran); repeatable")
@@ -185,7 +214,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "relit.png"
         command = ["image", args.photo, "--light", args.light, "--quality", args.quality, "--out", str(out)]
-        tracer = Tracer()
+        tracer = Tracer(args.scope)
         threading.setprofile(tracer)
         sys.setprofile(tracer)
         try:
@@ -218,6 +247,18 @@ def main(argv=None) -> int:
     print(f"{'raw: calls into project functions':40s} {tracer.calls:6d}")
     print(f"{'raw: module changes':40s} {tracer.module_changes:6d}")
     print(f"{'raw: returns to a module entered before':40s} {sum(tracer.raw_returns.values()):6d}")
+    if tracer.scoped is not None:
+        if tracer.scope_function is None:
+            print(f"trace_hops: --from {args.scope}: no such function was called", file=sys.stderr)
+            return 1
+        scoped, scoped_returns = count(tracer.scoped, tracer.scope_function)
+        if args.by_caller:
+            print(f"within {tracer.scope_function}:")
+            print(by_caller(scoped))
+        print(f"{'within ' + args.scope + ': function hops':40s} {len(scoped):6d}")
+        print(f"{'within ' + args.scope + ': returns':40s} {sum(scoped_returns.values()):6d}")
+        for module, n in scoped_returns.most_common():
+            print(f"    {module:36s} {n:6d}")
     for text in args.calls:
         for function, n in sorted(tracer.called.items()):
             if text in function:

@@ -2,7 +2,7 @@
 
 The add-on's outputs, dials, preview and Save Layers take one decomposition (relight, layer,
 shadow_layer, size, photo, mask, light); `People` gives them the group's: the relit image is
-everyone relit under the photo's one light (Group.relight_checked), a layer is the sum of the
+everyone relit under the photo's one light (Group.relight), a layer is the sum of the
 people's (each is zero outside its own matte, the mattes sum to at most 1), the shadow layer the
 product of theirs (each is 1 outside its person), the mask the mattes' sum. What only one
 decomposition has (the working-resolution maps Compositing Setup's person proxy reads) is the
@@ -46,9 +46,7 @@ class People:
     def relight(self, coeffs, exposure_ev: float = 0.0, out: np.ndarray | None = None,
                 shadows: bool = False) -> np.ndarray:
         """Everyone relit by `coeffs` over the untouched photo, [H, W, 3] (into `out` when given)."""
-        from relight.network.decomposition import checked_light, exposure_scale
-
-        return self.group.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), shadows, out)
+        return self.group.relight(coeffs, exposure_ev, shadows=shadows, out=out)
 
     def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
         """Decomposition.layer summed over the people: each is zero outside its person's matte."""

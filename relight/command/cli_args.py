@@ -1,5 +1,5 @@
 """The `relight` command's argument parsing: the parser class and the value types
-shared by its sub-commands (relight/cli.py, relight/command/cli_image.py)."""
+shared by its sub-commands (relight/cli.py, relight/command/request.py)."""
 
 from __future__ import annotations
 
@@ -33,8 +33,8 @@ rotation_deg = finite_float(-ROTATE_LIMIT, ROTATE_LIMIT, what="angle (degrees)")
 
 def exposure_ev(text: str) -> float:
     """argparse type of --exposure: the one check of the exposure on the command's path
-    (relight.network.decomposition.exposure_scale's bound and message); trusted after it."""
-    from relight.network.decomposition import exposure_scale
+    (relight.lighting.light.exposure_scale's bound and message); trusted after it."""
+    from relight.lighting.light import exposure_scale
 
     try:
         value = float(text)

@@ -20,14 +20,17 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from relight.command.request import PhotoRequest
+
 
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `light` sub-command to the `relight` command's subparsers."""
-    from relight.command.cli_image import add_photo_options
+    from relight.command.request import add_photo_options
     from relight.lighting.light_map import DEFAULT_WIDTH, MAX_WIDTH, MIN_WIDTH
 
     p = subparsers.add_parser("light", help="the photo's light as an equirect EXR for a Blender World",
@@ -71,45 +74,60 @@ def _output(out: str) -> Path:
     return path
 
 
-def run_light(args) -> int:
-    """Entry point of `relight light` (argparse namespace from register())."""
-    from relight.command.cli_output import check_not_an_input, claim_output
+@dataclass(frozen=True)
+class LightMapRequest:
+    """`relight light`'s parsed options, checked once at the command's edge (from_args)."""
 
-    photo = Path(args.photo)
-    if not photo.is_file():
-        raise ValueError(f"{photo}: no such file")
-    out = _output(args.out)
+    photo: Path
+    out: Path
+    width: int
+    json: bool
+    lamp_free: bool
+    options: PhotoRequest
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "LightMapRequest":
+        photo = Path(args.photo)
+        if not photo.is_file():
+            raise ValueError(f"{photo}: no such file")
+        return cls(photo, _output(args.out), args.width, args.json, args.lamp_free, PhotoRequest.from_args(args))
+
+
+def run_light(args) -> int:
+    """Entry point of `relight light` (argparse namespace from register()): its request built once, here."""
+    from relight.command.cli_output import claim_output
+
+    request = LightMapRequest.from_args(args)
     # as relight image and video: an EXR photo (or mask) named as --out would be replaced, and
     # two runs writing one map hold one lock
-    check_not_an_input(out, {"photo": photo, "--mask": args.mask})
-    with claim_output(out, "relight light"):
-        return _write_light(args, photo, out)
+    with claim_output(request.out, "relight light", inputs={"photo": request.photo, "--mask": request.options.mask}):
+        return _write_light(request)
 
 
-def _write_light(args, photo: Path, out: Path) -> int:
+def _write_light(request: LightMapRequest) -> int:
     """run_light's work once the output is claimed: decompose, split or map the light, write, report."""
-    from relight.command.cli_image import decompose_photo, open_relighter, photo_named, read_photo_and_mask
+    from relight.command.request import decompose_photo, open_relighter, read_photo_and_mask
     from relight.files.exr import write_exr
     from relight.lighting.light_map import irradiance_error, light_map
 
-    relighter = open_relighter(args)
-    image, mask = read_photo_and_mask(photo, args.mask, args.max_pixels)
-    with photo_named(photo):
-        decomposition, group = decompose_photo(relighter, image, mask, args)  # the light of everyone in it
-    if args.lamp_free:
-        result = light_map(decomposition.light, args.width)
+    photo, out, options = request.photo, request.out, request.options
+    relighter = open_relighter(options)
+    image, mask = read_photo_and_mask(photo, options.mask, options.max_pixels)
+    decomposition, group = decompose_photo(relighter, image, mask, options, photo)  # the light of everyone in it
+    if request.lamp_free:
+        result = light_map(decomposition.light, request.width)
         pixels, key = result.pixels, None
         error = irradiance_error(result.coeffs, result.pixels)
         world = {"fitted": result.fitted, "coeffs": np.round(result.map_coeffs, 9).tolist()}
     else:
         from relight.lighting.key_light import chroma_spread, split_irradiance_error, split_light
 
-        split = split_light(decomposition.light, args.width)
+        split = split_light(decomposition.light, request.width)
         pixels, key = split.pixels, split.key
         error = split_irradiance_error(split, sh_order(decomposition.light))
         world = {"chroma_spread": round(chroma_spread(pixels), 6)}
     write_exr(out, {c: pixels[..., i] for i, c in enumerate("RGB")})
-    if args.json:
+    if request.json:
         height, width = pixels.shape[:2]
         print(json.dumps({
             "photo": str(photo), "out": str(out), "order": sh_order(decomposition.light),

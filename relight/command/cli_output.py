@@ -29,13 +29,6 @@ def check_not_an_input(out, inputs: dict) -> None:
                              "another output")
 
 
-def light_inputs(args) -> dict:
-    """The files the light and photo options read: --light (a file, not a preset name), --light-from, --mask."""
-    light = getattr(args, "light", None)
-    return {"--light map": light if light is not None and Path(light).is_file() else None,
-            "--light-from photo": getattr(args, "light_from", None), "--mask": getattr(args, "mask", None)}
-
-
 def check_folder_name(out: Path, writes: str) -> None:
     """ValueError when `out`, about to become a folder of `writes`, is not a folder yet and
     ends in a file's extension (`o.gif`): the user meant a file of a format not written."""
@@ -46,12 +39,15 @@ def check_folder_name(out: Path, writes: str) -> None:
 
 
 @contextmanager
-def claim_output(out: Path, command: str, folders=()):
+def claim_output(out: Path, command: str, folders=(), inputs: dict | None = None):
     """Hold the lock of output `out` (relight.files.fileio.output_lock) and remove the temporaries
     that a killed run (kill -9) left beside it or, for a folder, inside it (and inside
-    `folders`, the job's other folders): with the lock held no live writer can own them."""
+    `folders`, the job's other folders): with the lock held no live writer can own them.
+    `inputs` ({what: path or None}): refused first when `out` is one of them (check_not_an_input)."""
     from relight.files.fileio import output_lock, stale_temps, stale_temps_in
 
+    if inputs is not None:
+        check_not_an_input(out, inputs)
     with output_lock(out, command):
         for tmp in stale_temps(out) + [t for f in (out, *folders) for t in stale_temps_in(f)]:
             tmp.unlink(missing_ok=True)

@@ -27,11 +27,13 @@ import argparse
 import errno
 import signal
 import sys
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
+from relight.command.request import LightRequest, PhotoRequest
 from relight.command.video_job import JOB_FILE, STATE_FILE, Frames as _Frames  # noqa: F401 (the job's files)
 
 EXIT_FAILED = 1
@@ -43,7 +45,7 @@ WORK_SUFFIX = ".frames"  # OUTPUT.mp4.frames/: a resumable video job's frames
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the `video` sub-command to the `relight` command's subparsers."""
     from relight.command.cli_args import finite_float
-    from relight.command.cli_image import add_relight_parser
+    from relight.command.request import add_relight_parser
     from relight.command.clip import DEFAULT_STABILITY, FILTER_MODES
 
     p = add_relight_parser(subparsers, "video", help="relight everyone in a video or a folder of frames",
@@ -83,25 +85,56 @@ def _fps(text: str) -> Fraction:
     return value
 
 
-def _plan(args, info):
+@dataclass(frozen=True)
+class VideoRequest:
+    """`relight video`'s parsed options, checked once at the command's edge (from_args), and the light
+    and photo options as values."""
+
+    input: str
+    out: str
+    format: str | None
+    layers: bool
+    fps: Fraction | None
+    stability: float
+    filter: str
+    resume: bool
+    light: LightRequest
+    photo: PhotoRequest
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "VideoRequest":
+        if args.mask is not None:
+            raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
+                             "matte find the person in each frame")
+        if args.refine:
+            raise ValueError("--refine applies to photos (relight image, relight light): a clip's light is the "
+                             "shot's, held steady over its frames (--stability)")
+        from relight.command.request import relight_options
+
+        return cls(args.input, args.out, args.format, args.layers, args.fps, args.stability, args.filter,
+                   args.resume, *relight_options(args))
+
+
+def _plan(request: VideoRequest, info):
     """(kind "video" | "frames", output path, frames folder or None, frame format)."""
-    from relight.command.cli_output import check_folder_name, check_not_an_input, light_inputs
+    from relight.command.cli_output import check_folder_name, check_not_an_input
     from relight.files.fileio import same_file
     from relight.files.video_out import OUTPUT_VIDEO_SUFFIXES
 
-    out = Path(args.out)
-    source = Path(args.input)
+    out = Path(request.out)
+    source = Path(request.input)
     if source.is_dir() and out.exists() and same_file(out, source):
         raise ValueError("--out must differ from the input folder")
-    check_not_an_input(out, {"input": source, **light_inputs(args)})
+    check_not_an_input(out, {"input": source, "--light map": request.light.map_file,
+                             "--light-from photo": request.light.light_from, "--mask": request.photo.mask})
     if out.suffix.lower() in OUTPUT_VIDEO_SUFFIXES:
-        if args.layers or args.format is not None:
+        if request.layers or request.format is not None:
             raise ValueError("--layers and --format apply to a folder of frames, not to a video output")
         if not out.parent.is_dir():
             raise ValueError(f"output folder does not exist: {out.parent}")
         if out.is_dir():
             raise ValueError(f"--out {out} is a folder")
-        work = out.with_name(out.name + WORK_SUFFIX) if args.resume else None
+        work = out.with_name(out.name + WORK_SUFFIX) if request.resume else None
         return "video", out, work, "png"
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder (a video output ends in "
@@ -109,8 +142,8 @@ def _plan(args, info):
     check_folder_name(out, f"videos {' '.join(OUTPUT_VIDEO_SUFFIXES)}, or a folder of PNG or EXR frames")
     if not out.parent.is_dir():
         raise ValueError(f"output folder does not exist: {out.parent}")
-    fmt = args.format or ("exr" if args.layers or (info.kind == "frames" and _exr_frames(source)) else "png")
-    if args.layers and fmt != "exr":
+    fmt = request.format or ("exr" if request.layers or (info.kind == "frames" and _exr_frames(source)) else "png")
+    if request.layers and fmt != "exr":
         raise ValueError("--layers writes multi-layer EXR frames: leave --format out or give --format exr")
     return "frames", out, out, fmt
 
@@ -119,14 +152,15 @@ def _exr_frames(folder: Path) -> bool:
     return any(p.suffix.lower() == ".exr" for p in folder.iterdir())
 
 
-def _fingerprint(args, info, relighter) -> dict:
+def _fingerprint(request: VideoRequest, info, relighter) -> dict:
     """What decides the frames: a resumed job must have the same."""
-    return {"input": str(Path(args.input).resolve()), "frames": info.frames, "size": [info.width, info.height],
-            "light": args.light, "light_from": args.light_from and str(Path(args.light_from).resolve()),
-            "rotate": args.rotate, "exposure": args.exposure, "normalize": args.normalize,
-            "model": relighter.sha256, "working_size": relighter.working_size, "matte": args.matte,
-            "person": args.person, "stability": args.stability, "filter": args.filter,
-            "format": args.format, "layers": args.layers}
+    light, photo = request.light, request.photo
+    return {"input": str(Path(request.input).resolve()), "frames": info.frames, "size": [info.width, info.height],
+            "light": light.light, "light_from": light.light_from and str(Path(light.light_from).resolve()),
+            "rotate": light.rotate, "exposure": light.exposure, "normalize": light.normalize,
+            "model": relighter.sha256, "working_size": relighter.working_size, "matte": photo.matte,
+            "person": photo.person, "stability": request.stability, "filter": request.filter,
+            "format": request.format, "layers": request.layers}
 
 
 def _write_failure(exc: OSError, out: Path, frames, kind: str) -> str:
@@ -165,42 +199,36 @@ def _on_sigterm(handler):
 
 
 def run_video(args) -> int:
-    """Entry point of `relight video` (argparse namespace from register())."""
+    """Entry point of `relight video` (argparse namespace from register()): its request built once, here."""
     from relight.command.cli_output import claim_output
     from relight.files.video_io import open_clip
 
-    if args.mask is not None:
-        raise ValueError("--mask applies to one photo; give the frames an alpha channel, or let the person "
-                         "matte find the person in each frame")
-    if args.refine:
-        raise ValueError("--refine applies to photos (relight image, relight light): a clip's light is the shot's, "
-                         "held steady over its frames (--stability)")
-    clip = open_clip(args.input, args.fps, args.max_pixels)
+    request = VideoRequest.from_args(args)
+    clip = open_clip(request.input, request.fps, request.photo.max_pixels)
     info = clip.info
-    kind, out, folder, fmt = _plan(args, info)
+    kind, out, folder, fmt = _plan(request, info)
     with claim_output(out, "relight video", folders=[folder] if folder is not None else []):
-        return _run(args, clip, info, kind, out, folder, fmt)
+        return _run(request, clip, info, kind, out, folder, fmt)
 
 
-def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) -> int:
+def _run(request: VideoRequest, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) -> int:
     """run_video once it holds the output's lock."""
-    from relight.network import quality
-    from relight.command.cli_image import open_relighter, target_light
+    from relight.command.request import relighter_and_light
     from relight.command.clip import ClipRelighter
     from relight.models.session import cores_available
     from relight.files.video_io import frame_spans
     from relight.files.video_out import VideoWriter
 
+    photo = request.photo
     # frames are analysed `workers` at once, each network on one thread: on few cores this beats
     # onnxruntime's intra-op threads on these small inputs (docs/BENCHMARKS.md)
-    workers = args.threads or cores_available()
-    relighter = open_relighter(argparse.Namespace(**{**vars(args), "threads": 1}))
-    light = target_light(args, relighter)
-    preset = quality.preset(args.quality)
-    runner = ClipRelighter(relighter, light, args.exposure, matte=args.matte, person=args.person,
-                           stability=args.stability, mode=args.filter, threads=1,
+    workers = photo.threads or cores_available()
+    relighter, light = relighter_and_light(request.light, replace(photo, threads=1))
+    preset = photo.preset
+    runner = ClipRelighter(relighter, light, matte=photo.matte, person=photo.person,
+                           stability=request.stability, mode=request.filter, threads=1,
                            matte_method=preset.matte_method, augment=preset.augment)
-    if args.filter == "flow":
+    if request.filter == "flow":
         from relight.command.clip_maps import dis_flow
 
         dis_flow(np.zeros((8, 8), np.float32), np.zeros((8, 8), np.float32))  # OpenCV missing: fail now
@@ -209,7 +237,7 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
     previous = _on_sigterm(_terminate_as_interrupt)
     try:
         if folder is not None:
-            frames = _Frames(folder, names, fmt, _fingerprint(args, info, relighter), args.resume,
+            frames = _Frames(folder, names, fmt, _fingerprint(request, info, relighter), request.resume,
                              video=kind == "video")
             if frames.complete is not None and len(frames.done) >= frames.complete and kind == "frames":
                 frames.finish(frames.complete)
@@ -219,7 +247,7 @@ def _run(args, clip, info, kind: str, out: Path, folder: Path | None, fmt: str) 
                 runner.load_state(frames.state)
         if kind == "video" and folder is None:
             video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
-        done, written, nobody, clamped = _loop(clip, runner, frames, video, args, info, workers)
+        done, written, nobody, clamped = _loop(clip, runner, frames, video, request, info, workers)
         if video is not None:
             video.close()
             video = None
@@ -268,7 +296,7 @@ def _people_line(record: dict) -> str:
     return line + (f"; someone too small to relight left as they were in {left} frames" if left else "")
 
 
-def _loop(clip, runner, frames, video, args, info, workers: int):
+def _loop(clip, runner, frames, video, request: VideoRequest, info, workers: int):
     """Relight every frame from the resume point: `workers` frames analysed at once (matte and
     network, ClipRelighter.analyse), finished and written in order; (frames processed, frames
     written, frames without a person, largest clamped share)."""
@@ -287,14 +315,14 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         nonlocal clamped, count, written, last, committed
         index = frame.index
         skip = frames is not None and index in frames.done
-        result = runner.finish(analysis, layers=args.layers and not skip)
+        result = runner.finish(analysis, layers=request.layers and not skip)
         if not result.person:
             nobody.append(index)
             bar.set_postfix(no_person=len(nobody))
         clamped = max(clamped, result.clamped)
         if frames is not None:
             if not skip:
-                layers = (result.layers or _empty_layers(result.image)) if args.layers else None
+                layers = (result.layers or _empty_layers(result.image)) if request.layers else None
                 frames.write(index, result.image, layers, frame.codes, result.changed)
                 written += 1
             # a snapshot (the filters replace their arrays, never change them in place): an
@@ -333,7 +361,7 @@ def _loop(clip, runner, frames, video, args, info, workers: int):
         total = len(frames.writer.names) if frames.writer.names is not None else last + 1
         missing = [i for i in range(total) if not frames.writer.done(i)]
         if missing:
-            raise ValueError(f"{args.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
+            raise ValueError(f"{request.input}: frames {frame_spans(missing)} are missing from {frames.folder} (the clip "
                              f"ended after {last + 1} frames)")
     return count, written, nobody, clamped
 

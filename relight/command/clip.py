@@ -51,6 +51,7 @@ from relight.command.clip_maps import (
     with_mask as _with_mask,
 )
 from relight.command.clip_people import ShotLight, Tracker, shared_mattes as _shared
+from relight.lighting.light import checked_light
 from relight.network.decomposition import Decomposition
 from relight.network.refine import consistent_albedo
 
@@ -160,8 +161,9 @@ def still_weight(share: float) -> float:
 class ClipRelighter:
     """Relights a clip's frames in order (see the module doc).
 
-    relighter: relight.network.runtime.Relighter; light: target SH coefficients [n, 3];
-    exposure_ev: as in Decomposition.relight; matte: "person" (the segmenter) or
+    relighter: relight.network.runtime.Relighter; light: target SH coefficients [n, 3] or a
+    relight.lighting.light.CheckedLight; exposure_ev: as in Decomposition.relight (the light and the
+    exposure checked here once, as a CheckedLight, which every frame's relight trusts); matte: "person" (the segmenter) or
     "network"; person: which person (1 = the largest), None: everyone the segmenter finds, each
     tracked over the frames (relight.command.clip_people) with their own maps and matte filters,
     under one light for the shot (the mean of everyone's, relight.network.group.joint_light; a
@@ -178,11 +180,10 @@ class ClipRelighter:
                  person: int | None = None, stability: float = DEFAULT_STABILITY, mode: str = "ema",
                  threads: int | None = None, light_window: int | None = None, working_size=None,
                  matte_method: str = "ensemble", augment=()):
-        # matte and exposure_ev are checked where they are used, by Relighter.decompose and
-        # Decomposition.relight (the command's parser has checked them before)
+        # matte is checked where it is used, by Relighter.decompose (the command's parser has checked it before)
         if isinstance(stability, bool) or not isinstance(stability, (int, float)) or not 0.0 <= stability <= 1.0:
             raise ValueError(f"stability must be a number in [0, 1], got {stability!r}")
-        self.relighter, self.light, self.exposure_ev = relighter, np.asarray(light), float(exposure_ev)
+        self.relighter, self.light = relighter, checked_light(light, exposure_ev)
         self.matte, self.person, self.threads, self.working_size = matte, person, threads, working_size
         self.matte_method, self.augment = matte_method, tuple(augment)
         self.stability = float(stability)
@@ -349,21 +350,20 @@ class ClipRelighter:
                for t, (_, _, rank), box in zip(tracks, people, boxes)]
         if len(ds) == 1:
             d = ds[0]
-            image = d.relight(self.light, self.exposure_ev)
+            image = d.relight(self.light)
             stats = d.last_stats
             return FrameResult(image, True, cut, estimate, shot_light, stats.fraction if stats is not None else 0.0,
-                               d.layers(self.light, self.exposure_ev) if layers else None, d.box, who,
+                               d.layers(self.light) if layers else None, d.box, who,
                                analysis.left, found)
-        from relight.network.decomposition import checked_light, exposure_scale
         from relight.network.group import Group
 
-        image = Group(ds).relight_checked(checked_light(self.light), exposure_scale(self.exposure_ev))
+        image = Group(ds).relight(self.light)
         clamped = max(d.last_stats.fraction if d.last_stats is not None else 0.0 for d in ds)
         out_layers = None
         if layers:  # each person's layers are zero outside their own matte
-            out_layers = ds[0].layers(self.light, self.exposure_ev)
+            out_layers = ds[0].layers(self.light)
             for d in ds[1:]:
-                for name, layer in d.layers(self.light, self.exposure_ev).items():
+                for name, layer in d.layers(self.light).items():
                     out_layers[name] += layer
         changed = ds[0].box
         for d in ds[1:]:

@@ -37,8 +37,59 @@ import numpy as np
 from relight.lighting import sh, sh_projection, sh_rotation
 from relight.lighting.sh import REFERENCE_LUMINANCE
 
-__all__ = ["REFERENCE_LUMINANCE", "SHLight", "LightCache", "directional_light", "fit_checked", "fit_order", "map_file",
-           "sh_light"]
+__all__ = ["EXPOSURE_LIMIT", "REFERENCE_LUMINANCE", "CheckedLight", "SHLight", "LightCache", "checked_light",
+           "directional_light", "exposure_scale", "fit_checked", "fit_order", "map_file", "sh_light"]
+
+EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is far past any sensor; the one bound (the CLI's and the add-on's)
+
+
+def exposure_scale(exposure_ev) -> float:
+    """2 ** exposure_ev, for a finite exposure within +-EXPOSURE_LIMIT EV (ValueError otherwise)."""
+    try:
+        ev = float(exposure_ev)
+    except (TypeError, ValueError):
+        raise ValueError(f"exposure must be a number of EV stops, got {exposure_ev!r}") from None
+    if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
+        raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
+    return 2.0 ** ev
+
+
+class CheckedLight:
+    """A light checked once, where it was made: `coeffs` SH coefficients [(order+1)^2, 3], float64,
+    finite, read-only, and `scale` an exposure's 2**EV within +-EXPOSURE_LIMIT. What a relight takes
+    without checking again (relight.network.decomposition.Decomposition.relight). Made by
+    checked_light (a caller's raw coefficients) or SHLight.checked_at (a light resolved here)."""
+
+    __slots__ = ("coeffs", "scale")
+
+    def __init__(self, coeffs: np.ndarray, scale: float):
+        # trusted: only checked_light and SHLight.checked_at construct it, after their checks
+        coeffs.flags.writeable = False
+        self.coeffs, self.scale = coeffs, float(scale)
+
+    @property
+    def order(self) -> int:
+        return math.isqrt(self.coeffs.shape[0]) - 1
+
+    def __repr__(self) -> str:
+        return f"CheckedLight(order={self.order}, scale={self.scale:g})"
+
+
+def checked_light(light, exposure_ev=0.0) -> CheckedLight:
+    """A light given to a relight, checked once: numeric SH coefficients [m, 3] of an SH order, finite
+    (ValueError otherwise), and the exposure exposure_ev (see exposure_scale); a CheckedLight passes as it
+    is, its scale times 2**exposure_ev."""
+    no_exposure = type(exposure_ev) in (int, float) and exposure_ev == 0
+    if isinstance(light, CheckedLight):
+        return light if no_exposure else CheckedLight(light.coeffs, light.scale * exposure_scale(exposure_ev))
+    if isinstance(light, (str, bytes)) or not hasattr(light, "__len__") or hasattr(light, "sh_order"):
+        raise ValueError(f"light must be SH coefficients [n, 3] (relight.lighting.light.sh_light makes them from a "
+                         f"map, preset or photo), got {type(light).__name__}")
+    arr = np.asarray(light)
+    if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
+    coeffs = np.array(sh.validate_coeffs(arr))  # a copy: made read-only, the caller's array is not
+    return CheckedLight(coeffs, 1.0 if no_exposure else exposure_scale(exposure_ev))
 
 class LightCache:
     """A small LRU of projected maps (per file state and order) and Z-rotation matrices,
@@ -165,6 +216,13 @@ class SHLight:
         """SH light [n, 3], float64: turned by `rotation_deg` about world Z, then scaled."""
         return self.turned(rotation_deg, cache)[0]
 
+    def checked_at(self, rotation_deg: float = 0.0, scale: float = 1.0,
+                   cache: LightCache | None = None) -> CheckedLight:
+        """at(rotation_deg) as a CheckedLight, checked here once (this light's coefficients when it was
+        made), with `scale` the 2**EV of an exposure already checked (exposure_scale; `relight image`'s
+        --exposure by its argparse type)."""
+        return CheckedLight(self.at(rotation_deg, cache), scale)
+
     @classmethod
     def resolve(cls, source, order: int, *, normalize: bool | None = None, target: float = REFERENCE_LUMINANCE,
                 cache: LightCache | None = None) -> "SHLight":
@@ -181,10 +239,11 @@ class SHLight:
         """
         from relight.lighting.envmap import EnvMap
 
-        n = sh.num_coeffs(order)
+        # the SH order is checked once, by what makes the light of each kind of source: the
+        # projection of a map, sun_light, or sh.num_coeffs for a light given as SH
         goal = float(target) if normalize is not False else None
         if isinstance(source, SHLight):
-            return cls._light(fit_checked(source.base, n), normalize, goal, source.target)
+            return cls._light(fit_checked(source.base, sh.num_coeffs(order)), normalize, goal, source.target)
         if isinstance(source, str) and source.startswith("sun:"):  # a directional light (relight.lighting.lamps)
             from relight.lighting.lamps import parse_sun, sun_light
 
@@ -198,7 +257,7 @@ class SHLight:
             except ValueError as exc:  # a black map: the file (or the preset) named
                 raise ValueError(f"{source}: {exc}") from exc
         elif hasattr(source, "light") and hasattr(source, "sh_order"):  # another photo's Decomposition
-            return cls._light(fit_order(source.light, n), normalize, goal)
+            return cls._light(fit_order(source.light, sh.num_coeffs(order)), normalize, goal)
         elif isinstance(source, EnvMap):
             base = sh_projection.project_equirect(source.pixels, order)
         else:
@@ -207,7 +266,7 @@ class SHLight:
                 raise ValueError(f"light must be an HDR path, preset name, equirect pixels, SH array [n, 3] or "
                                  f"Decomposition, got {type(source).__name__}")
             if arr.ndim != 3:  # SH coefficients
-                return cls._light(fit_order(arr.astype(np.float64), n), normalize, goal)
+                return cls._light(fit_order(arr.astype(np.float64), sh.num_coeffs(order)), normalize, goal)
             base = sh_projection.project_equirect(_pixels(arr), order)
         return cls(base, goal)
 

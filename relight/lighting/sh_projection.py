@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from relight.lighting.sh import check_order, legendre_table, num_coeffs
+from relight.lighting.sh import check_order, legendre_table
 
 __all__ = ["equirect_directions", "project_equirect"]
 
@@ -176,7 +176,7 @@ def project_equirect(img, order: int, *, precision: str = "float32") -> np.ndarr
     _, groups = _projection_factors(height, width, order)
     # then the latitude quadrature per coefficient, in float64: [n, 3]
     per_row = per_row.astype(np.float64)
-    coeffs = np.empty((num_coeffs(order), 3))
+    coeffs = np.empty(((order + 1) ** 2, 3))  # (the order checked above)
     with np.errstate(over="ignore", invalid="ignore"):
         for a, (k, w) in enumerate(groups):
             coeffs[k] = w.T @ per_row[:, :, a]

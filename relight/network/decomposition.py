@@ -11,7 +11,6 @@ photo's resolution over the untouched original. The light is SH coefficients
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,13 +19,12 @@ from relight.lighting import sh
 from relight.imaging.box import Box
 from relight.network.composite import ALPHA_FLOOR, DETAIL_EPS, composite
 from relight.network.foreground import foreground, smooth_colours
-from relight.lighting.light import fit_checked
+from relight.lighting.light import CheckedLight, checked_light, fit_checked
 from relight.person.mask_ops import dilate
 from relight.imaging.resample import Bilinear
 from relight.network.shadowing import ShadowCaster, key_of
 
-__all__ = ["DETAIL_EPS", "DETAIL_MAX", "EXPOSURE_LIMIT", "Decomposition", "RelightStats", "checked_light",
-           "exposure_scale"]
+__all__ = ["DETAIL_EPS", "DETAIL_MAX", "Decomposition", "RelightStats"]
 
 DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 # the light's bands past the order a relight uses may move a working-resolution value by at
@@ -35,30 +33,14 @@ DETAIL_MAX = 8.0    # cap on the detail ratio: a speck cannot blow up
 ORDER_TOLERANCE = 0.25 / 255
 STRIP_ROWS = 128    # full-resolution rows resampled at a time by layers() (bounds temporaries)
 LAYER_NAMES = ("albedo", "shading", "residual", "alpha")  # Decomposition.layers(), in this order
-EXPOSURE_LIMIT = 64.0  # EV either way: 2**64 is far past any sensor; the one bound (the CLI's and the add-on's)
 
 
-def exposure_scale(exposure_ev) -> float:
-    """2 ** exposure_ev, for a finite exposure within +-EXPOSURE_LIMIT EV (ValueError otherwise)."""
-    try:
-        ev = float(exposure_ev)
-    except (TypeError, ValueError):
-        raise ValueError(f"exposure must be a number of EV stops, got {exposure_ev!r}") from None
-    if not math.isfinite(ev) or abs(ev) > EXPOSURE_LIMIT:
-        raise ValueError(f"exposure must be a finite number of EV within +-{EXPOSURE_LIMIT:g}, got {exposure_ev}")
-    return 2.0 ** ev
-
-
-def checked_light(coeffs) -> np.ndarray:
-    """A light given to a Decomposition, checked once: numeric SH coefficients [m, 3] of an SH
-    order, finite, as float64 (ValueError otherwise)."""
-    if isinstance(coeffs, (str, bytes)) or not hasattr(coeffs, "__len__") or hasattr(coeffs, "sh_order"):
-        raise ValueError(f"light must be SH coefficients [n, 3] (relight.lighting.light.sh_light makes them from a "
-                         f"map, preset or photo), got {type(coeffs).__name__}")
-    arr = np.asarray(coeffs)
-    if arr.dtype == object or not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"light must be numeric SH coefficients [n, 3], got dtype {arr.dtype}")
-    return sh.validate_coeffs(arr)
+def _light(coeffs, exposure_ev) -> CheckedLight:
+    """The light a caller gives: a CheckedLight without more exposure as it is (checked where it was
+    made), anything else checked once by relight.lighting.light.checked_light."""
+    if isinstance(coeffs, CheckedLight) and type(exposure_ev) in (int, float) and exposure_ev == 0:
+        return coeffs
+    return checked_light(coeffs, exposure_ev)
 
 
 @dataclass(frozen=True)
@@ -72,10 +54,10 @@ class RelightStats:
     sh_order: int = -1      # the light's order evaluated (bands above moved no value > ORDER_TOLERANCE)
     residual: bool = True   # whether E . L' was evaluated (False: E is zero on the matte)
     shadow_key: object = None   # the key light whose cast shadows dimmed it (relight.network.shadowing), or None
+    fraction: float = field(init=False)  # clamped / pixels (0.0 for no pixels), computed once
 
-    @property
-    def fraction(self) -> float:
-        return self.clamped / self.pixels if self.pixels else 0.0
+    def __post_init__(self):
+        object.__setattr__(self, "fraction", self.clamped / self.pixels if self.pixels else 0.0)
 
 
 @dataclass
@@ -108,7 +90,7 @@ class Decomposition:
     def __post_init__(self):
         self.box = Box(*self.box)
         h, w = self.working_size
-        n = sh.num_coeffs(self.sh_order)
+        n = self._n = sh.num_coeffs(self.sh_order)  # the model's order, checked once: trusted after
         zero_residual = self.residual is None
         if zero_residual:  # the model has no E (relight.models.session.ModelSession.residual_is_zero): no array
             self.residual = np.broadcast_to(np.zeros((), np.float32), (h, w, n))  # zeros, no memory
@@ -128,13 +110,13 @@ class Decomposition:
         self._up = Bilinear(y1 - y0, x1 - x0, h, w)
         self._alpha_prepared = None
         self._smooth_prepared = None  # relight.network.foreground's smooth colours, prepared on demand
-        self._fitted: tuple | None = None  # (light, exposure, fitted): fit_light's last answer
+        self._exposed_last: tuple | None = None  # (light, exposure, exposed): _exposed's last answer
         self.shadows = ShadowCaster(self.transport, self.alpha, self._matte)
         self._gather()
 
     def _gather(self) -> None:
         """The albedo and transport over the matte's pixels, and what each light band can add."""
-        n = sh.num_coeffs(self.sh_order)
+        n = self._n
         self._albedo_m = np.ascontiguousarray(self.albedo.reshape(-1, 3)[self._matte])
         self._transport_m = np.ascontiguousarray(self.transport.reshape(-1, n)[self._matte])
         # per band l, the largest |T_l(x)| (and |E_l(x)|) over the matte: bounds what the light's
@@ -175,22 +157,23 @@ class Decomposition:
         """(H, W) of the photo."""
         return self.photo.shape[:2]
 
-    def fit_light(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
-        """The light a relight uses: SH coefficients [m, 3] (checked) cut or zero-padded to the
-        model's order, times 2**exposure_ev, float32. Fitted once per light: asked again for
-        the same coefficients and exposure (the add-on's layers, relight then layers) it
-        returns the same array."""
-        return self._fit_light(checked_light(coeffs), exposure_scale(exposure_ev))
+    def exposed_light(self, coeffs, exposure_ev: float = 0.0) -> np.ndarray:
+        """The light a relight uses: SH coefficients [m, 3] (checked; a
+        relight.lighting.light.CheckedLight is trusted) cut or zero-padded to the model's order,
+        times 2**exposure_ev, float32. Made once per light: asked again for the same coefficients
+        and exposure (the add-on's layers, relight then layers) it returns the same array."""
+        light = _light(coeffs, exposure_ev)
+        return self._exposed(light.coeffs, light.scale)
 
-    def _fit_light(self, light: np.ndarray, scale: float) -> np.ndarray:
-        """fit_light of a light already checked (checked_light, or relight.lighting.light's SHLight: finite
-        float64 SH [m, 3]) and an exposure's scale already checked: nothing checked again."""
-        last = self._fitted
+    def _exposed(self, light: np.ndarray, scale: float) -> np.ndarray:
+        """exposed_light of a CheckedLight's coefficients and scale: nothing checked again."""
+        last = self._exposed_last
         if last is not None and last[1] == scale and last[0].shape == light.shape and np.array_equal(last[0], light):
             return last[2]
-        L = (fit_checked(light, sh.num_coeffs(self.sh_order)) * scale).astype(np.float32)
+        at_order = light if light.shape[0] == self._n else fit_checked(light, self._n)
+        L = (at_order * scale).astype(np.float32)
         L.setflags(write=False)  # shared by every call with this light
-        self._fitted = (light.copy(), scale, L)
+        self._exposed_last = (light.copy(), scale, L)
         return L
 
     def order_needed(self, light: np.ndarray) -> int:
@@ -205,8 +188,8 @@ class Decomposition:
                 return k
         return self.sh_order
 
-    def relight_working(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0,
-                        shadows: bool = False) -> np.ndarray:
+    def relit_at_working_size(self, coeffs, exposure_ev: float = 0.0, *, output_scale: float = 1.0,
+                              shadows: bool = False) -> np.ndarray:
         """The relit person at working resolution, [h, w, 3], zero outside the matte:
         max(0, albedo * (T . L') + E . L') on the matte's pixels (float32 matmuls).
         Only the light's bands this request needs are evaluated (order_needed, judged on the
@@ -217,14 +200,14 @@ class Decomposition:
         error), not light: they are set to 0 and counted in `last_stats`
         (docs/conventions.md, "Ringing and negative light"). `shadows`: see relight().
         """
-        return self._relit(self.fit_light(coeffs, exposure_ev), output_scale, shadows)
+        return self._relit_working(self.exposed_light(coeffs, exposure_ev), output_scale, shadows)
 
-    def _relit(self, L: np.ndarray, output_scale: float, shadows: bool = False) -> np.ndarray:
-        """relight_working under the fitted light L; `shadows`: its key light's cast shadows drawn
+    def _relit_working(self, L: np.ndarray, output_scale: float, shadows: bool = False) -> np.ndarray:
+        """relit_at_working_size under the exposed light L; `shadows`: its key light's cast shadows drawn
         (relight.network.shadowing; none when L has no directional part)."""
         h, w = self.working_size
         order = self.order_needed(L * np.float32(output_scale))
-        n = sh.num_coeffs(order)
+        n = (order + 1) ** 2  # order_needed's answer: within the model's order
         shading = self._transport_m[:, :n] @ L[:n]
         key = key_of(L) if shadows else None
         if key is not None:
@@ -247,31 +230,26 @@ class Decomposition:
         return out.reshape(h, w, 3)
 
     def relight(self, coeffs, exposure_ev: float = 0.0, detail: bool = True,
-                out: np.ndarray | None = None, shadows: bool = False) -> np.ndarray:
+                out: np.ndarray | None = None, shadows: bool = False, accumulate: bool = False) -> np.ndarray:
         """The photo relit by the SH light `coeffs`, linear float32 [H, W, 3] at full resolution.
 
         `coeffs`: SH coefficients [m, 3] (cut or zero-padded to the model's order;
-        relight.lighting.light.sh_light makes them from a map, preset or another photo),
-        scaled by 2**exposure_ev. Pixels outside the matte keep their values bit
+        relight.lighting.light.sh_light makes them from a map, preset or another photo), checked
+        here, or a relight.lighting.light.CheckedLight, checked where it was made (`relight image`'s
+        light, relight.lighting.light.SHLight.checked_at) and trusted; scaled by 2**exposure_ev. Pixels outside the matte keep their values bit
         for bit. When the crop was resized for the network, `detail` relights the
         full-resolution photo by the upsampled quotient relit / photo of working
         resolution (keeps the photo's fine texture); without it the relit person
         is just upsampled. The relit person is >= 0 (negative light clamped;
         `last_stats` counts it). `out` ([H, W, 3] float32, a strided view too):
         written and returned instead of a new array (relight.network.composite). `shadows`: the
-        light's directional part casts shadows on the person (relight.network.shadowing).
+        light's directional part casts shadows on the person (relight.network.shadowing). `accumulate`:
+        `out` already holds the photo with other people relit; this person's change is added over its
+        box (relight.network.group).
         """
-        return self.relight_checked(checked_light(coeffs), exposure_scale(exposure_ev), detail, out, shadows)
-
-    def relight_checked(self, light: np.ndarray, scale: float, detail: bool = True,
-                        out: np.ndarray | None = None, shadows: bool = False, accumulate: bool = False) -> np.ndarray:
-        """relight() for a caller that checked the light and the exposure at its own boundary:
-        `light` SH coefficients [m, 3] float64 as checked_light returns them, `scale` = 2**EV
-        (relight image: its light checked once by relight.lighting.light.SHLight, --exposure by
-        its argparse type). Nothing is checked again here. `accumulate`: `out` already holds the photo
-        with other people relit; this person's change is added over its box (relight.network.group)."""
-        scale = np.float32(scale)
-        relit = self._relit(self._fit_light(light, 1.0), float(scale), shadows)
+        light = _light(coeffs, exposure_ev)
+        scale = np.float32(light.scale)
+        relit = self._relit_working(self._exposed(light.coeffs, 1.0), float(scale), shadows)
         quotient = detail and not self._up.identity
         if quotient:
             source = (relit + DETAIL_EPS) / (self.photo_working + DETAIL_EPS)
@@ -348,12 +326,8 @@ class Decomposition:
         up to the order of upsampling, except where the matte is soft: there the albedo is
         the person's own colour (relight.network.foreground), without the background the photo's edge
         pixels mix in, so the layers composite over another background without its fringe."""
-        return self.layers_checked(checked_light(self.light if coeffs is None else coeffs), exposure_scale(exposure_ev))
-
-    def layers_checked(self, light: np.ndarray, scale: float) -> dict[str, np.ndarray]:
-        """layers() of a light and an exposure's scale already checked (as relight_checked takes them)."""
-        L = self._fit_light(light, scale)
-        return {name: self._layer(name, L) for name in LAYER_NAMES}
+        L = self.exposed_light(self.light if coeffs is None else coeffs, exposure_ev)
+        return {name: self._full_map(name, L) for name in LAYER_NAMES}
 
     def layer(self, name: str, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
         """One of layers() at full resolution, alone: a caller that packs each map as it comes
@@ -362,12 +336,12 @@ class Decomposition:
         returned instead of a new array, so such a caller holds none at all."""
         if name not in LAYER_NAMES:
             raise ValueError(f"layer must be one of {LAYER_NAMES}, got {name!r}")
-        L = None if name in ("alpha", "albedo") else self.fit_light(self.light if coeffs is None else coeffs,
-                                                                     exposure_ev)
-        return self._layer(name, L, out)
+        L = None if name in ("alpha", "albedo") else self.exposed_light(self.light if coeffs is None else coeffs,
+                                                                         exposure_ev)
+        return self._full_map(name, L, out)
 
-    def _layer(self, name: str, L: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
-        """layer() under the fitted light L (None for the albedo and alpha)."""
+    def _full_map(self, name: str, L: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+        """The layer `name` at full resolution under the exposed light L (None for the albedo and alpha)."""
         if name == "alpha":
             return self.full_alpha(out)
         if name == "albedo":
@@ -392,7 +366,7 @@ class Decomposition:
     def shadow_layer(self, coeffs=None, exposure_ev: float = 0.0, out: np.ndarray | None = None) -> np.ndarray:
         """The share of the light's key each pixel sees past the person's body [H, W] at full resolution (1 where
         nothing blocks it, off the person, for a light without a directional part); the light as layer() takes it."""
-        key = key_of(self.fit_light(self.light if coeffs is None else coeffs, exposure_ev))
+        key = key_of(self.exposed_light(self.light if coeffs is None else coeffs, exposure_ev))
         h, w = self.working_size
         blocked = np.zeros((h, w, 1), np.float32)
         if key is not None:

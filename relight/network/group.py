@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from relight.lighting.light import checked_light
 from relight.network.decomposition import Decomposition
 from relight.person import matte as segmenter
 from relight.person.linear_photo import check_photo
@@ -44,19 +45,21 @@ class Group:
         return {"found": self.count, "relit": [d.choices["person"] for d in self.people], "left": self.left,
                 "light": "one for the photo, from everyone relit" if len(self.people) > 1 else "the person's own"}
 
-    def relight_checked(self, light: np.ndarray, scale: float, shadows: bool = False,
-                        out: np.ndarray | None = None) -> np.ndarray:
-        """The photo with every person relit by `light` (checked as Decomposition.relight_checked takes
-        it), float32 [H, W, 3]; one person: that person's relight_checked, bit for bit."""
+    def relight(self, coeffs, exposure_ev: float = 0.0, *, shadows: bool = False,
+                out: np.ndarray | None = None) -> np.ndarray:
+        """The photo with every person relit by the light `coeffs` (as Decomposition.relight takes it:
+        SH coefficients, checked here once, or a CheckedLight), float32 [H, W, 3]; one person: that
+        person's relight, bit for bit."""
         if len(self.people) == 1:
-            return self.people[0].relight_checked(light, scale, out=out, shadows=shadows)
+            return self.people[0].relight(coeffs, exposure_ev, out=out, shadows=shadows)
+        light = checked_light(coeffs, exposure_ev)
         photo = self.people[0].photo
         if out is None:
             out = photo.copy()
         else:
             np.copyto(out, photo)
         for d in self.people:
-            d.relight_checked(light, scale, out=out, shadows=shadows, accumulate=True)
+            d.relight(light, out=out, shadows=shadows, accumulate=True)
         return out
 
 

@@ -17,7 +17,6 @@ import functools
 
 import numpy as np
 
-from relight.lighting import sh
 from relight.imaging.resample import fit_longest, resize_linear
 
 __all__ = ["mirror_x", "average", "averaged", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
@@ -35,17 +34,13 @@ AGREED = 0.10
 
 @functools.lru_cache(maxsize=None)
 def mirror_x(order: int) -> np.ndarray:
-    """[n] signs s with f(-x, y, z) = sum_i s_i c_i Y_i(x, y, z) for f = sum_i c_i Y_i:
-    each real SH basis function is even or odd in x."""
-    rng = np.random.default_rng(0)
-    dirs = rng.normal(size=(4 * sh.num_coeffs(order) + 64, 3))
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    basis = sh.sh_basis(dirs, order)
-    mirrored = sh.sh_basis(dirs * np.array([-1.0, 1.0, 1.0]), order)
-    signs = np.round(np.sum(basis * mirrored, axis=0) / np.sum(basis * basis, axis=0))
-    if not np.all(np.abs(signs) == 1) or not np.allclose(mirrored, basis * signs, atol=1e-9):
-        raise AssertionError("SH basis functions are not each even or odd in x")
-    return signs.astype(np.float32)
+    """[n] signs s with f(-x, y, z) = sum_i s_i c_i Y_i(x, y, z) for f = sum_i c_i Y_i, for the
+    model's SH order (trusted: checked where the decomposition was made). Each real SH basis function
+    is even or odd in x: x -> -x takes the azimuth phi to pi - phi, so cos(m phi) (m >= 0) gains
+    (-1)^m and sin(|m| phi) (m < 0) gains -(-1)^|m| (docs/conventions.md's basis)."""
+    m = np.concatenate([np.arange(-l, l + 1) for l in range(order + 1)])
+    odd = np.where(m >= 0, m % 2 == 1, m % 2 == 0)
+    return np.where(odd, -1.0, 1.0).astype(np.float32)
 
 
 def _in_frame(base, other, mirrored: bool):

@@ -56,9 +56,9 @@ def test_single_photo_matches_the_api(model, tmp_path, capsys):
 
 def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model, tmp_path, capsys, monkeypatch):
     # issue 39: the light where relight.lighting.light resolves it, --exposure by its argparse type; the
-    # decomposition trusts both (Decomposition.relight_checked / layers_checked), its public relight checks them
-    from relight.network import decomposition
-    from relight.lighting import sh
+    # decomposition trusts both (the command hands it a relight.lighting.light.CheckedLight), its public
+    # relight checks raw coefficients
+    from relight.lighting import light, sh
 
     calls = {"light": 0, "exposure": 0}
 
@@ -69,7 +69,7 @@ def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model,
         return wrapped
 
     monkeypatch.setattr(sh, "validate_coeffs", counted(sh.validate_coeffs, "light"))
-    monkeypatch.setattr(decomposition, "exposure_scale", counted(decomposition.exposure_scale, "exposure"))
+    monkeypatch.setattr(light, "exposure_scale", counted(light.exposure_scale, "exposure"))
     photo = _save_photo(tmp_path / "p.png")
     for out, extra in ((tmp_path / "o.png", ()), (tmp_path / "o.exr", ("--layers",))):
         calls.update(light=0, exposure=0)
@@ -77,6 +77,34 @@ def test_the_light_and_the_exposure_are_checked_once_on_the_commands_path(model,
                             *extra)
         assert code == 0, err
         assert calls == {"light": 1, "exposure": 1}, extra
+
+
+def test_the_sh_order_is_checked_where_the_light_and_the_decomposition_are_made(model, tmp_path, capsys):
+    # issue 49: relight image checked the SH order 11 times on its way (each SH helper again); now once
+    # where the light is made (the map's projection) and once where the decomposition is (the model's
+    # order), with --layers too; everything after trusts them
+    import sys
+    import threading
+
+    from relight.files.sh_sizes import check_order
+
+    photo = _save_photo(tmp_path / "p.png")
+    for out, extra in ((tmp_path / "o.png", ()), (tmp_path / "o.exr", ("--layers",))):
+        runs = []
+
+        def profile(frame, event, arg):
+            if event == "call" and frame.f_code is check_order.__code__:
+                runs.append(frame.f_locals["order"])
+
+        threading.setprofile(profile)
+        sys.setprofile(profile)
+        try:
+            code, _, err = _run(capsys, photo, "--light", "studio", "--model", model, "--out", out, *extra)
+        finally:
+            sys.setprofile(None)
+            threading.setprofile(None)
+        assert code == 0, err
+        assert runs == [4, 4], extra  # the light's projection, the decomposition: the tiny model's order 4
 
 
 def test_the_working_size_is_given_once_to_the_relighter(model, tmp_path, capsys, monkeypatch):

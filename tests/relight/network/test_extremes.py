@@ -97,7 +97,7 @@ def test_sun_light_through_the_runtime_is_finite(relighter):
     np.testing.assert_array_equal(out[mask == 0], photo[mask == 0])
     # at working resolution the sun scales the result linearly:
     # |relit| <= |a| (|T| . |L|) + |E| . |L| per pixel (float32 rounding: relative n * eps)
-    small = d.relight_working(c8)
+    small = d.relit_at_working_size(c8)
     assert np.all(np.isfinite(small))
     L = np.abs(c8[:sh.num_coeffs(ORDER)])
     bound = np.abs(d.albedo) * (np.abs(d.transport) @ L) + np.abs(d.residual) @ L
@@ -141,7 +141,7 @@ def test_sun_light_relit_image_is_finite_and_non_negative(kind):
         c = sh.apply_window(c, kind)
     for mask in (True, False):
         d = _lambertian_ball(mask=mask)
-        small = d.relight_working(c)
+        small = d.relit_at_working_size(c)
         stats = d.last_stats
         assert stats.clamped > 0 and stats.darkest < 0, kind  # the ringing really went negative
         assert np.all(np.isfinite(small)) and small.min() >= 0

@@ -87,7 +87,7 @@ def test_the_one_person_path_is_unchanged(relighter):
     group = decompose_people(relighter, photo, **DRAFT)
     alone = relighter.decompose(photo, **DRAFT)
     assert group.count == 1 and group.record()["relit"] == [1]
-    assert np.array_equal(group.relight_checked(light, 1.0), alone.relight_checked(light, 1.0))
+    assert np.array_equal(group.relight(light), alone.relight(light))
 
 
 def test_a_group_is_relit_together_under_one_light(relighter):
@@ -98,13 +98,13 @@ def test_a_group_is_relit_together_under_one_light(relighter):
     assert group.count == 2 and len(group.people) == 2
     assert np.array_equal(group.people[0].light, group.people[1].light)
     light = np.asarray(sh_light("sunset", 4), np.float64)
-    out = group.relight_checked(light, 1.0)
+    out = group.relight(light)
     mattes = [d.person_matte.alpha for d in group.people]
     nobody = np.sum(mattes, axis=0) == 0
     assert np.array_equal(out[nobody], photo[nobody])
     expected = photo.copy()
     for d in group.people:   # each person alone over the photo, their change added
-        expected += d.relight_checked(light, 1.0) - photo
+        expected += d.relight(light) - photo
     assert np.abs(out - expected).max() < 1e-5 * max(1.0, float(np.abs(expected).max()))
     for m in mattes:         # everyone is relit
         assert np.abs(out - photo)[m > 0.99].mean() > 0.01 * photo[m > 0.99].mean()
@@ -123,7 +123,7 @@ def test_a_person_too_small_is_left_as_they_are(relighter, monkeypatch):
     record = group.record()
     assert record["found"] == 2 and record["relit"] == [1]
     assert record["left"][0]["person"] == 2 and "too small" in record["left"][0]["why"]
-    out = group.relight_checked(np.asarray(sh_light("sunset", 4), np.float64), 1.0)
+    out = group.relight(np.asarray(sh_light("sunset", 4), np.float64))
     assert np.array_equal(out[tiny > 0], photo[tiny > 0])
 
 
@@ -182,4 +182,4 @@ def test_mattes_found_before_are_not_looked_for_again(relighter, monkeypatch):
     again = decompose_people(relighter, photo, mattes=first.mattes, **DRAFT)
     light = np.asarray(sh_light("sunset", 4), np.float64)
     assert again.count == first.count == len(first.mattes) == 2
-    assert np.array_equal(again.relight_checked(light, 1.0), first.relight_checked(light, 1.0))
+    assert np.array_equal(again.relight(light), first.relight(light))

@@ -55,7 +55,7 @@ def test_a_light_of_lower_order_is_evaluated_at_its_order_and_nothing_moves(seed
         light[:sh.num_coeffs(light_order)] = np.random.default_rng(seed + 10).normal(
             0, 0.5, (sh.num_coeffs(light_order), 3))
         light[0] = np.abs(light[0]) + 1.0
-        got = d.relight_working(light)
+        got = d.relit_at_working_size(light)
         assert d.last_stats.sh_order == light_order  # bands 1.. of a DC light reach every pixel: all needed
         assert d.last_stats.residual is residual
         want = np.maximum(full_order(d, light), 0.0)
@@ -71,7 +71,7 @@ def test_a_dim_light_drops_the_bands_that_cannot_move_a_value():
     light[0] = 1.0
     light[1:4] = 0.3
     light[4:] = 1e-6  # bands 2-4: far under the tolerance
-    got = d.relight_working(light)
+    got = d.relit_at_working_size(light)
     assert d.last_stats.sh_order == 1
     want = np.maximum(full_order(d, light), 0.0)
     inside = d.alpha > 0

@@ -64,7 +64,7 @@ def test_refinement_lowers_the_photo_residual_monotonically_and_recovers_the_lig
     inside = disk & (d.alpha > 0)
 
     def error(decomposition):
-        return float(np.mean((decomposition.relight_working(light_b) - truth)[inside] ** 2))
+        return float(np.mean((decomposition.relit_at_working_size(light_b) - truth)[inside] ** 2))
 
     assert error(refined) < 0.5 * error(d)
 

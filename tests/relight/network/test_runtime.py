@@ -220,11 +220,11 @@ def test_large_photo_keeps_fine_detail_and_compositing_is_consistent(relighter):
     L = np.random.default_rng(12).normal(0, 0.3, (N, 3))
     L[0] = [2.0, 2.0, 2.0]
     flat = d.relight(L, detail=False)
-    np.testing.assert_allclose(flat, bilinear_rows(d.relight_working(L), H, W), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(flat, bilinear_rows(d.relit_at_working_size(L), H, W), rtol=1e-6, atol=1e-7)
     detailed = d.relight(L)
     # detail: the full-resolution photo times the upsampled quotient relit / photo
     eps = 1e-3
-    quotient = (d.relight_working(L) + eps) / (d.photo_working + eps)
+    quotient = (d.relit_at_working_size(L) + eps) / (d.photo_working + eps)
     expect = np.maximum((photo + eps) * bilinear_rows(quotient, H, W) - eps, 0)
     np.testing.assert_allclose(detailed, expect, rtol=1e-5, atol=1e-6)
     # a smooth photo has no detail to restore: both ways agree to the resampling error
@@ -359,7 +359,7 @@ def _reference_relight(d, L, detail: bool, exposure_ev: float) -> np.ndarray:
     eps = np.float32(DETAIL_EPS)
     y0, y1, x0, x1 = d.box
     crop = d.photo[y0:y1, x0:x1]
-    relit = d.relight_working(L)
+    relit = d.relit_at_working_size(L)
     if detail:
         q = np.clip((relit + eps) / (d.photo_working + eps), 0, DETAIL_MAX) * s
         person = np.maximum((crop + eps) * bilinear_rows(q, y1 - y0, x1 - x0) - eps * s, 0)
@@ -401,7 +401,7 @@ def test_negative_light_is_clamped_and_counted(relighter):
     d = relighter.decompose(photo, mask, working_size=58)
     assert d.working_size == (d.box[1] - d.box[0], d.box[3] - d.box[2])  # the crop's own size
     L = np.random.default_rng(18).normal(0, 0.3, (N, 3))  # no DC bias: T.L rings below 0 often
-    small = d.relight_working(L)
+    small = d.relit_at_working_size(L)
     assert small.min() >= 0
     f = (np.asarray(d.albedo, np.float64) * (np.asarray(d.transport, np.float64) @ L)
          + np.asarray(d.residual, np.float64) @ L)
@@ -422,20 +422,20 @@ def test_negative_light_is_clamped_and_counted(relighter):
     assert out.min() >= 0 and d.last_stats == stats
 
 
-def test_the_light_is_fitted_once_per_light_and_exposure(relighter):
+def test_the_light_is_exposed_once_per_light_and_exposure(relighter):
     d = relighter.decompose(_photo(), np.ones((48, 64), np.float32))
     n = sh.num_coeffs(d.sh_order)
     light = np.random.default_rng(4).normal(0.0, 0.3, (sh.num_coeffs(d.sh_order + 1), 3))  # one band more: cut
-    L = d.fit_light(light, 1.0)
+    L = d.exposed_light(light, 1.0)
     assert L.shape == (n, 3) and L.dtype == np.float32 and not L.flags.writeable
     np.testing.assert_allclose(L, 2.0 * light[:n], rtol=1e-6)
-    assert d.fit_light(light.copy(), 1.0) is L  # the same values: the same fitted array
-    assert d.fit_light(light, 0.5) is not L and d.fit_light(light[:n] * 1.5, 1.0) is not L
-    layers = d.layers(light, 1.0)  # one fit for all layers, same values as one layer at a time
+    assert d.exposed_light(light.copy(), 1.0) is L  # the same values: the same exposed array
+    assert d.exposed_light(light, 0.5) is not L and d.exposed_light(light[:n] * 1.5, 1.0) is not L
+    layers = d.layers(light, 1.0)  # one exposed light for all layers, same values as one layer at a time
     for name in ("shading", "residual"):
         np.testing.assert_array_equal(layers[name], d.layer(name, light, 1.0))
     with pytest.raises(ValueError, match=r"exposure must be a finite number of EV within \+-64"):
-        d.fit_light(light, 64.5)
+        d.exposed_light(light, 64.5)
 
 
 def test_albedo_layer_carries_the_photos_full_resolution_texture():
