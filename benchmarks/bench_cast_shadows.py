@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from model.samples.data import network_input
+from model.scoring import metrics
 from model.scoring.metrics import light_response
 from model.scoring.predictor import Predictor
 from relight.files.dataset import list_finished_scenes, read_scene, traced_lights
@@ -41,9 +42,9 @@ THICKNESS_M = 0.3   # metres an occluder of the true depth pass reaches behind i
 
 
 def psnr(pred: np.ndarray, gt: np.ndarray, weight: np.ndarray) -> float:
-    m = weight > 0
-    mse = float(np.mean((np.clip(pred[m], 0, 1) - np.clip(gt[m], 0, 1)) ** 2))
-    return 10 * math.log10(1.0 / max(mse, 1e-12))
+    """model.scoring.metrics.psnr over weight > 0 of both images clipped to [0, 1], as this script always
+    scored (so docs/EVALUATION.md's "Cast shadows" figures stay what it prints)."""
+    return metrics.psnr(np.clip(pred, 0, 1), np.clip(gt, 0, 1), weight > 0)
 
 
 def shade(transport: np.ndarray, light: np.ndarray) -> np.ndarray:
