@@ -67,7 +67,8 @@ def _check_mask(mask, shape) -> np.ndarray:
 
 def _with_margin(box: Box, height: int, width: int) -> Box:
     """The crop around the person's box: CROP_MARGIN of its longest side (at least 2 px) more."""
-    return box.grown(max(2, int(math.ceil(CROP_MARGIN * max(box.height, box.width)))), height, width)
+    y0, y1, x0, x1 = box
+    return box.grown(max(2, int(math.ceil(CROP_MARGIN * max(y1 - y0, x1 - x0)))), height, width)
 
 
 def check_working_size(size) -> int:
