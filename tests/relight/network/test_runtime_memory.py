@@ -9,22 +9,7 @@ import numpy as np
 from PIL import Image
 
 from export.random_model import export_random_model
-
-LIMIT_BYTES = 2 * 1024 ** 3
-CHILD = r"""
-import resource, sys
-from relight.cli import main
-code = main(sys.argv[1:])
-# VmHWM is this process image's own peak; ru_maxrss would also count the
-# parent's RSS at fork time (Linux keeps it across exec)
-try:
-    kib = int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM")).split()[1])
-except (OSError, StopIteration):
-    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print("PEAK_RSS_BYTES", kib * 1024)
-sys.exit(code)
-"""
-
+from peak_memory import CHILD, LIMIT_BYTES
 
 def test_24_megapixel_photo_stays_under_2_gb(tmp_path):
     model, _, _ = export_random_model(tmp_path / "m.onnx", seed=2, sh_order=4, width=4, depth=2)

@@ -301,7 +301,7 @@ def test_24_megapixel_photo_with_the_person_matte_stays_under_2_gb(tmp_path):
     from PIL import Image
 
     from export.random_model import export_random_model
-    from tests.test_runtime_memory import CHILD, LIMIT_BYTES
+    from peak_memory import CHILD, LIMIT_BYTES
 
     model, _, _ = export_random_model(tmp_path / "m.onnx", seed=2, sh_order=4, width=4, depth=2)
     with Image.open(EVAL_DIR / "obama_standing.jpg") as im:
