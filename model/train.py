@@ -84,10 +84,15 @@ def loss_weights_from_args(args) -> dict:
     return weights
 
 
-def parse_args(argv=None):
+def parse_args(argv=None, check_pack: bool = True):
+    """model.train's options, checked; `check_pack` False leaves --from-pack's file unread (it may
+    not exist yet: model.campaign compares the options of its runs before it packs)."""
     p = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, nargs="+",
+    p.add_argument("--data", nargs="+",
                    help="dataset folder(s) of scene_NNNNNN.exr/.json (farm runs with different --first)")
+    p.add_argument("--from-pack", default=None, metavar="PACK.npz",
+                   help="train from a training pack instead of --data (model.samples.training_pack: no scene "
+                        "files, no Blender; --size and --order default to the pack's)")
     p.add_argument("--max-scenes", type=int, default=None, metavar="N",
                    help="use only the first N scenes of --data (folders in order, scenes by index): "
                         "data-size curves without copying data")
@@ -96,13 +101,13 @@ def parse_args(argv=None):
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--accumulate", type=int, default=1,
                    help="gradient accumulation: effective batch = batch x accumulate (paper: 16)")
-    p.add_argument("--size", type=int, default=256, help="training crop size (multiple of 2**depth)")
+    p.add_argument("--size", type=int, default=None, help="training crop size (multiple of 2**depth; default 256)")
     p.add_argument("--preset", choices=tuple(PRESETS) + tuple(GEOMETRY_PRESETS), default="default",
                    help="network layout: model.networks.network.PRESETS (the paper's decomposition) or "
                         "model.networks.geometry.GEOMETRY_PRESETS (geometry-first); --width/--depth override it")
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--depth", type=int, default=None)
-    p.add_argument("--order", type=int, default=4, help="SH order N (paper: 4; Kanamori-Endo: 2)")
+    p.add_argument("--order", type=int, default=None, help="SH order N (paper: 4; Kanamori-Endo: 2; default 4)")
     p.add_argument("--lr", type=float, default=5e-5)
     p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
                    help="cosine: decay to 5%% of --lr over --steps after the warm-up")
@@ -119,6 +124,7 @@ def parse_args(argv=None):
     p.add_argument("--val-fraction", type=float, default=0.1, help="fraction of bodies held out for validation")
     p.add_argument("--val-every", type=int, default=500, help="validate every N steps")
     p.add_argument("--ckpt-every", type=int, default=500, help="write checkpoints/last.ckpt every N steps")
+    p.add_argument("--log-every", type=int, default=10, help="log the training losses every N steps (metrics.csv)")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--threads", type=int, default=0,
                    help="torch CPU threads (0: torch's default; 1 is far faster on a busy machine)")
@@ -168,8 +174,22 @@ def parse_args(argv=None):
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="cpu")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    if (args.data is None) == (args.from_pack is None):
+        p.error("give the scenes as --data DIR [DIR ...] or as --from-pack PACK.npz (one of them)")
+    packed = {}
+    if args.from_pack is not None and check_pack:
+        from model.samples.training_pack import read_manifest
+
+        try:
+            packed = read_manifest(args.from_pack)
+        except ValueError as exc:
+            p.error(str(exc))
+    if args.from_pack is not None and args.pack is not None:
+        p.error("--pack crops --data's scenes; --from-pack is already cropped")
+    args.size = args.size if args.size is not None else packed.get("size", 256)
+    args.order = args.order if args.order is not None else packed.get("order", 4)
     for name in ("steps", "batch", "accumulate", "size", "width", "depth", "val_every", "ckpt_every",
-                 "cache_scenes", "schedule_steps"):
+                 "log_every", "cache_scenes", "schedule_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.order < 0:
@@ -186,6 +206,22 @@ def parse_args(argv=None):
     return args
 
 
+def check_checkpoint(path: Path) -> dict:
+    """The Lightning checkpoint at `path`, loaded as Lightning will (weights_only=True); a damaged or
+    truncated file (a disk that filled, a copy cut short) raises ValueError naming it, so that it
+    is never resumed from in part."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises RuntimeError, EOFError, UnpicklingError... on a bad file
+        raise ValueError(f"checkpoint {path} is damaged or truncated ({type(exc).__name__}: "
+                         f"{str(exc).splitlines()[0] if str(exc) else 'no detail'}); delete it to train "
+                         "again from step 0") from None
+    if not isinstance(state, dict) or not {"state_dict", "global_step", "optimizer_states"} <= set(state):
+        raise ValueError(f"checkpoint {path} is not a training checkpoint of model.train (no weights, step "
+                         "or optimizer state); delete it to train again from step 0")
+    return state
+
+
 def train(args) -> Path:
     """Run training; returns the final weights path."""
     warnings.filterwarnings("ignore", ".*does not have many workers.*")
@@ -200,8 +236,13 @@ def train(args) -> Path:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
+    training_pack = None
+    if args.from_pack is not None:
+        from model.samples.training_pack import read_training_pack
+
+        training_pack = read_training_pack(args.from_pack)
     data = SceneDataModule(
-        args.data, size=args.size, order=args.order, batch=args.batch, seed=args.seed, max_scenes=args.max_scenes,
+        args.data, training_pack=training_pack, size=args.size, order=args.order, batch=args.batch, seed=args.seed, max_scenes=args.max_scenes,
         val_fraction=args.val_fraction, padding=args.padding, workers=args.workers, cache_scenes=args.cache_scenes,
         pack=args.pack, presets=not args.no_presets,
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
@@ -238,7 +279,7 @@ def train(args) -> Path:
         accelerator="gpu" if cuda else "cpu", devices=1,
         precision="16-mixed" if cuda else "32-true", callbacks=[checkpoint],
         logger=CSVLogger(out, name="logs"), enable_progress_bar=not args.quiet,
-        enable_model_summary=False, log_every_n_steps=min(10, args.steps),
+        enable_model_summary=False, log_every_n_steps=min(args.log_every, args.steps),
         val_check_interval=args.val_every if data.has_validation else None,
         check_val_every_n_epoch=None, num_sanity_val_steps=0, deterministic=False,
         limit_val_batches=1.0 if data.has_validation else 0,
@@ -248,13 +289,18 @@ def train(args) -> Path:
         last = ckpt_dir / "last.ckpt"
         if not last.is_file():
             raise ValueError(f"--resume: no checkpoint at {last}")
+        check_checkpoint(last)
         resume_from = str(last)
+        # the loader continues where the batches stopped (train_data.EpochShuffleSampler.resume_at)
+        warnings.filterwarnings("ignore", ".*resuming from a checkpoint that ended before the epoch ended.*")
     trainer.fit(module, datamodule=data, ckpt_path=resume_from, weights_only=True)
     trainer.save_checkpoint(ckpt_dir / "last.ckpt", weights_only=False)  # full state, for --resume
 
     record = {"seed": args.seed, "steps": int(trainer.global_step),
               "loss_weights": weights,
-              "data": [str(d) for d in args.data], "train_scenes": len(data.train_paths),
+              "data": [str(d) for d in args.data] if args.data else [str(args.from_pack)],
+              "pack_source": training_pack.manifest["source"] if training_pack is not None else None,
+              "train_scenes": len(data.train_paths),
               "val_scenes": len(data.val_paths), "lambertian": args.lambertian,
               "init": str(args.init) if args.init else None, "args": {k: v for k, v in vars(args).items()}}
     if data.augment.get("light_maps") is not None:

@@ -79,9 +79,13 @@ class TrainingScenes(torch.utils.data.Dataset):
                  mask_prob: float = 0.5, flip_prob: float = 0.5, lambertian: bool = False, seed: int = 0,
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
-                 body_prior: bool = False, light_mix: float = 0.0, light_maps: frozenset[str] | None = None):
-        if not json_paths:
+                 body_prior: bool = False, light_mix: float = 0.0, light_maps: frozenset[str] | None = None,
+                 scenes=None):
+        # `scenes`: scenes already cropped (model.samples.training_pack.PackScenes), json_paths then unused
+        if not (json_paths or (scenes is not None and scenes.paths)):
             raise ValueError("no training scenes")
+        if scenes is not None and light_maps is not None:
+            raise ValueError("light_maps needs the scenes' sidecars: not with a training pack")
         self.size, self.order, self.n = size, order, sh_np.num_coeffs(order)
         self.held_out = held_out_light_names() if held_out is None else held_out
         # the maps that may light a sample (None: every training map); a study of how the light
@@ -126,7 +130,9 @@ class TrainingScenes(torch.utils.data.Dataset):
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
         # functools.partial, not a lambda: DataLoader workers may need to pickle the dataset
-        if pack is not None:  # every scene cropped once, in memory (pack_scenes)
+        if scenes is not None:
+            self.cache = scenes
+        elif pack is not None:  # every scene cropped once, in memory (pack_scenes)
             self.cache = PackedScenes(pack, list(json_paths), size, order, padding)
         else:
             self.cache = SceneCache(list(json_paths), functools.partial(
@@ -263,6 +269,22 @@ class EvaluationPairs(torch.utils.data.Dataset):
         if not self.pairs:
             raise ValueError("no evaluation pairs: scenes need at least two path-traced lights")
         self._cache = SceneCache(self.paths, self.load, capacity=8)
+
+    @classmethod
+    def from_scenes(cls, scenes: list[CroppedScene], size: int, order: int, *, max_pairs_per_scene: int = 4,
+                    body_prior: bool = False) -> "EvaluationPairs":
+        """The pairs of scenes already cropped (a training pack's validation scenes), as the
+        constructor makes them from scene files (every traced light as a target)."""
+        self = cls.__new__(cls)
+        self.size, self.order, self.body_prior = size, order, bool(body_prior)
+        self.paths, self.pairs = None, []
+        for s, scene in enumerate(scenes):
+            traced = [k for k, image in enumerate(scene.images) if image is not None]
+            self.pairs += [(s, a, b) for b in traced for a in traced if a != b][:max_pairs_per_scene]
+        if not self.pairs:
+            raise ValueError("no evaluation pairs: scenes need at least two path-traced lights")
+        self._cache = scenes.__getitem__
+        return self
 
     def __len__(self) -> int:
         return len(self.pairs)

@@ -163,14 +163,8 @@ def pack_scenes(json_paths: list[Path], out, size: int, order: int, padding: int
     arrays: dict[str, np.ndarray] = {}
     records = []
     for i, path in enumerate(json_paths):
-        c = load_cropped(Path(path), size, order, padding, held_out)
-        maps = [c.alpha, c.albedo, c.transport, c.normal] + [img for img in c.images if img is not None]
-        if c.body is not None:
-            maps.append(c.body)
-        arrays[f"s{i}"] = np.concatenate(maps, axis=0).astype(np.float16)
-        arrays[f"l{i}"] = np.stack(c.lights).astype(np.float32)
-        records.append({"index": c.index, "names": c.light_names, "held_out": c.held_out,
-                        "traced": [img is not None for img in c.images], "body": c.body is not None})
+        arrays[f"s{i}"], arrays[f"l{i}"], record = scene_arrays(load_cropped(Path(path), size, order, padding, held_out))
+        records.append(record)
     key = _pack_key(list(json_paths), size, order, padding)
     arrays["meta"] = np.frombuffer(json.dumps({"key": key, "scenes": records}).encode(), dtype=np.uint8)
     out = Path(out)
@@ -181,6 +175,33 @@ def pack_scenes(json_paths: list[Path], out, size: int, order: int, padding: int
     return out
 
 
+def scene_arrays(c: CroppedScene) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A cropped scene as a pack holds it: its maps stacked as float16 [C, S, S] (alpha, albedo,
+    transport, normal, the traced images, the body prior), its lights float32 [K, n, 3], and the
+    record that scene_from_arrays reads them back with."""
+    maps = [c.alpha, c.albedo, c.transport, c.normal] + [img for img in c.images if img is not None]
+    if c.body is not None:
+        maps.append(c.body)
+    record = {"index": c.index, "names": c.light_names, "held_out": c.held_out,
+              "traced": [img is not None for img in c.images], "body": c.body is not None}
+    return np.concatenate(maps, axis=0).astype(np.float16), np.stack(c.lights).astype(np.float32), record
+
+
+def scene_from_arrays(packed: np.ndarray, lights: np.ndarray, rec: dict, order: int) -> CroppedScene:
+    """scene_arrays' inverse, in float32 (the body prior's normals made unit again)."""
+    maps = packed.astype(np.float32)
+    n = sh_np.num_coeffs(order)
+    k = 1 + 3 + n + 3
+    images, j = [], k
+    for traced in rec["traced"]:
+        images.append(maps[j:j + 3] if traced else None)
+        j += 3 if traced else 0
+    body = unit_normals_and_coverage(maps[j:j + 4]) if rec.get("body") else None
+    return CroppedScene(index=rec["index"], alpha=maps[0:1], albedo=maps[1:4], transport=maps[4:4 + n],
+                        normal=maps[4 + n:k], images=images, lights=list(lights), light_names=rec["names"],
+                        held_out=rec["held_out"], body=body)
+
+
 class PackedScenes:
     """CroppedScene i of a pack (pack_scenes), all held in memory; called as SceneCache is."""
 
@@ -189,20 +210,7 @@ class PackedScenes:
             meta = json.loads(bytes(z["meta"]).decode())
             if meta["key"] != _pack_key(list(json_paths), size, order, padding):
                 raise ValueError(f"{path}: the pack was made from other scenes or crop settings")
-            self.items = []
-            n = sh_np.num_coeffs(order)
-            for i, rec in enumerate(meta["scenes"]):
-                maps = z[f"s{i}"].astype(np.float32)
-                k = 1 + 3 + n + 3
-                images, j = [], k
-                for traced in rec["traced"]:
-                    images.append(maps[j:j + 3] if traced else None)
-                    j += 3 if traced else 0
-                body = unit_normals_and_coverage(maps[j:j + 4]) if rec.get("body") else None
-                self.items.append(CroppedScene(
-                    index=rec["index"], alpha=maps[0:1], albedo=maps[1:4], transport=maps[4:4 + n],
-                    normal=maps[4 + n:k], images=images, lights=list(z[f"l{i}"]),
-                    light_names=rec["names"], held_out=rec["held_out"], body=body))
+            self.items = [scene_from_arrays(z[f"s{i}"], z[f"l{i}"], rec, order) for i, rec in enumerate(meta["scenes"])]
         self.paths = list(json_paths)
 
     def __call__(self, i: int) -> CroppedScene:

@@ -39,21 +39,26 @@ def split_by_body(json_paths: list[Path], val_fraction: float, seed: int = 0) ->
 
     With at least two bodies, both sides get at least one body.
     """
+    return split_by_key(list(json_paths), [body_key(read_sidecar(p)) for p in json_paths], val_fraction, seed)
+
+
+def split_by_key(items: list, keys: list[str], val_fraction: float, seed: int = 0) -> tuple[list, list]:
+    """split_by_body over items given with their body keys (keys[i] is items[i]'s): a training
+    pack splits its scenes by the keys it recorded, without the sidecars."""
     if not 0.0 <= val_fraction < 1.0:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
-    keys = {p: body_key(read_sidecar(p)) for p in json_paths}
 
     def rank(key: str) -> float:
         digest = hashlib.sha256(f"{seed}:{key}".encode()).digest()
         return int.from_bytes(digest[:8], "big") / 2.0**64
 
-    bodies = sorted(set(keys.values()), key=rank)
+    bodies = sorted(set(keys), key=rank)
     n_val = int(round(val_fraction * len(bodies)))
     if val_fraction > 0 and len(bodies) >= 2:
         n_val = min(max(n_val, 1), len(bodies) - 1)
     val_bodies = set(bodies[:n_val])
-    train = [p for p in json_paths if keys[p] not in val_bodies]
-    val = [p for p in json_paths if keys[p] in val_bodies]
+    train = [p for p, key in zip(items, keys) if key not in val_bodies]
+    val = [p for p, key in zip(items, keys) if key in val_bodies]
     return train, val
 
 

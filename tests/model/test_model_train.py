@@ -161,10 +161,16 @@ def test_sampler_reshuffles_per_epoch_and_encodes_the_epoch():
     sampler = train_data.EpochShuffleSampler(5, seed=1)
     first = list(sampler)
     assert sorted(first) == list(range(5))
-    sampler.set_epoch(3)
+    second = list(sampler)  # each pass is the next epoch
+    assert sorted(second) == list(range(5, 10))
+    sampler.resume_at(3, 0)
     third = list(sampler)
     assert sorted(third) == list(range(15, 20))  # epoch * N + i
     assert [k - 15 for k in third] != first  # a new order (fixed by the seed: checked, not luck)
+    # resumed two items into epoch 3: the rest of that epoch's order, then epoch 4 whole
+    again = train_data.EpochShuffleSampler(5, seed=1)
+    again.resume_at(3, 2)
+    assert list(again) == third[2:] and sorted(again) == list(range(20, 25))
 
 
 def test_lr_factor_warms_up_then_decays_by_cosine_to_the_floor():
