@@ -90,6 +90,9 @@ class SceneDataModule(L.LightningDataModule):
         self.held_out = held_out_light_names()
         self.training_pack = training_pack
         if training_pack is not None:
+            if training_pack.manifest["held_out"] != sorted(self.held_out):
+                raise ValueError(f"{training_pack.path}: packed when the held-out maps were "
+                                 f"{', '.join(training_pack.manifest['held_out'])}; pack the scenes again")
             if (training_pack.size, training_pack.order) != (size, order):
                 raise ValueError(f"{training_pack.path}: packed at {training_pack.size} px, order "
                                  f"{training_pack.order}; this run trains at {size} px, order {order}")

@@ -108,8 +108,12 @@ def test_a_campaign_refuses_other_settings_under_its_name(pack, tmp_path, capsys
     assert campaign.main([*args, *TRAIN, "--lr", "5e-4"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "other settings (train.lr 0.001 -> 0.0005;" in err[0] and "campaign.json" in err[0]
-    # how it trains may change: more steps, other threads
-    assert campaign.main([*args[:-1], "4", *TRAIN, "--threads", "2"]) == 0
+    # how it trains may change: more steps, other threads; --out gets a copy of the final weights
+    assert campaign.main([*args[:-1], "4", "--out", str(tmp_path / "final"), *TRAIN, "--threads", "2"]) == 0
+    run = cache / "campaigns" / "c" / "run"
+    for name in ("model.safetensors", "model.json"):
+        assert (tmp_path / "final" / name).read_bytes() == (run / name).read_bytes()
+    assert json.loads((run / "model.json").read_text())["training"]["steps"] == 4
 
 
 def test_the_farms_finished_scenes_are_kept_and_packed_once(tmp_path, monkeypatch, capsys):
