@@ -42,7 +42,7 @@ from model.scoring.pair_metrics import (
     MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction, gain_fitted, oracle_prt,
     render_np, shading_np, with_metric_weight,
 )
-from model.scoring.metrics import light_response
+from model.scoring.metrics import light_response, psnr
 from model.scoring.predictor import Predictor
 from model.scoring.report_cli import run_report
 
@@ -144,8 +144,7 @@ def pair_light_response(sample: dict, pred: dict, tstar: bool) -> dict:
     relit = render_np(pred, sample["target_light"], tstar)
     target, weight = channels_last(sample["target_image"]), channels_last(sample["metric_weight"])
     response = light_response(channels_last(sample["input_linear"]), relit, target, weight)
-    return {"psnr": evaluate_prediction(pred, sample, tstar)["relighting/image"]["psnr"],
-            "slope": response.slope, "correlation": response.correlation}
+    return {"psnr": psnr(relit, target, weight), "slope": response.slope, "correlation": response.correlation}
 
 
 def light_response_table(records: dict[str, dict[str, list[dict]]]) -> dict:
