@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from farm.synthesis.camera import FRAMINGS, parse_framings
-from farm.synthesis.scene_options import DENOISE_PREFILTERS, LIGHT_POOLS, SPECULAR_MODES, SceneOptions
+from farm.synthesis.scene_options import DENOISE_PREFILTERS, LIGHT_POOLS, LOOK_POOLS, SPECULAR_MODES, SceneOptions
 from farm.execution.run_config import DEFAULT_JOB_MODULE, FarmError, RunConfig, UsageError
 from relight.files import scene_passes
 from relight.files.argument_types import bounded_int, finite_float
@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="view-dependent specular bake")
     s.add_argument("--light-pool", choices=LIGHT_POOLS, default="train",
                    help="train maps, or only the held-out maps")
+    s.add_argument("--look-pool", choices=LOOK_POOLS, default="train",
+                   help="the looks training sees, or only the held-out garments, prints, hair, skin and "
+                        "accessories (farm/synthesis/looks.py)")
     s.add_argument("--framing", type=_framing, default="full-body",
                    help="framings a scene draws from, uniformly: 'all' or a comma list of "
                         + ",".join(FRAMINGS) + " (farm/synthesis/camera.py)")
@@ -141,7 +144,7 @@ def parse_args(argv: list[str]) -> RunConfig:
         denoise_prefilter=a.denoise_prefilter,
         sh_order=a.order, bake_directions=a.directions, passes=a.passes,
         specular=a.specular, light_pool=a.light_pool, framing=a.framing, hard_lights=float(a.hard_lights),
-        people=a.people,
+        people=a.people, look_pool=a.look_pool,
     )
     job_module = a.job_module
     if a.clip_frames is not None and a.people != "1":

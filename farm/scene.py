@@ -174,16 +174,17 @@ def sample_scene(index: int, seed: int, options: SceneOptions, render_sky=None) 
 def draw_scene(index: int, seed: int, options: SceneOptions, render_sky=None) -> SceneSample:
     """sample_scene for a request already checked (check_request). A group (options.people,
     farm.synthesis.people) adds its people; one person draws exactly what it drew before."""
-    from farm.synthesis import appearance, camera, hard_lights, lights, people
+    from farm.synthesis import appearance, camera, hard_lights, lights, looks, people
 
     rng = np.random.default_rng([int(seed), int(index)])
     timings: dict = {}
     plan = people.people_plan(options.people, seed, index)
     if plan.count == 1:
-        persons = [people.draw_person(rng, people.one_person_yaw, diffuse_share=DIFFUSE_ONLY_SHARE, timings=timings)]
+        persons = [people.draw_person(rng, people.one_person_yaw, diffuse_share=DIFFUSE_ONLY_SHARE, timings=timings,
+                                      look_rng=looks.look_rng(options.look_pool, seed, index, 0))]
         parts = persons[0].parts
     else:
-        persons = people.draw_group(rng, plan, seed, index, DIFFUSE_ONLY_SHARE, timings)
+        persons = people.draw_group(rng, plan, seed, index, DIFFUSE_ONLY_SHARE, timings, options.look_pool)
         parts = [replace(p, name=f"p{k}.{p.name}") for k, person in enumerate(persons) for p in person.parts]
     first = persons[0]
 

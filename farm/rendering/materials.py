@@ -157,6 +157,26 @@ def build_material(name: str, spec: dict):
             fac = tex.outputs["Fac"]
         links.new(rest, tex.inputs["Vector"])
         base_socket = _mix(nodes, links, fac, colour_a.outputs[0], colour_b.outputs[0])
+    elif pattern in ("dots", "plaid"):  # farm.synthesis.looks' held-out pool only
+        scale = spec["pattern_scale"]
+        if pattern == "dots":  # a regular grid of dots, a third of the cell across
+            tex = nodes.new("ShaderNodeTexVoronoi")
+            tex.inputs["Scale"].default_value = scale
+            tex.inputs["Randomness"].default_value = 0.0
+            links.new(rest, tex.inputs["Vector"])
+            fac = _node_math(nodes, links, "LESS_THAN", tex.outputs["Distance"], 0.17)
+        else:  # two crossing sets of bands: three tones where they cross
+            bands = []
+            for direction in ("X", "Z"):
+                tex = nodes.new("ShaderNodeTexWave")
+                tex.wave_type = "BANDS"
+                tex.bands_direction = direction
+                tex.inputs["Scale"].default_value = scale
+                tex.inputs["Distortion"].default_value = 0.0
+                links.new(rest, tex.inputs["Vector"])
+                bands.append(_node_math(nodes, links, "GREATER_THAN", tex.outputs["Fac"], 0.65))
+            fac = _node_math(nodes, links, "MULTIPLY", _node_math(nodes, links, "ADD", *bands), 0.5)
+        base_socket = _mix(nodes, links, fac, spec["base_color"], spec["second_color"])
     elif pattern in ("denim", "knit"):
         # Thread scale: diagonal twill (light weft showing between indigo warps) or vertical ribs.
         tex = nodes.new("ShaderNodeTexWave")

@@ -21,9 +21,8 @@ import numpy as np
 from farm.synthesis import faces as face_details
 from farm.synthesis import garments
 from farm.synthesis import hair as hair_mod
-from farm.synthesis.material_specs import (
-    hsv_linear, jitter_hue, material, sample_fabric_colour, sample_hair_colour, sample_skin,
-)
+from farm.synthesis import looks
+from farm.synthesis.material_specs import hsv_linear, jitter_hue, material
 from farm.synthesis.meshops import submesh, vertex_normals
 from farm.synthesis.prints import sample_print
 from farm.synthesis.bodies import Body
@@ -104,13 +103,8 @@ def shell(body: Body, body_normals: np.ndarray, mask: np.ndarray, thickness) -> 
 
 # ------------------------------------------------------------------ outfit
 
-TOP_KINDS = ("tank", "tshirt", "longsleeve", "loose_shirt", "loose_longsleeve")
-TOP_P = (0.12, 0.28, 0.2, 0.24, 0.16)
-DRESS_P = 0.18  # of the scenes whose pose allows a skirt
-OUTER_P = 0.3  # jacket or coat over the top
+# the kinds, cuts, colours and patterns drawn, and their shares: farm.synthesis.looks (pools train, heldout)
 OPEN_FRONT_P = 0.6
-HOOD_P = 0.3
-PRINT_P = 0.5
 COVER_RINGS = 3  # a loose garment hides the body (or garment) under it this many edges in from its openings
 
 
@@ -198,9 +192,11 @@ def _hood(body, rng, layout, torso_frame):
 
 
 def dress(
-    body: Body, rng: np.random.Generator, diffuse_only: bool = False, skirt_allowed: bool = True
+    body: Body, rng: np.random.Generator, diffuse_only: bool = False, skirt_allowed: bool = True,
+    look: looks.TrainLooks = looks.TRAIN,
 ) -> tuple[list[Part], dict]:
-    """Body + face details + clothing + hair; returns the parts and an appearance record."""
+    """Body + face details + clothing + hair (+ accessories) drawn from the look pool `look`;
+    returns the parts and an appearance record."""
     normals = vertex_normals(body.vertices, body.faces)
     groups = vertex_groups(body)
     h = rest_height_fraction(body)
@@ -208,13 +204,15 @@ def dress(
     axes = _fold_axes(body, groups)
     parts: list[Part] = []
     record: dict = {"diffuse_only": bool(diffuse_only)}
+    if look is not looks.TRAIN:
+        record["look_pool"] = look.name
 
-    skin = material("skin", rng, sample_skin(rng), (0.35, 0.6), diffuse_only)
-    skin["mottle"] = {"amount": float(rng.uniform(0.03, 0.1)), "scale": float(rng.uniform(30.0, 90.0))}
+    skin = material("skin", rng, look.skin_colour(rng), (0.35, 0.6), diffuse_only)
+    skin["mottle"] = look.mottle(rng)
     record["skin"] = skin
-    shoe_kind = str(rng.choice(["shoes", "boots", "barefoot"], p=[0.7, 0.2, 0.1]))
-    hair_style = str(rng.choice(hair_mod.STYLES, p=hair_mod.STYLE_P))
-    hair_colour = sample_hair_colour(rng)
+    shoe_kind = look.shoe_kind(rng)
+    hair_style = look.hair_style(rng)
+    hair_colour = look.hair_colour(rng)
 
     # ---- body, eyes, lips, brows, nails
     regions, detail_record = face_details.region_faces(body, groups, rng, barefoot=shoe_kind == "barefoot")
@@ -234,9 +232,7 @@ def dress(
         sel = groups["eyes"] & (side * rest[:, 0] > 0)
         front = np.argmin(np.where(sel, rest[:, 1], np.inf))
         centres.append([float(c) for c in rest[front]])
-    iris_kind = rng.random()
-    iris = (hsv_linear(rng.uniform(0.05, 0.1), rng.uniform(0.5, 0.8), rng.uniform(0.12, 0.4)) if iris_kind < 0.6
-            else hsv_linear(rng.uniform(0.45, 0.62), rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6)))
+    iris = look.iris(rng)
     eye["iris"] = {"centres": centres, "radius_m": float(rng.uniform(0.0055, 0.0065)),
                    "pupil_m": float(rng.uniform(0.0018, 0.0028)), "colour": iris, "pupil_colour": [0.01, 0.01, 0.01]}
     skin_rgb = np.array(skin["base_color"])
@@ -244,7 +240,7 @@ def dress(
     lip_colour = (hsv_linear(rng.uniform(-0.05, 0.03), rng.uniform(0.5, 0.9), rng.uniform(0.35, 0.75)) if lipstick
                   else np.clip(skin_rgb * np.array([0.9, 0.62, 0.62]) * rng.uniform(0.8, 1.05), 0.005, 0.9).tolist())
     polish = bool(rng.random() < 0.3)
-    nail_colour = (sample_fabric_colour(rng) if polish
+    nail_colour = (look.fabric_colour(rng) if polish
                    else np.clip(skin_rgb * np.array([1.3, 1.12, 1.1]) + 0.05, 0.005, 0.9).tolist())
     brow_colour = np.clip(np.array(hair_colour if hair_style != "bald" else [0.05, 0.03, 0.02])
                           * rng.uniform(0.4, 0.75), 0.005, 0.9).tolist()
@@ -268,19 +264,13 @@ def dress(
     covered_faces = np.zeros(len(body.faces), dtype=bool)  # body faces under a garment (hidden)
     record["garments"] = {}
     torso_frame = hair_mod.head_frames(body, groups)[1]
-    use_dress = skirt_allowed and rng.random() < DRESS_P
-    top_kind = str(rng.choice(TOP_KINDS, p=TOP_P))
+    use_dress = skirt_allowed and rng.random() < look.dress_p
+    top_kind = look.top_kind(rng)
     loose_top = top_kind.startswith("loose")
-    hem = rng.uniform(0.47, 0.52) if loose_top else rng.uniform(0.5, 0.57)
-    top_mask = groups["torso"] & (h > hem)
-    if top_kind != "tank":
-        top_mask |= groups["upperarm"]
-    if top_kind in ("longsleeve", "loose_longsleeve"):
-        top_mask |= groups["forearm"]
-    outer_kind = "none"
-    if rng.random() < OUTER_P:
-        outer_kind = "coat" if (skirt_allowed and rng.random() < 0.4) else "jacket"
-    hood = bool(rng.random() < HOOD_P) if (outer_kind != "none" or loose_top) else False
+    hem = look.top_hem(rng, top_kind)
+    top_mask = look.top_region(top_kind, body, groups, h, hem)
+    outer_kind = look.outer_kind(rng, skirt_allowed)
+    hood = bool(rng.random() < look.hood_p) if (outer_kind != "none" or loose_top) else False
     waist = rng.uniform(0.56, 0.6)
 
     def add_garment(slot, kind, spec, pieces, info, body_cover):
@@ -292,10 +282,10 @@ def dress(
         return parts[-1]
 
     def cloth(slot):
-        colour = jitter_hue(sample_fabric_colour(rng), rng)
-        pats = ("stripes", "checks", "noise", "denim", "knit") if slot != "bottom" else ("stripes", "checks", "noise", "denim", "denim")
+        colour = jitter_hue(look.fabric_colour(rng), rng)
         return material("cloth", rng, colour, (0.55, 1.0), diffuse_only, pattern_p=0.55, metallic_p=0.03,
-                        transmission_p=0.03, patterns=pats)
+                        transmission_p=0.03, patterns=look.cloth_patterns(slot), palette=look.fabric_colour,
+                        pattern_scales=look.pattern_scales)
 
     # Top (or the dress's bodice).
     top_slot = "dress" if use_dress else "top"
@@ -335,20 +325,18 @@ def dress(
 
     # Bottom.
     if not use_dress:
-        bottom_kind = str(rng.choice(["trousers", "capri", "shorts", "skirt"], p=[0.45, 0.15, 0.25, 0.15]))
-        if bottom_kind == "skirt" and not skirt_allowed:
-            bottom_kind = "shorts"  # legs apart or bent would cut through a skirt
-        cut = {"trousers": rng.uniform(0.035, 0.06), "capri": rng.uniform(0.15, 0.22), "shorts": rng.uniform(0.33, 0.42),
-               "skirt": rng.uniform(0.25, 0.42)}[bottom_kind]
+        bottom_kind = look.bottom_kind(rng, skirt_allowed)
+        cut = look.bottom_cut(rng, bottom_kind)
         spec = cloth("bottom")
         thickness = float(rng.uniform(0.004, 0.008))
         folds = _folds_for(rng, False)
-        if bottom_kind == "skirt":
+        skirt = bottom_kind in ("skirt", "maxi_skirt")
+        if skirt:
             # Only the waistband follows the body; the skirt itself is a flared, fluted slab.
             mask = groups["torso"] & (h < waist) & (h > waist - 0.04)
             skirt_folds = garments.sample_folds(rng, (0.008, 0.025), (0.05, 0.1))
-            sv, sr, sf = garments.flared_tube(body, h, groups["torso"] | groups["thigh"], waist - 0.03, cut,
-                                              rng.uniform(0.0, 0.25), skirt_folds)
+            legs = groups["torso"] | groups["thigh"] | (groups["shin"] if bottom_kind == "maxi_skirt" else False)
+            sv, sr, sf = garments.flared_tube(body, h, legs, waist - 0.03, cut, rng.uniform(0.0, 0.25), skirt_folds)
             sv, sr, sf, _, shid = _slab_of(sv, sr, sf, thickness, hide_inner=False)
             v, r, f, _, _ = _tight(body, normals, mask, thickness, None, axes)
             pieces = [(v, r, f, np.zeros(len(v), dtype=bool)), (sv, sr, sf, shid)]
@@ -357,7 +345,7 @@ def dress(
             mask = (groups["torso"] | groups["thigh"] | groups["shin"]) & (h < waist) & (h > cut)
             v, r, f, _, _ = _tight(body, normals, mask, thickness, folds, axes)
             pieces = [(v, r, f, np.zeros(len(v), dtype=bool))]
-        add_garment("bottom", bottom_kind, spec, pieces, {"thickness_m": thickness, "loose": bottom_kind == "skirt",
+        add_garment("bottom", bottom_kind, spec, pieces, {"thickness_m": thickness, "loose": skirt,
                                                           "folds": folds}, mask)
 
     # Jacket or coat over the top: a closed slab, often open at the front.
@@ -366,7 +354,7 @@ def dress(
         open_front = bool(rng.random() < OPEN_FRONT_P)
         gap = float(rng.uniform(0.05, 0.16)) if open_front else 0.0
         j_hem = rng.uniform(0.47, 0.52)
-        mask = (groups["torso"] & (h > j_hem)) | groups["upperarm"] | groups["forearm"]
+        mask = (groups["torso"] & (h > j_hem)) | (False if outer_kind == "vest" else groups["upperarm"] | groups["forearm"])
         if open_front:
             mask &= ~(groups["torso"] & (rest[:, 1] < layout["torso_y"]) & (np.abs(rest[:, 0] - layout["torso_x"]) < gap / 2)
                       & (h < 0.8))
@@ -398,9 +386,9 @@ def dress(
 
     # Shoes.
     if shoe_kind != "barefoot":
-        shoe_mask = groups["foot"] | (groups["shin"] & (h < (0.12 if shoe_kind == "boots" else 0.045)))
-        spec = material("shoe", rng, jitter_hue(sample_fabric_colour(rng), rng), (0.2, 0.8), diffuse_only,
-                        pattern_p=0.0, metallic_p=0.05)
+        shoe_mask = look.shoe_region(shoe_kind, groups, h)
+        spec = material("shoe", rng, jitter_hue(look.fabric_colour(rng), rng), (0.2, 0.8), diffuse_only,
+                        pattern_p=0.0, metallic_p=0.05, palette=look.fabric_colour)
         thickness = float(rng.uniform(0.008, 0.015))
         v, r, f, _, _ = _tight(body, normals, shoe_mask, thickness, None, axes)
         add_garment("shoes", shoe_kind, spec, [(v, r, f, np.zeros(len(v), dtype=bool))],
@@ -409,15 +397,16 @@ def dress(
     # A print on the visible chest garment (the top, a dress or a closed jacket).
     if print_target is None and outer_kind != "none":
         print_target = top_spec  # an open jacket shows the top's print between its fronts
-    if rng.random() < PRINT_P:
-        print_target["print"] = sample_print(rng, layout, print_target["base_color"])
+    if rng.random() < look.print_p:
+        print_target["print"] = sample_print(rng, layout, print_target["base_color"], look.print_kinds(),
+                                             look.fabric_colour)
 
     # ---- hair
     made = hair_mod.make_hair(body, normals, groups, rng, hair_style)
     if made is not None:
         v, r, f, n, scalp, hair_record = made
         spec = material("hair", rng, hair_colour, (0.35, 0.6), diffuse_only, sheen=(0.3, 0.8))
-        spec["streaks"] = {"amount": float(rng.uniform(0.1, 0.3)), "scale": float(rng.uniform(20.0, 60.0))}
+        spec["streaks"] = look.streaks(rng)
         scalp_faces = scalp[body.faces].all(axis=1)
         hidden = np.zeros(len(v), dtype=bool)
         # The cap's inner layer lies on the scalp: hidden away from its rim.
@@ -430,6 +419,13 @@ def dress(
         covered_faces |= scalp_faces
     else:
         record["hair"] = {"style": "bald", "volume": "none"}
+    belt_ok = not use_dress and not loose_top and "bottom" in record["garments"] and not skirt
+    under = max(top_info["offset_m"], record["garments"].get("bottom", {}).get("thickness_m", 0.0))
+    for slot, kind, v, r, f, info in look.accessories(rng, body, normals, groups, h, layout, torso_frame,
+                                                      {"belt_ok": belt_ok, "waist": waist, "under_m": under}):
+        parts.append(Part(slot, v, r, f, vertex_normals(v, f), material(slot, rng, jitter_hue(
+            look.fabric_colour(rng), rng), (0.4, 0.9), diffuse_only, palette=look.fabric_colour)))
+        record.setdefault("accessories", {})[slot] = {"kind": kind, "material": parts[-1].material, **info}
     # A body vertex is hidden when every face around it is under a garment or the hair.
     exposed = np.zeros(len(body.vertices), dtype=bool)
     exposed[body.faces[~covered_faces].ravel()] = True

@@ -26,11 +26,17 @@ from farm.synthesis.meshops import smooth_noise, submesh, vertex_normals
 
 STYLES = ("bald", "buzz", "short", "medium", "long", "ponytail", "bun", "afro")
 STYLE_P = (0.07, 0.10, 0.24, 0.20, 0.21, 0.07, 0.05, 0.06)
+# styles only farm.synthesis.looks' held-out pool draws: a chin-length bob, two side pigtails, two buns
+HELDOUT_STYLES = ("bob", "pigtails", "space_buns")
 VOLUME = {"bald": "none", "buzz": "shell", "short": "short", "medium": "medium", "long": "long",
-          "ponytail": "updo", "bun": "updo", "afro": "big"}
+          "ponytail": "updo", "bun": "updo", "afro": "big", "bob": "medium", "pigtails": "updo", "space_buns": "updo"}
 # Cap thickness range (m) per style.
 CAP = {"buzz": (0.003, 0.006), "short": (0.012, 0.025), "medium": (0.015, 0.03), "long": (0.012, 0.025),
-       "ponytail": (0.006, 0.012), "bun": (0.006, 0.012), "afro": (0.04, 0.075)}
+       "ponytail": (0.006, 0.012), "bun": (0.006, 0.012), "afro": (0.04, 0.075),
+       "bob": (0.018, 0.032), "pigtails": (0.006, 0.012), "space_buns": (0.006, 0.012)}
+# Curtain (length below the eyes, spread either side of the back, thickness) per style.
+CURTAIN = {"medium": ((0.1, 0.17), (95.0, 115.0), (0.012, 0.025)), "long": ((0.24, 0.45), (100.0, 130.0), (0.015, 0.035)),
+           "bob": ((0.04, 0.08), (120.0, 140.0), (0.022, 0.038))}
 
 
 def volumetric(style: str) -> bool:
@@ -91,9 +97,10 @@ def _curtain(body, rng, style, layout, frames, cap_t):
     """Slab hanging around the back and sides of the head from ear height to the tips."""
     rest = body.rest_vertices
     c = layout["head_centre"]
-    length = float(rng.uniform(0.1, 0.17) if style == "medium" else rng.uniform(0.24, 0.45))
-    spread = float(rng.uniform(95.0, 115.0) if style == "medium" else rng.uniform(100.0, 130.0))
-    thick = float(rng.uniform(0.012, 0.025) if style == "medium" else rng.uniform(0.015, 0.035))
+    lengths, spreads, thicknesses = CURTAIN[style]
+    length = float(rng.uniform(*lengths))
+    spread = float(rng.uniform(*spreads))
+    thick = float(rng.uniform(*thicknesses))
     z_top = c[2] + 0.01
     z_end = layout["eye_z"] - length
     rows, cols = 12, 17
@@ -153,6 +160,39 @@ def _ponytail(body, rng, layout, frames):
     return posed, v, f, {"length_m": length}
 
 
+def _pigtails(body, rng, layout, frames):
+    """Two tubes from behind the ears, falling past the jaw and out to either side."""
+    c = layout["head_centre"]
+    length = float(rng.uniform(0.12, 0.25))
+    r0 = float(rng.uniform(0.018, 0.028))
+    k = np.linspace(0.0, 1.0, 8)
+    pieces = []
+    for side in (1.0, -1.0):
+        start = np.array([c[0] + side * 0.85 * layout["head_radius"], c[1] + 0.3 * layout["head_radius"], c[2]])
+        path = start + np.stack([side * 0.04 * np.sin(k * 1.5), 0.03 * k, -length * k], axis=1)
+        pieces.append(g.tube(path, r0 * (1.0 - 0.6 * k), segments=10))
+    v = np.concatenate([pieces[0][0], pieces[1][0]])
+    f = np.concatenate([pieces[0][1], pieces[1][1] + len(pieces[0][0])])
+    return _carry(v, frames, layout["chin_z"], layout["shoulder_z"]), v, f, {"length_m": length}
+
+
+def _space_buns(body, rng, layout, frames):
+    """Two buns on top of the head, either side of the parting."""
+    c = layout["head_centre"]
+    r = float(rng.uniform(0.03, 0.042))
+    rest = body.rest_vertices
+    pieces = []
+    for side in (1.0, -1.0):
+        x, y = c[0] + side * 0.5 * layout["head_radius"], c[1] + 0.2 * layout["head_radius"]
+        near = (np.abs(rest[:, 0] - x) < 0.015) & (np.abs(rest[:, 1] - y) < 0.015) & (rest[:, 2] > layout["eye_z"])
+        top = rest[near, 2].max() if near.any() else c[2] + 0.08  # the scalp under the bun
+        centre = np.array([x, y, top + 0.55 * r])  # sunk into the cap a little
+        pieces.append(g.ellipsoid(centre, (r, 0.9 * r, 0.85 * r)))
+    v = np.concatenate([pieces[0][0], pieces[1][0]])
+    f = np.concatenate([pieces[0][1], pieces[1][1] + len(pieces[0][0])])
+    return v @ frames[0][0].T + frames[0][1], v, f, {"radius_m": r}
+
+
 def _bun(body, rng, layout, frames):
     c = layout["head_centre"]
     r = float(rng.uniform(0.035, 0.05))
@@ -187,7 +227,7 @@ def make_hair(body, normals, groups, rng, style: str):
     v, r, f, mask, cap_t = _cap(body, normals, groups, rng, style, layout)
     record = {"style": style, "volume": VOLUME[style], "thickness_m": cap_t}
     extra = None
-    if style in ("medium", "long"):
+    if style in CURTAIN:
         extra = _curtain(body, rng, style, layout, frames, cap_t)
         record["curtain"] = extra[3]
     elif style == "ponytail":
@@ -196,6 +236,9 @@ def make_hair(body, normals, groups, rng, style: str):
     elif style == "bun":
         extra = _bun(body, rng, layout, frames)
         record["bun"] = extra[3]
+    elif style in ("pigtails", "space_buns"):
+        extra = (_pigtails if style == "pigtails" else _space_buns)(body, rng, layout, frames)
+        record[style] = extra[3]
     if extra is not None:
         ev, er, ef, _ = extra
         f = np.concatenate([f, ef + len(v)])

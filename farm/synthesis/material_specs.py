@@ -71,6 +71,8 @@ def material(
     transmission_p: float = 0.0,
     patterns: tuple[str, ...] = ("stripes", "checks", "noise"),
     sheen: tuple[float, float] | None = None,
+    palette=sample_fabric_colour,
+    pattern_scales: dict | None = None,
 ) -> dict:
     """Principled parameters; `diffuse_only` gives a pure Lambert surface.
 
@@ -78,13 +80,15 @@ def material(
     denim (twill lines at thread scale), knit (ribs at stitch scale);
     `sheen` adds a Principled sheen lobe (hair). Prints, irises, skin
     mottle and hair streaks are added by `dress` (keys print / iris /
-    mottle / streaks).
+    mottle / streaks). `palette(rng)` draws the second colour; `pattern_scales`
+    {pattern: (lo, hi)} redraws the scale of those patterns (farm.synthesis.looks'
+    held-out pool: dots, plaid, finer stripes and checks).
     """
     rough = float(rng.uniform(*roughness))
     spec = {
         "kind": kind,
         "base_color": [float(c) for c in colour],
-        "second_color": [float(c) for c in jitter_hue(sample_fabric_colour(rng), rng)],
+        "second_color": [float(c) for c in jitter_hue(palette(rng), rng)],
         "pattern": "none",
         "pattern_scale": float(rng.uniform(4.0, 30.0)),
         "pattern_axis": int(rng.integers(3)),
@@ -97,7 +101,10 @@ def material(
     }
     if rng.random() < pattern_p:
         spec["pattern"] = str(rng.choice(list(patterns)))
-        if spec["pattern"] == "denim":
+        if pattern_scales is not None:
+            if spec["pattern"] in pattern_scales:
+                spec["pattern_scale"] = float(rng.uniform(*pattern_scales[spec["pattern"]]))
+        elif spec["pattern"] == "denim":
             spec["pattern_scale"] = float(rng.uniform(150.0, 260.0))  # 2.4-4 mm twill period
         elif spec["pattern"] == "knit":
             spec["pattern_scale"] = float(rng.uniform(50.0, 90.0))  # 3.5-6 mm ribs

@@ -117,10 +117,13 @@ class Person:
 
 
 def draw_person(rng: np.random.Generator, draw_yaw, diffuse_only: bool | None = None,
-                diffuse_share: float = 0.2, timings: dict | None = None) -> Person:
+                diffuse_share: float = 0.2, timings: dict | None = None,
+                look_rng: np.random.Generator | None = None) -> Person:
     """Body, pose (redrawn while limbs interpenetrate), turn, outfit, in this order from `rng`:
     the order farm.scene drew a scene's person in before groups existed. `diffuse_only` given
-    (a group's later people share the first one's) is not drawn."""
+    (a group's later people share the first one's) is not drawn. With `look_rng`
+    (farm.synthesis.looks.look_rng) the person is dressed again from it with the held-out looks;
+    `rng` has drawn the train outfit all the same, so what it draws next does not change."""
     import time
 
     from farm.synthesis import appearance, bodies, poses
@@ -155,21 +158,27 @@ def draw_person(rng: np.random.Generator, draw_yaw, diffuse_only: bool | None = 
     t0 = time.perf_counter()
     if diffuse_only is None:
         diffuse_only = bool(rng.random() < diffuse_share)
-    parts, look = appearance.dress(
-        body, rng, diffuse_only=diffuse_only, skirt_allowed=pose.family in ("standing", "arms", "rest")
-    )
+    skirt_allowed = pose.family in ("standing", "arms", "rest")
+    parts, look = appearance.dress(body, rng, diffuse_only=diffuse_only, skirt_allowed=skirt_allowed)
+    if look_rng is not None:
+        from farm.synthesis import looks
+
+        parts, look = appearance.dress(body, look_rng, diffuse_only, skirt_allowed, looks.HELDOUT)
     stage("appearance", t0)
     return Person(params, pose, yaw, float(penetration), pair, body, parts, look, bool(diffuse_only))
 
 
 def draw_group(rng: np.random.Generator, plan: GroupPlan, seed: int, index: int, diffuse_share: float,
-               timings: dict) -> list[Person]:
+               timings: dict, look_pool: str = "train") -> list[Person]:
     """The plan's people, person 0 from the scene's stream, the others from their own; placed."""
+    from farm.synthesis.looks import look_rng
+
     persons = []
     for k in range(plan.count):
         stream = rng if k == 0 else np.random.default_rng([int(seed), int(index), GROUP_STREAM, k])
         persons.append(draw_person(stream, lambda r: plan.yaw_deg + float(r.uniform(-PERSON_YAW_DEG, PERSON_YAW_DEG)),
-                                   persons[0].diffuse_only if persons else None, diffuse_share, timings))
+                                   persons[0].diffuse_only if persons else None, diffuse_share, timings,
+                                   look_rng(look_pool, seed, index, k)))
     place_people(persons, plan)
     return persons
 

@@ -13,6 +13,7 @@ from relight.lighting.sh import num_coeffs
 
 SPECULAR_MODES = ("auto", "on", "off")
 LIGHT_POOLS = ("train", "heldout")
+LOOK_POOLS = ("train", "heldout")  # farm.synthesis.looks
 # OIDN prefilter of the albedo/normal guides: "fast" trusts them as rendered (they are
 # nearly noise-free: first-hit values through a box filter), "accurate" denoises them
 # too, which cost 20% of path-tracing time (docs/benchmarks/farm_runner.md).
@@ -41,6 +42,10 @@ class SceneOptions:
     # issue 47: people per scene, a count or a range drawn uniformly ("2-5"; farm.synthesis.people).
     # "1" draws nothing new and is left out of the sidecar: the scenes of before, byte for byte
     people: str = "1"
+    # issue 45: the looks a person draws (farm.synthesis.looks): "train", the farm's of before, or
+    # "heldout", the unfamiliar look training never sees. "train" is left out of the sidecar (the
+    # sidecars of before, byte for byte): a sidecar without the key is of the train pool
+    look_pool: str = "train"
 
     def validate(self) -> None:
         checks = (
@@ -73,6 +78,8 @@ class SceneOptions:
         if isinstance(self.hard_lights, bool) or not isinstance(self.hard_lights, (int, float)) \
                 or not 0.0 <= float(self.hard_lights) <= 1.0:
             raise ValueError(f"SceneOptions.hard_lights must be a share in [0, 1], got {self.hard_lights!r}")
+        if self.look_pool not in LOOK_POOLS:
+            raise ValueError(f"SceneOptions.look_pool must be 'train' or 'heldout', got {self.look_pool!r}")
         if self.light_pool not in LIGHT_POOLS:
             raise ValueError(f"SceneOptions.light_pool must be 'train' or 'heldout', got {self.light_pool!r}")
 
@@ -82,6 +89,8 @@ class SceneOptions:
         d["passes"] = sorted(self.passes)
         if d["people"] == "1":
             del d["people"]
+        if d["look_pool"] == "train":
+            del d["look_pool"]
         return d
 
     @classmethod
