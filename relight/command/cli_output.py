@@ -44,13 +44,11 @@ def claim_output(out: Path, command: str, folders=(), inputs: dict | None = None
     that a killed run (kill -9) left beside it or, for a folder, inside it (and inside
     `folders`, the job's other folders): with the lock held no live writer can own them.
     `inputs` ({what: path or None}): refused first when `out` is one of them (check_not_an_input)."""
-    from relight.files.fileio import output_lock, stale_temps, stale_temps_in
+    from relight.files.fileio import output_lock
 
     if inputs is not None:
         check_not_an_input(out, inputs)
-    with output_lock(out, command):
-        for tmp in stale_temps(out) + [t for f in (out, *folders) for t in stale_temps_in(f)]:
-            tmp.unlink(missing_ok=True)
+    with output_lock(out, command, clear_in=(out, *folders)):
         yield
 
 

@@ -157,10 +157,9 @@ def relight_options(args: argparse.Namespace) -> tuple[LightRequest, PhotoReques
 
 def open_relighter(photo: PhotoRequest):
     """The Relighter of --model / --quality / --threads."""
-    from relight.network.quality import model_path
     from relight.network.runtime import Relighter
 
-    model = photo.model if photo.model is not None else model_path(photo.quality)
+    model = photo.model if photo.model is not None else photo.preset.model_file()
     return Relighter(model, threads=photo.threads, working_size=photo.preset.working_size)
 
 

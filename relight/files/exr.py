@@ -45,8 +45,9 @@ def exr_size(path) -> tuple[int, int]:
     return max(w for w, _ in sizes), max(h for _, h in sizes)
 
 
-def read_exr(path) -> dict[str, np.ndarray]:
-    """Every channel of every part, as {name: [H, W] array}.
+def read_exr(path, parts: Sequence | None = None) -> dict[str, np.ndarray]:
+    """Every channel of every part, as {name: [H, W] array}. `parts`: the file's layout when the
+    caller read it already (exr_layout.read_layout with its chunks checked), not read again.
 
     Half and float channels come back as float32, uint as uint32. In a
     multi-part file (Blender 5 writes one part per pass, e.g.
@@ -59,7 +60,8 @@ def read_exr(path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"EXR file not found: {path}")
-    parts = read_layout(path)
+    if parts is None:
+        parts = read_layout(path)
     channels, failure = _read_channels(_openexr(), path, len(parts))
     if failure is not None:
         raise ValueError(failure)

@@ -102,28 +102,21 @@ def same_file(a, b) -> bool:
 _TEMP_NAME = r"\.{name}\.[A-Za-z0-9_]{{8}}\.tmp(\.[A-Za-z0-9]+)?"
 
 
-def stale_temps(final) -> list[Path]:
+def stale_temps(final, folders=()) -> list[Path]:
     """The temporaries that writes of `final` left beside it when their process was killed
-    outright (SIGKILL: no cleanup ran). Remove them only while holding output_lock(final)."""
+    outright (SIGKILL: no cleanup ran), then every temporary of an atomic write left inside each
+    of `folders` (an output folder's frames). Remove them only while holding output_lock(final)."""
     import re
 
     final = Path(final)
-    pattern = re.compile(_TEMP_NAME.format(name=re.escape(final.name)))
-    try:
-        return sorted(p for p in final.parent.iterdir() if pattern.fullmatch(p.name) and p.is_file())
-    except FileNotFoundError:
-        return []
-
-
-def stale_temps_in(folder) -> list[Path]:
-    """Every temporary of an atomic write left inside `folder` (see stale_temps)."""
-    import re
-
-    pattern = re.compile(_TEMP_NAME.format(name=".+"))
-    try:
-        return sorted(p for p in Path(folder).iterdir() if pattern.fullmatch(p.name) and p.is_file())
-    except (FileNotFoundError, NotADirectoryError):
-        return []
+    found: list[Path] = []
+    for folder, name in ((final.parent, re.escape(final.name)), *((Path(f), ".+") for f in folders)):
+        pattern = re.compile(_TEMP_NAME.format(name=name))
+        try:
+            found += sorted(p for p in folder.iterdir() if pattern.fullmatch(p.name) and p.is_file())
+        except (FileNotFoundError, NotADirectoryError):
+            pass
+    return found
 
 
 class OutputBusy(ValueError):
@@ -187,19 +180,12 @@ def _refuse_if_not_a_lock(path: Path) -> None:
                          "then run again")
 
 
-def _is_at(fd: int, path: Path) -> bool:
-    """Whether the file open as `fd` is the one at `path` (not followed: a link is not it)."""
-    try:
-        here, there = os.fstat(fd), os.lstat(path)
-    except FileNotFoundError:
-        return False
-    return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
-
-
 @contextmanager
-def output_lock(final, what: str = "relight"):
+def output_lock(final, what: str = "relight", clear_in=None):
     """Hold the one writer's lock of output `final` (a file or a folder) for the block;
-    `what` (the command) is named to a second writer, with this process's id.
+    `what` (the command) is named to a second writer, with this process's id. `clear_in`
+    (folders, possibly none): once locked, the temporaries that killed runs left beside
+    `final` and inside those folders are removed (stale_temps; no live writer owns them now).
 
     The lock is an flock on lock_path(final) (on Windows msvcrt's lock of one byte): the
     kernel drops it when the process ends however it ends (kill -9 included), so a lock is
@@ -221,7 +207,11 @@ def output_lock(final, what: str = "relight"):
             who = f"another {holder or 'relight'} run" + (f" (process {pid})" if pid.isdigit() else "")
             raise OutputBusy(f"{who} is writing {final}: wait for it to finish, or choose another "
                              "output") from None
-        if not _is_at(fd, path):
+        try:  # still the file at `path` (not followed: a link is not it)?
+            here, there = os.fstat(fd), os.lstat(path)
+        except FileNotFoundError:
+            here = there = None
+        if there is None or (here.st_dev, here.st_ino) != (there.st_dev, there.st_ino):
             os.close(fd)  # the holder removed the file between our open and lock: lock the new one
             continue
         if created:
@@ -243,6 +233,8 @@ def output_lock(final, what: str = "relight"):
     try:
         os.lseek(fd, 0, os.SEEK_SET)
         os.write(fd, f"{os.getpid()} {what}\n".encode("utf-8"))  # who holds it, for the refusal
+        for tmp in stale_temps(final, clear_in) if clear_in is not None else ():
+            tmp.unlink(missing_ok=True)
         yield path
     finally:
         try:

@@ -209,7 +209,8 @@ def read_radiance_hdr(path) -> np.ndarray:
 
 def load_equirect(path) -> EnvMap:
     """Load and validate an equirect HDR map from an OpenEXR or Radiance .hdr file."""
-    from relight.files.exr import exr_size, read_exr
+    from relight.files.exr import read_exr
+    from relight.files.exr_layout import read_layout
 
     path = Path(path)
     if not path.is_file():
@@ -217,8 +218,10 @@ def load_equirect(path) -> EnvMap:
     with open(path, "rb") as f:
         magic = f.read(10)
     if magic[:4] == b"\x76\x2f\x31\x01":  # OpenEXR magic number
-        _check_map_size(*exr_size(path), path)
-        pixels = _rgb_from_exr_channels(read_exr(path), str(path))
+        parts = read_layout(path)  # the headers and chunk tables, read once: the size, then the read
+        sizes = [part.size for part in parts]
+        _check_map_size(max(w for w, _ in sizes), max(h for _, h in sizes), path)
+        pixels = _rgb_from_exr_channels(read_exr(path, parts), str(path))
     elif magic.startswith(b"#?"):
         pixels = read_radiance_hdr(path)
     else:

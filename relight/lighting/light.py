@@ -122,49 +122,36 @@ def map_file(source) -> Path:
     """The HDR file `source` names: an existing file, else a preset name (relight.lighting.presets).
 
     ValueError when it is neither."""
-    from relight.lighting.presets import is_preset_name, preset_path
+    from relight.lighting.presets import preset_file
 
     if isinstance(source, str) and not source:
         raise ValueError("light is an empty string: give an HDR map path or a preset name")
     path = Path(source)
     if path.is_file():
         return path
-    if isinstance(source, str) and is_preset_name(source):
-        return preset_path(source)
+    preset = preset_file(source)
+    if preset is not None:
+        return preset
     raise ValueError(f"{source!s} is neither a file nor a preset name (see `relight presets`) nor a sun "
                      "(sun:AZIMUTH,ELEVATION[,ANGLE])")
 
 
-def _check_rotation(rotation_deg) -> float:
+def _rotate_z(c: np.ndarray, rotation_deg, cache: LightCache | None = None) -> np.ndarray:
+    """SH light [n, 3] (float64, as sh.validate_coeffs returns it) turned by `rotation_deg` about
+    world Z (a number of degrees, finite: ValueError otherwise); a whole number of turns returns
+    an unrotated copy."""
     try:
         rotation_deg = float(rotation_deg)
     except (TypeError, ValueError):
         raise ValueError(f"rotation must be a number of degrees, got {rotation_deg!r}") from None
     if not math.isfinite(rotation_deg):
         raise ValueError(f"rotation must be finite, got {rotation_deg}")
-    return rotation_deg
-
-
-def _rotate_z(c: np.ndarray, rotation_deg: float, cache: LightCache | None = None) -> np.ndarray:
-    """SH light [n, 3] (float64, as sh.validate_coeffs returns it) turned by `rotation_deg`
-    (finite, as _check_rotation returns it) about world Z; a whole number of turns returns an
-    unrotated copy."""
     if rotation_deg % 360.0 == 0.0:
         return np.array(c, dtype=np.float64)
     order = sh.order_from_num_coeffs(c.shape[0])
     M = _cached(cache, ("rot", rotation_deg, order),
                 lambda: sh_rotation.rotation_matrix(sh_rotation.z_rotation(rotation_deg), order))
     return M @ c
-
-
-def _pixels(source) -> np.ndarray:
-    from relight.lighting.envmap import EnvMap, load_equirect, validate_equirect
-
-    if isinstance(source, EnvMap):
-        return source.pixels
-    if isinstance(source, (str, os.PathLike)):
-        return load_equirect(source).pixels
-    return validate_equirect(source).pixels
 
 
 def fit_order(coeffs, n: int) -> np.ndarray:
@@ -207,7 +194,7 @@ class SHLight:
     def turned(self, rotation_deg: float = 0.0, cache: LightCache | None = None) -> tuple[np.ndarray, float]:
         """(SH light [n, 3], float64, turned by `rotation_deg` about world Z then scaled to
         the target mean luminance, the scale: 1.0 without a target)."""
-        rotated = _rotate_z(self.base, _check_rotation(rotation_deg), cache)
+        rotated = _rotate_z(self.base, rotation_deg, cache)
         if self.target is None:
             return rotated, 1.0
         return rotated * self._scale, float(self._scale)
@@ -221,7 +208,7 @@ class SHLight:
         """at(rotation_deg) as a CheckedLight, checked here once (this light's coefficients when it was
         made), with `scale` the 2**EV of an exposure already checked (exposure_scale; `relight image`'s
         --exposure by its argparse type)."""
-        return CheckedLight(self.at(rotation_deg, cache), scale)
+        return CheckedLight(self.turned(rotation_deg, cache)[0], scale)
 
     @classmethod
     def resolve(cls, source, order: int, *, normalize: bool | None = None, target: float = REFERENCE_LUMINANCE,
@@ -249,9 +236,14 @@ class SHLight:
 
             base = sun_light(*parse_sun(source), order)
         elif isinstance(source, (str, os.PathLike)):
+            from relight.lighting.envmap import load_equirect
+
             path = map_file(source)
-            base = _cached(cache, ("map", _file_key(path), order),
-                           lambda: sh_projection.project_equirect(_pixels(path), order))
+            if cache is None:  # one resolve (the command's): nothing to share, no key to make
+                base = sh_projection.project_equirect(load_equirect(path).pixels, order)
+            else:  # the key: the file's state, so an edited map is projected again
+                base = cache.get(("map", _file_key(path), order),
+                                 lambda: sh_projection.project_equirect(load_equirect(path).pixels, order))
             try:
                 return cls(base, goal)
             except ValueError as exc:  # a black map: the file (or the preset) named
@@ -267,7 +259,9 @@ class SHLight:
                                  f"Decomposition, got {type(source).__name__}")
             if arr.ndim != 3:  # SH coefficients
                 return cls._light(fit_order(arr.astype(np.float64), sh.num_coeffs(order)), normalize, goal)
-            base = sh_projection.project_equirect(_pixels(arr), order)
+            from relight.lighting.envmap import validate_equirect
+
+            base = sh_projection.project_equirect(validate_equirect(arr).pixels, order)
         return cls(base, goal)
 
     @classmethod

@@ -23,6 +23,7 @@ __all__ = [
     "training_presets",
     "preset_path",
     "is_preset_name",
+    "preset_file",
 ]
 
 HDRI_DIR = Path(__file__).resolve().parent.parent / "data" / "hdri"
@@ -73,6 +74,18 @@ def is_preset_name(name) -> bool:
     """True when `name` is a bundled preset's name or a "blender:" name (which
     preset_path then checks); the one test for "is this a preset?"."""
     return isinstance(name, str) and (name in list_presets() or name.startswith(BLENDER_PREFIX))
+
+
+def preset_file(name) -> Path | None:
+    """The EXR a preset name names, None when `name` names no preset (the light's "file or
+    preset?" question, relight.lighting.light.map_file): a bundled map's file, or for a
+    "blender:" name preset_path's (which refuses one Blender does not have)."""
+    if not isinstance(name, str) or not name:
+        return None
+    if name.startswith(BLENDER_PREFIX):
+        return preset_path(name)
+    path = HDRI_DIR / f"{name}.exr"  # a bundled map: its file there (list_presets' names)
+    return path if "/" not in name and "\\" not in name and path.is_file() else None
 
 
 def preset_path(name: str) -> Path:

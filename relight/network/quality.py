@@ -50,6 +50,26 @@ class QualityPreset:
         return {**size, "augment": self.augment, "refine": self.refine, "matte_method": self.matte_method,
                 "augment_until_agreed": self.augment_until_agreed, "ensemble": self.ensemble}
 
+    def registry_name(self, registry: dict) -> str | None:
+        """Registry name this preset runs: its own model when registered, else the registry's
+        default, else None (no model installed)."""
+        if self.model and self.model in registry["models"]:
+            return self.model
+        default = registry.get("default")
+        return default if default and default in registry["models"] else None
+
+    def model_file(self, registry_path: str | os.PathLike | None = None) -> Path:
+        """The ONNX file this preset runs (see registry_name); ValueError when none is installed."""
+        from relight import models
+
+        registry_path = Path(models.REGISTRY_PATH if registry_path is None else registry_path)
+        registry = models.load_registry(registry_path)
+        name = self.registry_name(registry)
+        if name is None:
+            raise ValueError("no relighting model is installed yet: pass --model MODEL.onnx "
+                             "(make one with `python -m export WEIGHTS.safetensors --out MODEL.onnx`)")
+        return registry_path.parent / registry["models"][name]["file"]
+
 
 # Fastest first. From the rule of benchmarks/bench_quality.py on the held-out set with the
 # release of issue 25 and its level prior (docs/TRADEOFFS.md, "Speed for accuracy", 2026-11-26;
@@ -95,23 +115,11 @@ def preset(key: str) -> QualityPreset:
 
 
 def model_name(key: str, registry: dict) -> str | None:
-    """Registry name the preset runs: its own model when registered, else the
-    registry's default, else None (no model installed)."""
-    wanted = preset(key).model
-    if wanted and wanted in registry["models"]:
-        return wanted
-    default = registry.get("default")
-    return default if default and default in registry["models"] else None
+    """Registry name the preset called `key` runs (QualityPreset.registry_name)."""
+    return preset(key).registry_name(registry)
 
 
 def model_path(key: str, registry_path: str | os.PathLike | None = None) -> Path:
-    """The ONNX file the preset runs (see model_name); ValueError when none is installed."""
-    from relight import models
-
-    registry_path = Path(models.REGISTRY_PATH if registry_path is None else registry_path)
-    registry = models.load_registry(registry_path)
-    name = model_name(key, registry)
-    if name is None:
-        raise ValueError("no relighting model is installed yet: pass --model MODEL.onnx "
-                         "(make one with `python -m export WEIGHTS.safetensors --out MODEL.onnx`)")
-    return registry_path.parent / registry["models"][name]["file"]
+    """The ONNX file the preset called `key` runs (QualityPreset.model_file); ValueError when none
+    is installed."""
+    return preset(key).model_file(registry_path)

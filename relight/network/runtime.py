@@ -119,11 +119,13 @@ class Relighter(ModelSession):
             self._members[name] = other
         return self._members[name]
 
-    def _run_image(self, linear: np.ndarray, mask: np.ndarray | None) -> dict[str, np.ndarray]:
-        """Network outputs for one linear [h, w, 3] image, padded to size_multiple, unpadded after."""
-        h, w = linear.shape[:2]
+    def run_crop(self, crop: np.ndarray, matte: np.ndarray | None) -> dict[str, np.ndarray]:
+        """The network's outputs ([h, w, C] maps, "light" [n, 3]) for a linear [h, w, 3] image at its
+        working size and its matte ([h, w] or None): padded to size_multiple, unpadded after. Every
+        run of the network goes through here (decompose's, find_person's, relight.network.tta's)."""
+        h, w = crop.shape[:2]
         m = self.size_multiple
-        x = to_network_input(linear, mask)
+        x = to_network_input(crop, matte)
         ph, pw = -h % m, -w % m
         if ph or pw:
             x = np.pad(x, ((0, ph), (0, pw), (0, 0)), mode="edge")
@@ -137,17 +139,12 @@ class Relighter(ModelSession):
                 raise ValueError(f"the network produced NaN/Inf in {k!r}: model weights are broken")
         return res
 
-    def run_crop(self, crop: np.ndarray, matte: np.ndarray | None) -> dict[str, np.ndarray]:
-        """The network's outputs ([h, w, C] maps, "light" [n, 3]) for a crop already at its working
-        size (linear [h, w, 3]) and its matte ([h, w] or None): relight.network.tta's augmented runs."""
-        return self._run_image(crop, matte)
-
     def find_person(self, photo: np.ndarray) -> Box:
         """Crop box around the person, from a low-resolution pass of the network's alpha
         head; the whole frame when it finds nobody."""
         H, W = photo.shape[:2]
         h, w = fit_longest(H, W, min(FIND_SIZE, self.working_size))
-        alpha = self._run_image(resize_linear(photo, h, w), None)["alpha"][..., 0]
+        alpha = self.run_crop(resize_linear(photo, h, w), None)["alpha"][..., 0]
         box = Box.around(alpha, FIND_THRESHOLD)
         if box is None:
             return Box.whole(H, W)
@@ -216,7 +213,7 @@ class Relighter(ModelSession):
         h, w = fit_longest(y1 - y0, x1 - x0, size)
         crop = resize_linear(photo[y0:y1, x0:x1], h, w)
         small_mask = None if mask is None else np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0)
-        out = self._run_image(crop, small_mask)
+        out = self.run_crop(crop, small_mask)
         if small_mask is not None:
             alpha = small_mask
         else:

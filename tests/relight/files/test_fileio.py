@@ -67,9 +67,11 @@ def test_stale_temps_are_the_atomic_writes_temporaries_only(tmp_path):
     assert fileio.stale_temps(target) == []
     (tmp_path / ".o.mp4.k9_left_.tmp.mp4").write_bytes(b"half")
     assert [p.name for p in fileio.stale_temps(target)] == [".o.mp4.k9_left_.tmp.mp4"]
-    assert [p.name for p in fileio.stale_temps_in(tmp_path)] == [".o.mp4.k9_left_.tmp.mp4",
-                                                                 ".o.mp4x.abcdefgh.tmp.mp4",
-                                                                 ".other.abcdefgh.tmp.mp4"]
+    # and inside folders: every atomic write's temporary (the one beside `target` listed once more)
+    assert [p.name for p in fileio.stale_temps(target, [tmp_path])] == [".o.mp4.k9_left_.tmp.mp4",
+                                                                        ".o.mp4.k9_left_.tmp.mp4",
+                                                                        ".o.mp4x.abcdefgh.tmp.mp4",
+                                                                        ".other.abcdefgh.tmp.mp4"]
 
 
 def test_every_name_of_one_output_shares_its_lock(tmp_path):

@@ -31,12 +31,12 @@ def test_one_table_feeds_the_runtime_the_cli_and_the_addon():
 
 def _network_runs(relighter, photo, mask, **options) -> list[int]:
     """The longest side of each image the network ran on while `relighter` decomposed `photo`."""
-    sides, run = [], type(relighter)._run_image
-    relighter._run_image = lambda linear, m: sides.append(max(linear.shape[:2])) or run(relighter, linear, m)
+    sides, run = [], type(relighter).run_crop
+    relighter.run_crop = lambda linear, m: sides.append(max(linear.shape[:2])) or run(relighter, linear, m)
     try:
         relighter.decompose(photo, mask=mask, **options)
     finally:
-        del relighter._run_image
+        del relighter.run_crop
     return sides
 
 
