@@ -19,7 +19,7 @@ of the document is kept):
   on the first pair.
 * sh: the representation. GT transport truncated to order n relights the scene
   (albedo * (T_n . L_n)) against its path-traced image; time is the relight dot
-  product for (n+1)^2 coefficients per megapixel (bench_adaptive_order.relight_ms).
+  product for (n+1)^2 coefficients per megapixel (relight_ms).
   Orders above the data's SH order are skipped and named.
 * directions, spp: the data side, from benchmarks/bench_bake.py (bake directions
   S against S = 4096; samples per pixel against 1024 spp).
@@ -223,12 +223,27 @@ def prt_image(scene, k: int, order: int) -> np.ndarray:
     return prt.render(scene.albedo, scene.transport[..., :n], None, light)
 
 
+def relight_ms(order: int, repeat: int, pixels: int = 512 * 512) -> float:
+    """Median ms of the relighting product albedo * (T L) + E L for `pixels` pixels at SH `order`."""
+    rng = np.random.default_rng(order)
+    n = (order + 1) ** 2
+    albedo = rng.uniform(0, 1, (pixels, 3)).astype(np.float32)
+    T = rng.normal(0, 0.3, (pixels, n)).astype(np.float32)
+    E = rng.normal(0, 0.05, (pixels, n)).astype(np.float32)
+    L = rng.normal(0, 0.3, (n, 3)).astype(np.float32)
+
+    def once():
+        out = albedo * (T @ L)
+        out += E @ L
+        return out
+
+    return median_ms(once, repeat)
+
+
 def sh_order_points(data, orders, *, repeat: int = 7, max_scenes: int = 64,
                     timing_pixels: int = 1_000_000) -> tuple[dict, list[dict]]:
     """(info, rows): per SH order, the GT-transport PRT image error and the relight cost per
     megapixel (timed on `timing_pixels` pixels, scaled to 10^6)."""
-    from bench_adaptive_order import relight_ms
-
     from model.samples.data_splits import find_scenes
     from relight.files.dataset import has_transport, read_scene, read_sidecar, traced_lights
 

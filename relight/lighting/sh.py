@@ -3,7 +3,7 @@
 Conventions (docs/conventions.md): real, orthonormal SH without the
 Condon-Shortley phase, index k = l*l + l + m, Y_{1,-1} ~ y, Y_{1,0} ~ z,
 Y_{1,1} ~ x. Equirect maps to SH: relight/lighting/sh_projection.py; rotations:
-relight/lighting/sh_rotation.py; how many bands a light needs: relight/lighting/sh_adaptive.py.
+relight/lighting/sh_rotation.py.
 numpy only.
 """
 
