@@ -115,8 +115,9 @@ class VideoRequest:
                    args.resume, *relight_options(args))
 
 
-def _plan(request: VideoRequest, info):
-    """(kind "video" | "frames", output path, frames folder or None, frame format)."""
+def _plan(request: VideoRequest, info, exr_frames: bool = False):
+    """(kind "video" | "frames", output path, frames folder or None, frame format); `exr_frames`: the
+    input is frames of which one is an EXR (its header's format)."""
     from relight.command.cli_output import check_folder_name, check_not_an_input
     from relight.files.fileio import same_file
     from relight.files.video_out import OUTPUT_VIDEO_SUFFIXES
@@ -142,14 +143,15 @@ def _plan(request: VideoRequest, info):
     check_folder_name(out, f"videos {' '.join(OUTPUT_VIDEO_SUFFIXES)}, or a folder of PNG or EXR frames")
     if not out.parent.is_dir():
         raise ValueError(f"output folder does not exist: {out.parent}")
-    fmt = request.format or ("exr" if request.layers or (info.kind == "frames" and _exr_frames(source)) else "png")
+    fmt = request.format or ("exr" if request.layers or exr_frames else "png")
     if request.layers and fmt != "exr":
         raise ValueError("--layers writes multi-layer EXR frames: leave --format out or give --format exr")
     return "frames", out, out, fmt
 
 
-def _exr_frames(folder: Path) -> bool:
-    return any(p.suffix.lower() == ".exr" for p in folder.iterdir())
+def _exr_frames(clip) -> bool:
+    """Whether a folder of frames holds an EXR frame, as its headers (read when it was opened) say."""
+    return any(header.format == "EXR" for header in getattr(clip, "headers", ()))
 
 
 def _fingerprint(request: VideoRequest, info, relighter) -> dict:
@@ -206,7 +208,7 @@ def run_video(args) -> int:
     request = VideoRequest.from_args(args)
     clip = open_clip(request.input, request.fps, request.photo.max_pixels)
     info = clip.info
-    kind, out, folder, fmt = _plan(request, info)
+    kind, out, folder, fmt = _plan(request, info, _exr_frames(clip))
     with claim_output(out, "relight video", folders=[folder] if folder is not None else []):
         return _run(request, clip, info, kind, out, folder, fmt)
 
@@ -252,7 +254,7 @@ def _run(request: VideoRequest, clip, info, kind: str, out: Path, folder: Path |
             video.close()
             video = None
         elif kind == "video":
-            _encode_folder(frames, info, out)
+            _encode_folder(frames, info, out, photo.max_pixels)
         else:
             frames.finish(frames.start + done, runner.record())
     except KeyboardInterrupt:
@@ -366,20 +368,19 @@ def _loop(clip, runner, frames, video, request: VideoRequest, info, workers: int
     return count, written, nobody, clamped
 
 
-def _encode_folder(frames, info, out: Path) -> None:
-    """The resumable video job's frames (OUTPUT.frames/) into OUTPUT; the folder goes once it is."""
+def _encode_folder(frames, info, out: Path, max_pixels: int | None) -> None:
+    """The resumable video job's frames (OUTPUT.frames/) into OUTPUT; the folder goes once it is.
+    Their headers are read as the input's were, under the job's --max-pixels (a frame the input's
+    limit allowed is allowed here)."""
     import shutil
 
     from relight.files.video_io import FrameFolder
     from relight.files.video_out import VideoWriter
 
-    from PIL import Image
-
     video = VideoWriter(out, info, audio_from=info.path if info.kind == "video" else None)
     try:
-        for path in FrameFolder(frames.folder, info.fps).files:
-            with Image.open(path) as im:  # the codes the direct path would have encoded
-                video.write_codes(np.asarray(im.convert("RGB")))
+        for codes in FrameFolder(frames.folder, info.fps, max_pixels).codes():
+            video.write_codes(codes)  # the codes the direct path would have encoded
     except BaseException:
         video.abort()
         raise

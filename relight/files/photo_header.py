@@ -19,7 +19,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from relight.files.image_limits import ImageFileError, ImageSizeError, check_declared_size, check_max_pixels
+from relight.files.image_limits import (MAX_PIXELS, ImageFileError, ImageSizeError, check_declared_size,
+                                        check_max_pixels)
 from relight.files.png_decoder import check_png_chunks
 
 __all__ = ["EXR_MAGIC", "ImageDamaged", "ImageNotFound", "ImageUnreadable", "NotAnImage", "PhotoHeader",
@@ -144,8 +145,11 @@ def _open_pillow(path: Path, max_pixels: int | None):
             return Image.open(path)
     except Image.DecompressionBombError as exc:  # over twice Pillow's limit, so over ours too
         said = re.search(r"\((\d+) pixels\)", str(exc))  # Pillow names the pixel count, not the sides
-        raise ImageSizeError(path, f"{path}: image is too large (refused before decoding)", "pixels", None, None,
-                             int(said.group(1)) if said else None, max_pixels=check_max_pixels(max_pixels)) from None
+        pixels = int(said.group(1)) if said else None
+        count = f"{pixels:,} pixels" if pixels else f"over {2 * Image.MAX_IMAGE_PIXELS:,} pixels"
+        raise ImageSizeError(path, f"{path}: image is too large ({count}; at most {MAX_PIXELS:,} can be relit): "
+                             "scale it down", "pixels", None, None, pixels,
+                             max_pixels=check_max_pixels(max_pixels)) from None
     except UnidentifiedImageError as exc:  # no format knows the file (or its first bytes are cut)
         raise NotAnImage(path, f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
     except Exception as exc:  # a format knew it, its header is broken: OSError, SyntaxError, struct.error...

@@ -10,9 +10,11 @@ carry FFmpeg and its codecs (docs/video.md says why PyAV). Frames are 8-bit
 with the stream's own YCbCr matrix and range (untagged: BT.709 from 720 lines
 up, else BT.601; limited range); an 8-bit frame keeps its codes beside the
 linear image. A folder of frames is the files whose names end in a number, in
-the number's order; every frame must have the size of the first (checked
-before anything is decoded). Every failure to read is one ValueError naming
-the file. Writing: relight.files.video_out.
+the number's order; every frame's header is read when the clip is opened
+(relight.files.photo_header, the core's one header reader: no frame decoded),
+so a frame whose header is damaged, whose size is refused or differs from the
+first's is refused before any frame is decoded. Every failure to read is one
+ValueError naming the file. Writing: relight.files.video_out.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from relight.files.photo_header import ImageDamaged, PhotoHeader, open_photo, read_header
 from relight.imaging.colour import decode_srgb_codes
 
 __all__ = ["ClipInfo", "Frame", "FrameFolder", "VideoFile", "open_clip", "VIDEO_SUFFIXES", "FRAME_SUFFIXES",
@@ -93,8 +96,8 @@ decode_srgb = decode_srgb_codes
 
 
 class FrameFolder:
-    """The numbered frames of a folder, read with relight.files.photo (alpha, when a frame has
-    one, is returned as its mask)."""
+    """The numbered frames of a folder, their headers read when it is opened (`headers`), their
+    pixels with relight.files.photo (alpha, when a frame has one, is returned as its mask)."""
 
     def __init__(self, path, fps: Fraction | None = None, max_pixels: int | None = None, files=None):
         self.path = Path(path)
@@ -114,7 +117,8 @@ class FrameFolder:
                 raise ValueError(f"{self.path}: two frames are numbered {n}: {numbered[n].name} and {p.name}")
             numbered[n] = p
         self.files = [numbered[n] for n in sorted(numbered)]
-        width, height = self._sizes()
+        self.headers = self._headers()
+        width, height = self.headers[0].upright_size
         self.info = ClipInfo(self.path, "frames", width, height, fps or DEFAULT_FPS, len(self.files),
                              names=tuple(p.stem for p in self.files))
 
@@ -124,21 +128,20 @@ class FrameFolder:
         files = [Path(f) for f in files]
         return cls(files[0].parent if files else Path("."), fps, max_pixels, files)
 
-    def _sizes(self) -> tuple[int, int]:
-        """The size every frame declares, read from headers only; ValueError at the first that differs
-        and when the first is larger than a photo may be (relight.files.image_limits)."""
-        from relight.files.image_limits import check_declared_size
-
-        first = None
+    def _headers(self) -> tuple[PhotoHeader, ...]:
+        """Every frame's header (relight.files.photo_header.read_header: nothing decoded), its size
+        weighed as read_photo will weigh it: a frame whose header, EXIF or PNG chunks are damaged,
+        or whose size is refused (an ImageFileError naming it), or that is not the first's size
+        (upright), is refused before any frame is decoded."""
+        headers: list[PhotoHeader] = []
         for p in self.files:
-            size = _declared_size(p)
-            if first is None:
-                check_declared_size(*size, p, max_pixels=self.max_pixels)
-                first = (p, size)
-            elif size != first[1]:
-                raise ValueError(f"{p}: frame is {size[0]}x{size[1]}, but {first[0].name} is "
-                                 f"{first[1][0]}x{first[1][1]}: every frame of a clip must have one size")
-        return first[1]
+            header = read_header(p, self.max_pixels)
+            if headers and header.upright_size != headers[0].upright_size:
+                (w, h), (w0, h0) = header.upright_size, headers[0].upright_size
+                raise ValueError(f"{p}: frame is {w}x{h}, but {headers[0].path.name} is {w0}x{h0}: every frame "
+                                 "of a clip must have one size")
+            headers.append(header)
+        return tuple(headers)
 
     def frames(self, start: int = 0):
         """Frames (linear float32 [H, W, 3], alpha [H, W] or None; codes None) from `start` on."""
@@ -146,46 +149,29 @@ class FrameFolder:
 
         for index in range(start, len(self.files)):
             image, alpha = read_photo(self.files[index], self.max_pixels)
-            if image.shape[:2] != (self.info.height, self.info.width):  # a header that lied
+            if image.shape[:2] != (self.info.height, self.info.width):  # a file changed since its header was read
                 raise ValueError(f"{self.files[index]}: frame is {image.shape[1]}x{image.shape[0]}, the clip is "
                                  f"{self.info.width}x{self.info.height}")
             yield Frame(index, image, alpha, None)
 
+    def codes(self):
+        """Each frame's 8-bit sRGB codes [H, W, 3] uint8, upright: the PNG frames a resumable video
+        job wrote (relight.files.video_out.FrameFolderWriter's video_codes), the codes the video
+        encodes. Decoded from the header reader's open (open_photo)."""
+        from relight.files.photo import upright
 
-def _declared_size(path: Path) -> tuple[int, int]:
-    from relight.files.photo import EXR_MAGIC
-
-    with open(path, "rb") as f:
-        magic = f.read(4)
-    if magic == EXR_MAGIC:
-        from relight.files.exr import exr_size
-
-        return tuple(exr_size(path))
-    import warnings
-
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            # Pillow's DecompressionBombWarning (and EXIF complaints): the size is weighed by our
-            # own check (FrameFolder, relight.files.image_limits), which says what to do
-            warnings.simplefilter("ignore")
-            with Image.open(path) as im:
-                size = im.size
-                try:  # a PNG's EXIF may follow its pixels: a truncated file fails when the frame is read
-                    orientation = im.getexif().get(0x0112, 1)  # EXIF rotations that swap the sides
-                except Exception:  # Pillow's many types; the size alone is weighed
-                    orientation = 1
-                return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
-    except Image.DecompressionBombError:  # over twice Pillow's limit: above MAX_PIXELS too
-        from relight.files.image_limits import MAX_PIXELS
-
-        raise ValueError(f"{path}: image is too large (over {2 * Image.MAX_IMAGE_PIXELS:,} pixels; at most "
-                         f"{MAX_PIXELS:,} can be relit): scale the frames down") from None
-    except Exception as exc:  # Pillow's many exception types: one ValueError naming the file
-        if isinstance(exc, MemoryError):
-            raise
-        raise ValueError(f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
+        for path in self.files:
+            with open_photo(path, self.max_pixels) as (header, im):
+                if im is None:
+                    raise ValueError(f"{path}: an EXR frame holds no 8-bit codes")
+                try:
+                    codes = np.asarray(im if im.mode == "RGB" else im.convert("RGB"))
+                except Exception as exc:  # Pillow's many types: the pixels after a whole header are broken
+                    if isinstance(exc, MemoryError):
+                        raise
+                    raise ImageDamaged(path, f"{path}: corrupt or truncated image ({type(exc).__name__}: "
+                                             f"{exc})") from None
+            yield np.ascontiguousarray(upright(codes, header.orientation))
 
 
 # ------------------------------------------------------------------ video files

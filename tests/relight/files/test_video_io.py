@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import errno
+import struct
+import zlib
 from fractions import Fraction
 
 import av
@@ -310,3 +312,95 @@ def test_a_video_starting_late_is_read_whole(tmp_path, suffix):
             c.mux(v.encode(f))
     clip = open_clip(tmp_path / f"late{suffix}")
     assert clip.info.frames == 12 and len(list(clip.frames())) == 12
+
+
+# ------------------------------------------------------------------ issue 49: a frame folder's headers, read once
+
+
+def _count_pillow(monkeypatch) -> tuple[list, list]:
+    """(Image.open calls, decoders Pillow made: one per decoded frame, these frames have one tile)."""
+    opens, decoders = [], []
+    real_open, real_decoder = Image.open, Image._getdecoder
+    monkeypatch.setattr(Image, "open", lambda *a, **k: opens.append(a[0]) or real_open(*a, **k))
+    monkeypatch.setattr(Image, "_getdecoder", lambda *a, **k: decoders.append(a[0]) or real_decoder(*a, **k))
+    return opens, decoders
+
+
+def test_a_png_frame_sequence_is_opened_from_its_headers_without_decoding_a_frame(tmp_path, monkeypatch):
+    """Each frame's size and EXIF turn come from relight.files.photo_header: one open per frame,
+    no frame decoded (Pillow's getexif decoded every PNG frame before), the clip upright."""
+    exif = Image.Exif()
+    exif[0x0112] = 6  # turned a quarter: the frames stand 20 wide, 30 high
+    tiff = exif.tobytes()[6:]  # without the "Exif\0\0" of a JPEG's APP1
+    late = struct.pack(">I", len(tiff)) + b"eXIf" + tiff + struct.pack(">I", zlib.crc32(b"eXIf" + tiff))
+    for i in range(5):  # the eXIf chunk after the pixels, where Pillow finds it only by decoding them
+        Image.fromarray(np.full((20, 30, 3), 40 * i, np.uint8)).save(tmp_path / f"f_{i + 1}.png")
+        data = (tmp_path / f"f_{i + 1}.png").read_bytes()
+        (tmp_path / f"f_{i + 1}.png").write_bytes(data[:-12] + late + data[-12:])
+    opens, decoders = _count_pillow(monkeypatch)
+    clip = open_clip(tmp_path)
+    assert (clip.info.width, clip.info.height, clip.info.frames) == (20, 30, 5)
+    assert len(opens) == 5 and decoders == []
+    assert [h.orientation for h in clip.headers] == [6] * 5 and {h.format for h in clip.headers} == {"PNG"}
+    got = list(clip.frames())
+    assert len(decoders) == 5 and all(f.image.shape == (30, 20, 3) for f in got)
+    codes = list(clip.codes())  # the 8-bit codes, upright, from the header reader's open
+    assert [c.shape for c in codes] == [(30, 20, 3)] * 5 and [int(c[0, 0, 0]) for c in codes] == [0, 40, 80, 120, 160]
+
+
+def _cut_png(path):
+    _png(path)
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])  # the IDAT chunk now declares bytes past the end
+
+
+def _broken_exif_png(path):
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(np.full((20, 30, 3), 9, np.uint8)).save(path, exif=exif)
+    data = path.read_bytes()
+    at = data.index(b"eXIf")
+    length = struct.unpack(">I", data[at - 4:at])[0]
+    body = b"XX" + data[at + 6:at + 4 + length]  # the TIFF header's byte order: neither II nor MM
+    chunk = b"eXIf" + body + struct.pack(">I", zlib.crc32(b"eXIf" + body))  # a whole chunk, its CRC right
+    path.write_bytes(data[:at] + chunk + data[at + 8 + length:])
+
+
+def _cut_exr(path):
+    from relight.files.photo import write_exr_image
+
+    write_exr_image(path, np.full((20, 30, 3), 0.5, np.float32))
+    path.write_bytes(path.read_bytes()[:40])
+
+
+@pytest.mark.parametrize("damage, suffix, said", [(_cut_png, ".png", "past the end"),
+                                                  (_broken_exif_png, ".png", "corrupt EXIF"),
+                                                  (_cut_exr, ".exr", "")])
+def test_a_frame_damaged_in_its_header_is_refused_when_the_clip_is_opened(tmp_path, monkeypatch, damage, suffix,
+                                                                          said):
+    """Refused by the header reader, before any frame is decoded (a cut PNG or a broken EXIF was
+    refused only when the frame was decoded, mid-job, before): one line naming the frame."""
+    from relight.files.photo_header import ImageDamaged
+
+    for i in (1, 2, 4):
+        _png(tmp_path / f"f_{i}.png")
+    damage(tmp_path / f"f_3{suffix}")
+    _, decoders = _count_pillow(monkeypatch)
+    with pytest.raises(ImageDamaged) as refused:
+        open_clip(tmp_path)
+    line = str(refused.value)
+    assert f"{tmp_path / f'f_3{suffix}'}: " in line and said in line and "\n" not in line
+    assert decoders == []
+
+
+def test_a_frame_past_pillows_own_limit_is_refused_with_its_pixel_count(tmp_path):
+    """The header reader's line for a size Pillow refuses before we weigh it: the count declared
+    (the video path said only 'over 178,956,970 pixels' before)."""
+    from fuzz_support import png_bytes
+    from relight.files.image_limits import ImageSizeError
+
+    (tmp_path / "f_1.png").write_bytes(png_bytes(8, 8, declared=(15000, 15000)))
+    with pytest.raises(ImageSizeError) as refused:
+        open_clip(tmp_path)
+    assert str(refused.value) == (f"{tmp_path / 'f_1.png'}: image is too large (225,000,000 pixels; at most "
+                                  "150,000,000 can be relit): scale it down")
