@@ -87,8 +87,17 @@ class ImageRequest:
             check_folder_name(out, "in folder mode, a folder of .png or .exr")
             if not out.parent.is_dir():
                 raise ValueError(f"output folder does not exist: {out.parent}")
+        elif args.out is None:  # beside the photo
+            out = source.with_name(source.stem + "_relit" + (".exr" if args.layers else ".png"))
         else:
-            out = _output_for(source, args.out, args.layers)
+            out = Path(args.out)
+            suffix = out.suffix.lower()
+            if suffix not in (".png", ".exr"):
+                raise ValueError(f"--out must end in .png or .exr, got {out.name}")
+            if args.layers and suffix != ".exr":
+                raise ValueError("--layers writes a multi-layer EXR: give --out NAME.exr")
+            if not out.parent.is_dir():
+                raise ValueError(f"output folder does not exist: {out.parent}")
         return cls(source, out, folder, args.layers, args.json, *relight_options(args))
 
     def inputs(self) -> dict:
@@ -109,20 +118,6 @@ def record(request: ImageRequest, relighter, d) -> dict:
             out["relight"]["shadows"] = stats.shadow_key.as_json() if stats.shadow_key is not None else \
                 "none (the light has no directional part)"
     return out
-
-
-def _output_for(photo: Path, out: str | None, layers: bool) -> Path:
-    if out is None:
-        return photo.with_name(photo.stem + "_relit" + (".exr" if layers else ".png"))
-    path = Path(out)
-    suffix = path.suffix.lower()
-    if suffix not in (".png", ".exr"):
-        raise ValueError(f"--out must end in .png or .exr, got {path.name}")
-    if layers and suffix != ".exr":
-        raise ValueError("--layers writes a multi-layer EXR: give --out NAME.exr")
-    if not path.parent.is_dir():
-        raise ValueError(f"output folder does not exist: {path.parent}")
-    return path
 
 
 def _process(relighter, request: ImageRequest, photo_path: Path, out_path: Path, light, mask_path: str | None,

@@ -84,9 +84,9 @@ def decompose_people(relighter, photo, *, matte_method: str = "ensemble", mattes
         if side < MIN_PERSON_PX and m.index > 1:  # the largest is always relit, as one person alone is
             left.append({"person": m.index, "px": int(side), "why": f"too small to relight ({side} < {MIN_PERSON_PX} px)"})
             continue
-        d = relighter.decompose(photo, m.alpha, matte_method=matte_method, **options)
-        d.person_matte = m
-        d.choices.update(matte=f"person ({matte_method})", person=m.index)
+        # the photo and each matte checked once, here and by the matte: decompose takes them as they are
+        d = relighter.decompose(photo, matte_method=matte_method, person_matte=m, **options)
+        d.choices.update(person=m.index)
         people.append(d)
     if len(people) > 1:
         light = joint_light(people)

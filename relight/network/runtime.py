@@ -155,7 +155,8 @@ class Relighter(ModelSession):
                   matte_method: str = _DEFAULT_OPTIONS["matte_method"], augment=_DEFAULT_OPTIONS["augment"],
                   refine: int = _DEFAULT_OPTIONS["refine"],
                   augment_until_agreed: float | None = _DEFAULT_OPTIONS["augment_until_agreed"],
-                  ensemble=_DEFAULT_OPTIONS["ensemble"], level: bool = True) -> Decomposition:
+                  ensemble=_DEFAULT_OPTIONS["ensemble"], level: bool = True,
+                  person_matte=None) -> Decomposition:
         """Decompose the person in `photo` (linear float32 [H, W, 3]). The defaults are the
         default quality preset's, Balanced (quality.preset("balanced").decompose_options(): the
         network at 128 px averaged with its run on the mirrored crop, the ensemble person matte),
@@ -184,6 +185,9 @@ class Relighter(ModelSession):
         (relight.network.level, when the model carries a LevelPrior; False: the network's as it is);
         `refine` (iterations, 0: off) refits the photo's light to its shading gradients
         (relight.network.refine). What was done is recorded in the result's `choices` (the output's metadata).
+        `person_matte`: one person's relight.person.matte.PersonMatte found on this `photo` before
+        (relight.network.group: the photo checked there, as the "person" matte checks it), the
+        matte and the crop's box taken from it as they are, nothing found or checked again.
         """
         if matte not in MATTE_SOURCES:
             raise ValueError(f"matte must be one of {MATTE_SOURCES}, got {matte!r}")
@@ -191,8 +195,11 @@ class Relighter(ModelSession):
         # callers that take it from a quality preset): only another one is checked here
         same = working_size is None or (type(working_size) is int and working_size == self.working_size)
         size = self.working_size if same else check_working_size(working_size)
-        found = None
-        if mask is None and matte == "person":
+        found = person_matte
+        if found is not None:
+            mask = found.alpha
+            box = _with_margin(found.box, *photo.shape[:2])
+        elif mask is None and matte == "person":
             from relight.person import matte as segmenter
 
             # finite=False: the matte checks its block average, which a NaN or Inf survives (one
@@ -226,7 +233,8 @@ class Relighter(ModelSession):
             light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
             photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found,
-            network_alpha=np.ascontiguousarray(out["alpha"][..., 0]))
+            network_alpha=np.ascontiguousarray(out["alpha"][..., 0]),
+            depth=np.ascontiguousarray(out["depth"][..., 0]) if "depth" in out else None)  # the depth head's
         choices = {"working_size": size, "network_input": [h, w], "person_px": max(y1 - y0, x1 - x0),
                    "matte": "mask" if found is None and mask is not None else
                    (f"person ({matte_method})" if found is not None else "network")}

@@ -14,6 +14,7 @@ relights, makes layers and follows dials like any other.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 
@@ -56,11 +57,13 @@ def _in_frame(base, other, mirrored: bool):
     return transport, light
 
 
-class _Run:
+class _Run(NamedTuple):
     """One augmented run's outputs at its own working grid (what _in_frame reads)."""
 
-    def __init__(self, transport, light, sh_order, working_size):
-        self.transport, self.light, self.sh_order, self.working_size = transport, light, sh_order, working_size
+    transport: np.ndarray
+    light: np.ndarray
+    sh_order: int
+    working_size: tuple
 
 
 def augment(relighter, base, augmentations=AUGMENTATIONS, stop_when_agreed: float | None = None):
@@ -90,10 +93,11 @@ def runs(relighter, base, augmentations, stop_when_agreed: float | None = None) 
     done, crops = [], {}
     for scale, mirrored in augmentations:
         h, w = fit_longest(y1 - y0, x1 - x0, max(16, round(max(base.working_size) * scale)))
-        if (h, w) not in crops:
-            small = base.photo_working if (h, w) == base.working_size else resize_linear(crop, h, w)
+        if (h, w) == base.working_size:  # base's own crop and matte, made once by the runtime
+            crops[(h, w)] = base.photo_working, np.clip(base.alpha, 0.0, 1.0)
+        elif (h, w) not in crops:
             small_matte = resize_linear(matte, h, w) if matte is not None else resize_linear(base.alpha, h, w)
-            crops[(h, w)] = small, np.clip(small_matte, 0.0, 1.0)
+            crops[(h, w)] = resize_linear(crop, h, w), np.clip(small_matte, 0.0, 1.0)
         small, small_matte = crops[(h, w)]
         if mirrored:
             small, small_matte = small[:, ::-1], small_matte[:, ::-1]

@@ -87,14 +87,13 @@ def window_sum(x: np.ndarray, r: int, axis: int) -> np.ndarray:
     pad[axis] = (r, r)
     padded = np.pad(x.astype(np.float32, copy=False), pad)
     window = [slice(None), slice(None)]
-
-    def shifted(k):
+    out = None
+    for k in range(2 * r + 1):  # the window's k-th term: the padded array shifted by k
         window[axis] = slice(k, k + n)
-        return padded[tuple(window)]
-
-    out = shifted(0).copy()
-    for k in range(1, 2 * r + 1):
-        out += shifted(k)
+        if out is None:
+            out = padded[tuple(window)].copy()
+        else:
+            out += padded[tuple(window)]
     return out
 
 
