@@ -224,6 +224,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     face = FaceRows(size)
     responses: dict = defaultdict(lambda: defaultdict(list))
     framings = [framing_of(path) for path in pairs.paths]
+    seeds = [read_sidecar(path).get("seed") for path in pairs.paths]  # with the index: the scene's pair in another set
     for i in range(len(pairs)):
         sample = with_metric_weight(numpy_sample(pairs[i]), mask)
         framing = framings[pairs.pairs[i][0]]
@@ -244,6 +245,8 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         response = pair_light_response(sample, pred, ours.tstar)
         responses["ours"][framing].append(response)
         per_pair.append({**pair_record(sample, rows["ours"][-1], pair_breakdown, pair_geometry), "framing": framing,
+                         "seed": seeds[pairs.pairs[i][0]],
+                         "matched_photo_psnr": rows["identity, exposure-matched"][-1]["relighting/image"]["psnr"],
                          "light_slope": response["slope"], "light_correlation": response["correlation"]})
         for name, _, b in bases:
             b_order = b.order if b.order is not None else order
