@@ -2,7 +2,7 @@
 
 `resize_linear` (Pillow) brings a photo to the network's working size and back
 down for the person matte: box (area) filter when shrinking, bilinear when
-enlarging. `Bilinear` upsamples small maps (the relit person, the matte) to the
+enlarging; `resize_longest` is it for a crop brought to a working size (its longest side). `Bilinear` upsamples small maps (the relit person, the matte) to the
 photo's resolution with half-pixel centres and clamped edges; every caller
 (the compositor's tiles, the layers' strips, the person matte) goes through its
 `columns` and `between`, so they give the same values bit for bit. For the person
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["Bilinear", "SourceRows", "area_shrink", "axis_taps", "bilinear_rows", "fit_longest", "resize_linear",
-           "sample_points", "upsample_support"]
+           "resize_longest", "sample_points", "upsample_support"]
 
 
 def axis_taps(n_out: int, n_in: int):
@@ -152,6 +152,12 @@ def resize_linear(img: np.ndarray, out_h: int, out_w: int) -> np.ndarray:
         plane = Image.fromarray(np.ascontiguousarray(planes[..., c]), mode="F")
         out[..., c] = np.asarray(plane.resize((out_w, out_h), method))
     return out[..., 0] if a.ndim == 2 else out
+
+
+def resize_longest(img: np.ndarray, longest: int) -> np.ndarray:
+    """resize_linear of [H, W] or [H, W, C] to the size fit_longest gives: its longer side
+    `longest`, aspect kept (a crop at the network's working size)."""
+    return resize_linear(img, *fit_longest(*img.shape[:2], longest))
 
 
 def area_shrink(image: np.ndarray, longest: int) -> np.ndarray:

@@ -31,7 +31,7 @@ from relight.network.level import METADATA_KEY, LevelPrior, leveled
 from relight.person.linear_photo import check_photo
 from relight.models import REGISTRY_PATH, default_model_path
 from relight.network.prt import to_network_input
-from relight.imaging.resample import fit_longest, resize_linear
+from relight.imaging.resample import resize_longest
 from relight.models.session import ModelSession
 
 __all__ = ["Relighter", "Decomposition", "RelightStats", "MATTE_SOURCES", "check_working_size"]
@@ -143,8 +143,9 @@ class Relighter(ModelSession):
         """Crop box around the person, from a low-resolution pass of the network's alpha
         head; the whole frame when it finds nobody."""
         H, W = photo.shape[:2]
-        h, w = fit_longest(H, W, min(FIND_SIZE, self.working_size))
-        alpha = self.run_crop(resize_linear(photo, h, w), None)["alpha"][..., 0]
+        small = resize_longest(photo, min(FIND_SIZE, self.working_size))
+        h, w = small.shape[:2]
+        alpha = self.run_crop(small, None)["alpha"][..., 0]
         box = Box.around(alpha, FIND_THRESHOLD)
         if box is None:
             return Box.whole(H, W)
@@ -217,9 +218,9 @@ class Relighter(ModelSession):
             photo = check_photo(photo)
             box = self.find_person(photo)
         y0, y1, x0, x1 = box
-        h, w = fit_longest(y1 - y0, x1 - x0, size)
-        crop = resize_linear(photo[y0:y1, x0:x1], h, w)
-        small_mask = None if mask is None else np.clip(resize_linear(mask[y0:y1, x0:x1], h, w), 0.0, 1.0)
+        crop = resize_longest(photo[y0:y1, x0:x1], size)  # the working-size crop and matte, made once
+        h, w = crop.shape[:2]
+        small_mask = None if mask is None else np.clip(resize_longest(mask[y0:y1, x0:x1], size), 0.0, 1.0)
         out = self.run_crop(crop, small_mask)
         if small_mask is not None:
             alpha = small_mask

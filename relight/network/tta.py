@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from relight.imaging.resample import fit_longest, resize_linear
+from relight.imaging.resample import resize_linear, resize_longest
 
 __all__ = ["mirror_x", "average", "averaged", "augment", "runs", "disagreement", "AUGMENTATIONS", "AGREED"]
 
@@ -92,13 +92,16 @@ def runs(relighter, base, augmentations, stop_when_agreed: float | None = None) 
         matte = None
     done, crops = [], {}
     for scale, mirrored in augmentations:
-        h, w = fit_longest(y1 - y0, x1 - x0, max(16, round(max(base.working_size) * scale)))
-        if (h, w) == base.working_size:  # base's own crop and matte, made once by the runtime
-            crops[(h, w)] = base.photo_working, np.clip(base.alpha, 0.0, 1.0)
-        elif (h, w) not in crops:
-            small_matte = resize_linear(matte, h, w) if matte is not None else resize_linear(base.alpha, h, w)
-            crops[(h, w)] = resize_linear(crop, h, w), np.clip(small_matte, 0.0, 1.0)
-        small, small_matte = crops[(h, w)]
+        longest = max(16, round(max(base.working_size) * scale))
+        if longest not in crops and longest == max(base.working_size):  # base's own, made once by the runtime
+            crops[longest] = base.photo_working, np.clip(base.alpha, 0.0, 1.0)
+        elif longest not in crops:
+            small = resize_longest(crop, longest)
+            small_matte = resize_longest(matte, longest) if matte is not None else \
+                resize_linear(base.alpha, *small.shape[:2])
+            crops[longest] = small, np.clip(small_matte, 0.0, 1.0)
+        small, small_matte = crops[longest]
+        h, w = small.shape[:2]
         if mirrored:
             small, small_matte = small[:, ::-1], small_matte[:, ::-1]
         out = relighter.run_crop(np.ascontiguousarray(small), np.ascontiguousarray(small_matte))
