@@ -84,8 +84,8 @@ def preset_file(name) -> Path | None:
         return None
     if name.startswith(BLENDER_PREFIX):
         return preset_path(name)
-    path = HDRI_DIR / f"{name}.exr"  # a bundled map: its file there (list_presets' names)
-    return path if "/" not in name and "\\" not in name and path.is_file() else None
+    # a bundled map by its exact name (a case-insensitive file system would find "Venice.exr" too)
+    return HDRI_DIR / f"{name}.exr" if name in list_presets() else None
 
 
 def preset_path(name: str) -> Path:

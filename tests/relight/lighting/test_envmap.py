@@ -204,6 +204,17 @@ def test_blender_presets():
 def test_unknown_preset(name):
     with pytest.raises(ValueError, match="preset"):
         presets.preset_path(name)
+    # the light's "file or preset?" lookup: no preset is None (map_file then says neither), not an error
+    assert presets.preset_file(name) is None
+
+
+def test_preset_file_is_the_presets_file_by_its_exact_name():
+    for name in presets.list_presets():
+        assert presets.preset_file(name) == presets.preset_path(name)
+    assert presets.preset_file("Venice") is None and presets.preset_file("venice.exr") is None
+    assert light.map_file("venice") == presets.preset_path("venice")
+    with pytest.raises(ValueError, match="neither a file nor a preset name"):
+        light.map_file("Venice")
 
 
 def test_core_imports_neither_bpy_nor_torch():
