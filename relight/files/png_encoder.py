@@ -83,30 +83,6 @@ def _chunk(kind: bytes, body: bytes) -> bytes:
     return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(body, zlib.crc32(kind)))
 
 
-def _text_chunk(key: str, value: str) -> bytes:
-    if not 1 <= len(key) <= 79 or not key.isprintable():
-        raise ValueError(f"PNG text keys must be 1-79 printable characters, got {key!r}")
-    try:
-        return _chunk(b"tEXt", key.encode("latin-1") + b"\0" + value.encode("latin-1"))
-    except UnicodeEncodeError:  # iTXt: UTF-8, uncompressed, no language
-        return _chunk(b"iTXt", key.encode("latin-1") + b"\0\0\0\0\0" + value.encode("utf-8"))
-
-
-def _band(linear: np.ndarray, r0: int, r1: int) -> np.ndarray:
-    """Rows r0..r1-1 as PNG scanlines: filter byte 2 ("Up") then each row minus the row above."""
-    h, w = linear.shape[:2]
-    top = max(0, r0 - 1)
-    codes = encode_srgb8(linear[top:r1]).reshape(r1 - top, 3 * w)
-    raw = np.empty((r1 - r0, 3 * w + 1), np.uint8)
-    raw[:, 0] = 2
-    if r0 == 0:
-        raw[0, 1:] = codes[0]  # the first row has nothing above: Up leaves it as it is
-        np.subtract(codes[1:], codes[:-1], out=raw[1:, 1:])
-    else:
-        np.subtract(codes[1:], codes[:-1], out=raw[:, 1:])
-    return raw
-
-
 def write_png_file(f, linear: np.ndarray, metadata: dict[str, str] | None = None, threads: int | None = None) -> None:
     """Write linear RGB [H, W, 3] as an 8-bit sRGB PNG into the open binary file `f`; `metadata`:
     text chunks. Bands of BAND_ROWS rows are encoded, filtered and deflated on `threads` threads
@@ -118,15 +94,31 @@ def write_png_file(f, linear: np.ndarray, metadata: dict[str, str] | None = None
     bands = [(r0, min(h, r0 + BAND_ROWS)) for r0 in range(0, h, BAND_ROWS)]
 
     def piece(i: int) -> tuple[bytes, int]:
-        raw = memoryview(_band(linear, *bands[i])).cast("B")
+        # band i's rows as PNG scanlines: filter byte 2 ("Up") then each row minus the row above
+        r0, r1 = bands[i]
+        top = max(0, r0 - 1)
+        codes = encode_srgb8(linear[top:r1]).reshape(r1 - top, 3 * w)
+        filtered = np.empty((r1 - r0, 3 * w + 1), np.uint8)
+        filtered[:, 0] = 2
+        if r0 == 0:
+            filtered[0, 1:] = codes[0]  # the first row has nothing above: Up leaves it as it is
+            np.subtract(codes[1:], codes[:-1], out=filtered[1:, 1:])
+        else:
+            np.subtract(codes[1:], codes[:-1], out=filtered[:, 1:])
+        raw = memoryview(filtered).cast("B")
         packer = module.compressobj(level, module.DEFLATED, -15, 9, strategy)
         last = i == len(bands) - 1
         return packer.compress(raw) + packer.flush(module.Z_FINISH if last else module.Z_FULL_FLUSH), \
             zlib.adler32(raw)  # the band's checksum alone (a zlib stream's is over all rows: combined below)
 
     f.write(PNG_SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)))
-    for key, value in (metadata or {}).items():
-        f.write(_text_chunk(key, value))
+    for key, value in (metadata or {}).items():  # tEXt, or iTXt (UTF-8, uncompressed, no language)
+        if not 1 <= len(key) <= 79 or not key.isprintable():
+            raise ValueError(f"PNG text keys must be 1-79 printable characters, got {key!r}")
+        try:
+            f.write(_chunk(b"tEXt", key.encode("latin-1") + b"\0" + value.encode("latin-1")))
+        except UnicodeEncodeError:
+            f.write(_chunk(b"iTXt", key.encode("latin-1") + b"\0\0\0\0\0" + value.encode("utf-8")))
     checksum, first = 1, True
     with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="relight-png") as pool:
         pending: deque = deque()
