@@ -62,15 +62,13 @@ class LevelPrior:
                                  f"in [{MIN_SLOPE}, {MAX_SLOPE}], got {(a, b, k)}")
         object.__setattr__(self, "rows", rows)
 
-    def stops(self, lum: float, colour: np.ndarray) -> np.ndarray:
-        """[3] log2 gains for one decomposition's features (`features`), within +-MAX_STOPS."""
-        raw = np.array([a + b * lum + k * x for (a, b, k), x in zip(self.rows, colour)])
-        return np.clip(raw, -MAX_STOPS, MAX_STOPS)
-
     def gains(self, transport: np.ndarray, light: np.ndarray, weight: np.ndarray) -> np.ndarray:
         """[3] factors for the albedo (the light is divided by them) of one decomposition:
-        transport [h, w, n], light [n, 3], weight [h, w] (the person's pixels)."""
-        return np.exp2(self.stops(*features(transport, light, weight)))
+        transport [h, w, n], light [n, 3], weight [h, w] (the person's pixels): 2 ** the rows'
+        log2 gains at its features (`features`), within +-MAX_STOPS."""
+        lum, colour = features(transport, light, weight)
+        stops = np.array([a + b * lum + k * x for (a, b, k), x in zip(self.rows, colour)])
+        return np.exp2(np.clip(stops, -MAX_STOPS, MAX_STOPS))
 
     def to_metadata(self) -> str:
         return json.dumps({"rows": [list(row) for row in self.rows], "pairs": int(self.pairs)}, sort_keys=True)
