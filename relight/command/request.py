@@ -1,7 +1,7 @@
 """What the sub-commands that relight a person share: their options, the request values built once
 from the parsed options at each command's edge, and the steps they take with them.
 
-`relight image` and `relight video` take the light options (add_light_options) and all three of
+`relight image` and `relight video` take the light options (add_relight_parser's) and all three of
 `image`, `light` and `video` the photo options (add_photo_options). A command turns its parsed
 options into immutable values once (LightRequest, PhotoRequest: each option already checked by its
 argparse type) and passes those values on, never the argparse namespace: open_relighter,
@@ -23,8 +23,7 @@ import numpy as np
 if TYPE_CHECKING:
     from relight.network.quality import QualityPreset
 
-__all__ = ["LIGHT_LIMIT", "LightRequest", "PhotoRequest", "add_light_options", "add_photo_options",
-           "add_relight_parser", "decompose_photo", "open_relighter", "photo_named", "read_photo_and_mask",
+__all__ = ["LIGHT_LIMIT", "LightRequest", "PhotoRequest", "add_photo_options", "add_relight_parser", "decompose_photo", "open_relighter", "photo_named", "read_photo_and_mask",
            "relight_options", "relighter_and_light", "target_light"]
 
 # largest SH coefficient (after exposure) relit in float32: shading sums (order+1)^2 terms and the
@@ -36,31 +35,26 @@ LIGHT_LIMIT = 1e18
 def add_relight_parser(subparsers, name: str, *, help: str, description: str, source: str,
                        source_help: str) -> argparse.ArgumentParser:
     """The parser of a sub-command that relights a person (`image`, `video`): what it reads
-    (`source`), then the light options and the photo options."""
-    p = subparsers.add_parser(name, help=help, description=description)
-    p.add_argument(source, help=source_help)
-    add_light_options(p)
-    add_photo_options(p)
-    return p
-
-
-def add_light_options(p) -> None:
-    """The options that say what light to relight with (`image`, `video`): --light or
-    --light-from, --rotate, --exposure, --no-normalize (LightRequest)."""
+    (`source`), then the options that say what light to relight with (--light or --light-from,
+    --rotate, --exposure, --no-normalize: LightRequest) and the photo options (add_photo_options)."""
     from relight.command.cli_args import exposure_ev, rotation_deg
     from relight.lighting.light import EXPOSURE_LIMIT
     from relight.lighting.sh import REFERENCE_LUMINANCE
 
-    source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--light", help="equirect HDR map (.exr/.hdr), preset name (see `relight presets`) or "
-                        "sun:AZIMUTH,ELEVATION[,ANGLE] (degrees; relight.lighting.lamps)")
-    source.add_argument("--light-from", metavar="PHOTO",
-                        help="light transfer: use the light the network estimates in another photo")
+    p = subparsers.add_parser(name, help=help, description=description)
+    p.add_argument(source, help=source_help)
+    light = p.add_mutually_exclusive_group(required=True)
+    light.add_argument("--light", help="equirect HDR map (.exr/.hdr), preset name (see `relight presets`) or "
+                       "sun:AZIMUTH,ELEVATION[,ANGLE] (degrees; relight.lighting.lamps)")
+    light.add_argument("--light-from", metavar="PHOTO",
+                       help="light transfer: use the light the network estimates in another photo")
     p.add_argument("--rotate", type=rotation_deg, default=0.0, metavar="DEG", help="turn the light about world Z")
     p.add_argument("--exposure", type=exposure_ev, default=0.0, metavar="EV",
                    help=f"scale the light by 2**EV (|EV| <= {EXPOSURE_LIMIT:g})")
     p.add_argument("--no-normalize", dest="normalize", action="store_false",
                    help=f"use the map's radiance as is (default: scale to mean luminance {REFERENCE_LUMINANCE:g})")
+    add_photo_options(p)
+    return p
 
 
 def add_photo_options(p) -> None:
@@ -99,7 +93,7 @@ def add_photo_options(p) -> None:
 
 @dataclass(frozen=True)
 class LightRequest:
-    """The light options (add_light_options) as their argparse types checked them: a map, preset or
+    """The light options (add_relight_parser's) as their argparse types checked them: a map, preset or
     sun (`light`) or another photo (`light_from`), turned by `rotate` degrees, `exposure` EV, scaled to
     the reference mean luminance unless `normalize` is False. `map_file`: `light` when it names a
     file (a map the command reads, which an output must not replace), else None."""
