@@ -42,9 +42,9 @@ def test_a_module_moved_into_a_subpackage_keeps_its_file_name():
 # order checked once and the merged relight / layers): 258 hops, 78 returns, 68 of them within
 # run_image; after: 253, 68 and 58; at adeaf18 251, 66 and 56. The path's second pass (the EXR
 # map's layout read once, the group's mattes and the working-size crop made once and passed on,
-# one-call helpers folded): 232, 57 and 47. The ceilings leave a hop or two for the core's other rooms.
-CEILINGS = {"function hops (distinct edges)": 234, "returns to a module already left": 60,
-            "within run_image: returns": 50}
+# one-call helpers folded): 227, 57 and 47. The ceilings leave a hop or two for the core's other rooms.
+CEILINGS = {"function hops (distinct edges)": 229, "returns to a module already left": 59,
+            "within run_image: returns": 49}
 
 
 def test_relight_images_path_stays_under_its_ceilings():
