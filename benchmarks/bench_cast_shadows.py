@@ -9,6 +9,9 @@ studio key / lamp), the photo relit at the scene's size under b's SH light, five
   network+depth      the same over the farm's true depth pass (pinhole): the depth ceiling
   truth              the true albedo x the SH shading of the true normals (Lambert): no cast shadows
   truth+depth        the same with cast shadows over the true depth: the ceiling of SH + one shadowed key
+  network+netdepth   (a model with the depth head, issue 45) shadows over the network's own depth, scaled
+                     to its normals' slopes (relight.network.shadowing: the product's path with the head)
+  truth+netdepth     the true shading with shadows over the network's depth: the depth's worth alone
 
 Reported per variant: PSNR over the person (interior pixels), and the light's response: the least-squares
 slope and the correlation of the relit log-luminance change (relit / photo) against the true change
@@ -38,6 +41,7 @@ from relight.network.prt import lambert_transport
 from relight.network.shadowing import ShadowCaster
 
 VARIANTS = ("network", "network+relief", "network+depth", "truth", "truth+depth", "truth+relief", "network+truerelief")
+DEPTH_VARIANTS = ("network+netdepth", "truth+netdepth")   # models with the depth head only
 THICKNESS_M = 0.3   # metres an occluder of the true depth pass reaches behind its front (a torso's depth)
 
 
@@ -99,6 +103,10 @@ def run_scene(path: Path, predictor: Predictor, rows: dict) -> None:
             "truth+relief": scene.albedo * (true_base - (1 - v_true_relief)[..., None] * true_key),
             "network+truerelief": albedo * (base - (1 - v_true_relief)[..., None] * key_shading) + E,
         }
+        if "depth" in out:  # the depth head's answer, as the runtime casts shadows over it
+            v_net = ShadowCaster(transport, alpha, np.arange(h * w), network_depth=out["depth"][0, 0]).visibility(key)
+            relit["network+netdepth"] = albedo * (base - (1 - v_net)[..., None] * key_shading) + E
+            relit["truth+netdepth"] = scene.albedo * (true_base - (1 - v_net)[..., None] * true_key)
         for name, image in relit.items():
             image = np.maximum(image, 0.0)
             slope, corr, _ = light_response(photo, image, target, weight)
@@ -121,10 +129,10 @@ def main(argv=None) -> int:
     print("| set | pairs | variant | PSNR dB | slope | correlation |")
     print("|---|---|---|---|---|---|")
     for folder in args.data:
-        rows = {name: [] for name in VARIANTS}
+        rows = {name: [] for name in VARIANTS + (DEPTH_VARIANTS if predictor.has_depth else ())}
         for path in list_finished_scenes(folder):
             run_scene(path, predictor, rows)
-        for name in VARIANTS:
+        for name in rows:
             r = np.array(rows[name]) if rows[name] else np.full((1, 3), np.nan)
             print(f"| {folder.name} | {len(rows[name])} | {name} | {np.nanmean(r[:, 0]):.2f} | "
                   f"{np.nanmean(r[:, 1]):.2f} | {np.nanmean(r[:, 2]):.2f} |")

@@ -2,7 +2,8 @@
 
 The graph has one input, `image` [B, 3, H, W] float32 in [-1, 1], and exactly
 the five outputs of docs/ARCHITECTURE.md (albedo, transport, residual, light,
-alpha); the positive/negative parts are folded inside (T = T+ - |T-|). Batch,
+alpha), plus `depth` [B, 1, H, W] when the network has the depth head (issue 45; the metadata's
+relight.depth then says what it is); the positive/negative parts are folded inside (T = T+ - |T-|). Batch,
 height and width are dynamic; H and W must be multiples of `size_multiple`,
 which the metadata records.
 """
@@ -20,8 +21,8 @@ import onnx
 import torch
 
 import relight
-from relight.models import (CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES,
-                            file_sha256, write_sidecar)
+from relight.models import (CONVENTION_VERSION, DEPTH_METADATA_KEY, INPUT_NAME, ONNX_FORMAT,
+                            file_sha256, output_names, write_sidecar)
 
 OPSET = 17
 DEFAULT_TRAINING_DATA = "unspecified (weights not trained by this package's pipeline)"
@@ -29,16 +30,22 @@ PARITY_TOLERANCE = 1e-4  # fp32 torch vs onnxruntime: summation order only (test
 REAL_PHOTO = Path(__file__).resolve().parent.parent / "relight" / "data" / "examples" / "astronaut.jpg"
 
 
+def graph_outputs(net) -> tuple[str, ...]:
+    """The outputs the graph of `net` has: the five runtime ones, and depth with the depth head."""
+    return output_names(bool(getattr(net, "depth_head", False)))
+
+
 class _FiveOutputs(torch.nn.Module):
-    """Wraps RelightNet so the traced graph returns only the five runtime outputs."""
+    """Wraps RelightNet so the traced graph returns only the runtime outputs (graph_outputs)."""
 
     def __init__(self, net: torch.nn.Module):
         super().__init__()
         self.net = net
+        self.names = graph_outputs(net)
 
     def forward(self, image: torch.Tensor):
         out = self.net(image)
-        return tuple(out[name] for name in OUTPUT_NAMES)
+        return tuple(out[name] for name in self.names)
 
 
 def code_version() -> str:
@@ -63,7 +70,7 @@ def build_metadata(net, training_data: str = DEFAULT_TRAINING_DATA, precision: s
         "outputs": {"albedo": "[B,3,H,W] linear, [0,1]", "transport": "[B,n,H,W]",
                     "residual": "[B,n,H,W]", "light": "[B,n,3]", "alpha": "[B,1,H,W] in [0,1]"},
     }
-    return {
+    metadata = {
         "relight.format": ONNX_FORMAT,
         "relight.sh_order": str(int(net.sh_order)),
         "relight.size_multiple": str(int(net.size_multiple)),
@@ -74,6 +81,15 @@ def build_metadata(net, training_data: str = DEFAULT_TRAINING_DATA, precision: s
         "relight.network_config": json.dumps(net.config(), sort_keys=True),
         "relight.precision": precision,
     }
+    if getattr(net, "depth_head", False):  # models without it keep their metadata as it was
+        input_spec["outputs"]["depth"] = "[B,1,H,W] the person's depth about its mean, up to scale"
+        metadata["relight.input_spec"] = json.dumps(input_spec, sort_keys=True)
+        metadata[DEPTH_METADATA_KEY] = json.dumps({
+            "output": "depth", "axis": "camera +Y (larger is farther)", "offset": "the alpha-weighted mean is 0",
+            "scale": "arbitrary: trained scale-and-shift-invariant (model.training.depth_loss); the runtime "
+                     "scales it to the normals' slopes (relight.geometry.relief.scaled_to_normals)"},
+            sort_keys=True)
+    return metadata
 
 
 def set_metadata(model: onnx.ModelProto, metadata: dict[str, str]) -> None:
@@ -118,7 +134,8 @@ def export_onnx(net, out: str | os.PathLike, training_data: str = DEFAULT_TRAINI
     example = torch.zeros(1, 3, h, w)
     dyn = {"batch": 0, "height": 2, "width": 3}
     dynamic_axes = {INPUT_NAME: {0: "batch", 2: "height", 3: "width"}}
-    for name in OUTPUT_NAMES:
+    names = graph_outputs(net)
+    for name in names:
         dynamic_axes[name] = {0: "batch"} if name == "light" else {v: k for k, v in dyn.items()}
     before = {k: v.clone() for k, v in net.state_dict().items()}
     tmp = Path(out).with_name(f".{Path(out).name}.{os.getpid()}.trace.tmp")
@@ -130,7 +147,7 @@ def export_onnx(net, out: str | os.PathLike, training_data: str = DEFAULT_TRAINI
             warnings.simplefilter("ignore", DeprecationWarning)
             torch.onnx.export(_FiveOutputs(net).eval(), (example,), str(tmp), dynamo=False,
                               opset_version=OPSET, input_names=[INPUT_NAME],
-                              output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic_axes,
+                              output_names=list(names), dynamic_axes=dynamic_axes,
                               do_constant_folding=True)
         model = onnx.load(str(tmp))
     finally:
@@ -144,27 +161,31 @@ def export_onnx(net, out: str | os.PathLike, training_data: str = DEFAULT_TRAINI
 
 
 def torch_outputs(net, image: np.ndarray) -> dict[str, np.ndarray]:
-    """The network's five outputs in torch, for parity checks."""
+    """The network's graph outputs (graph_outputs) in torch, for parity checks."""
     with torch.no_grad():
         out = net.eval()(torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)))
-    return {k: out[k].numpy() for k in OUTPUT_NAMES}
+    return {k: out[k].numpy() for k in graph_outputs(net)}
 
 
 def onnx_outputs(model_path: str | os.PathLike, image: np.ndarray) -> dict[str, np.ndarray]:
-    """The five outputs from onnxruntime (CPU, one thread: deterministic)."""
+    """The graph's outputs from onnxruntime (CPU, one thread: deterministic): the five, and depth
+    when the graph has it."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     sess = ort.InferenceSession(str(model_path), opts, providers=["CPUExecutionProvider"])
-    values = sess.run(list(OUTPUT_NAMES), {INPUT_NAME: np.ascontiguousarray(image, dtype=np.float32)})
-    return dict(zip(OUTPUT_NAMES, values))
+    names = [o.name for o in sess.get_outputs()]
+    values = sess.run(names, {INPUT_NAME: np.ascontiguousarray(image, dtype=np.float32)})
+    return dict(zip(names, values))
 
 
 def max_abs_diff(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, float]:
     """Per-output max |a - b| (shapes must agree)."""
     out = {}
-    for k in OUTPUT_NAMES:
+    if set(a) != set(b):
+        raise ValueError(f"outputs differ: {sorted(a)} != {sorted(b)}")
+    for k in a:
         if a[k].shape != b[k].shape:
             raise ValueError(f"output {k}: shape {a[k].shape} != {b[k].shape}")
         out[k] = float(np.max(np.abs(a[k].astype(np.float64) - b[k].astype(np.float64))))

@@ -1,5 +1,5 @@
-"""RelightNet with seeded random weights, exported: for tests and benchmarks
-until trained weights ship. Not a model anyone should relight with."""
+"""RelightNet (or, with arch="geometry", GeometryNet) with seeded random weights, exported: for
+tests and benchmarks. Not a model anyone should relight with."""
 
 from __future__ import annotations
 
@@ -13,10 +13,15 @@ from export.onnx_export import export_onnx
 
 def random_relightnet(seed: int = 0, **config):
     """A RelightNet(**config) whose weights and BatchNorm statistics are seeded random
-    (non-trivial running stats, so BatchNorm folding is exercised)."""
+    (non-trivial running stats, so BatchNorm folding is exercised); config["arch"] == "geometry":
+    a GeometryNet of the rest of config (e.g. depth_head=True, issue 45) instead."""
     from model.networks.network import RelightNet
 
     torch.manual_seed(seed)
+    if config.get("arch") == "geometry":
+        from model.networks.geometry import GeometryNet
+
+        return random_norm_statistics(GeometryNet(**{k: v for k, v in config.items() if k != "arch"}))
     return random_norm_statistics(RelightNet(**config))
 
 

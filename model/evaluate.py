@@ -32,6 +32,7 @@ from evaluation.sheet import write_sheet
 from relight.files.fileio import atomic_write_text
 
 from model.samples.data import EvaluationPairs
+from model.scoring.depth_metrics import depth_markdown, depth_table, pair_depth_rows
 from model.scoring.face_region import FaceRows
 from model.samples.data_splits import find_scenes, held_out_light_names
 from relight.files.dataset import read_sidecar
@@ -209,7 +210,8 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     def make_pairs(sh_order: int) -> EvaluationPairs:
         return EvaluationPairs(scenes, size, sh_order, held_out_only=held_out_only,
                                held_out=held_out_light_names(), max_pairs_per_scene=max_pairs_per_scene,
-                               body_prior=ours.body_prior or any(b.body_prior for _, _, b in bases))
+                               body_prior=ours.body_prior or any(b.body_prior for _, _, b in bases),
+                               depth=ours.has_depth)  # the depth pass, scored when the model has the head
 
     # one pair list per SH order: the same (scene, a, b) pairs, light coefficients cut to that order
     pairs_by_order = {order: make_pairs(order)}
@@ -223,6 +225,7 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     sheet, per_pair = [], []
     face = FaceRows(size)
     responses: dict = defaultdict(lambda: defaultdict(list))
+    depths: dict = defaultdict(list)  # framing -> pair_depth_rows' answers (models with the depth head)
     framings = [framing_of(path) for path in pairs.paths]
     seeds = [read_sidecar(path).get("seed") for path in pairs.paths]  # with the index: the scene's pair in another set
     for i in range(len(pairs)):
@@ -244,6 +247,9 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
             transport_err.append(parametric_transport_error(sample, order))
         response = pair_light_response(sample, pred, ours.tstar)
         responses["ours"][framing].append(response)
+        pair_depth = pair_depth_rows(pred, sample, sample["metric_weight"][0])
+        if pair_depth is not None:
+            depths[framing].append(pair_depth)
         per_pair.append({**pair_record(sample, rows["ours"][-1], pair_breakdown, pair_geometry), "framing": framing,
                          "seed": seeds[pairs.pairs[i][0]],
                          "matched_photo_psnr": rows["identity, exposure-matched"][-1]["relighting/image"]["psnr"],
@@ -284,6 +290,9 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
     if geo:
         text += "\n## Geometry and light\n\n" + geometry_table(geo, ceiling)
     text += light_response_markdown(response_table)
+    depth_tab = depth_table(depths) if depths else None
+    if depth_tab:
+        text += depth_markdown(depth_tab)
     text += face.markdown()
     atomic_write_text(out / "evaluation.md", text +
                        "\nContact sheet columns: input, ours relit (over the GT background), GT, "
@@ -292,10 +301,12 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         {"model": str(model_path), "baselines": {name: str(path) for name, path, _ in bases},
          "pairs": len(pairs), "geometry": geo, "breakdown": broken, "parametric_transport_rel_l2": ceiling,
          "size": size, "mask": mask, "methods": results, "pair_list": [list(map(int, p)) for p in pairs.pairs],
-         "per_pair": per_pair, "face": face.summary(), "light_response": response_table}, indent=1) + "\n")
+         "per_pair": per_pair, "face": face.summary(), "light_response": response_table,
+         "depth": depth_tab}, indent=1) + "\n")
     write_sheet(out / "contact_sheet.png", contact_sheet(sheet))
     return {"methods": results, "pairs": len(pairs), "geometry": geo, "breakdown": broken,
-            "parametric_transport_rel_l2": ceiling, "face": face.summary(), "light_response": response_table}
+            "parametric_transport_rel_l2": ceiling, "face": face.summary(), "light_response": response_table,
+            "depth": depth_tab}
 
 
 def face_rows(face: FaceRows, pred: dict, sample: dict, json_path, tstar: bool, order: int) -> None:

@@ -23,7 +23,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
-from model.training.checkpoint import load_model, read_metadata, save_model
+from model.training.checkpoint import init_weights, load_model, read_metadata, save_model
 from model.samples.data_augment import preset_training_lights
 from model.samples.data_crops import DEFAULT_PADDING
 from model.samples.data_splits import first_maps, training_map_names
@@ -50,6 +50,8 @@ def build_model_config(args) -> dict:
             extra["fit_stride"] = args.fit_stride
         if args.front_facing:
             extra["front_facing"] = True
+        if args.depth_head:
+            extra["depth_head"] = True
         return dict(arch=GEOMETRY, sh_order=args.order, **layout, **extra)
     layout = dict(PRESETS[args.preset])
     for name in ("width", "depth"):
@@ -162,6 +164,11 @@ def parse_args(argv=None, check_pack: bool = True):
     p.add_argument("--body-prior", action="store_true",
                    help="geometry-first model: the unclothed body's normal and coverage as 4 more input "
                         "channels (scenes need the farm's body pass)")
+    # default None, not False: a campaign started before the option compares its recorded settings
+    # with these (model.campaign.settle_settings), and an absent key reads as None
+    p.add_argument("--depth-head", action="store_true", default=None,
+                   help="geometry-first model: a depth output trained from the farm's depth pass "
+                        "(scale-and-shift-invariant; model.training.depth_loss)")
     p.add_argument("--loss-weight", action="append", metavar="NAME=VALUE")
     p.add_argument("--no-residual", action="store_true", help="ablation: without E")
     p.add_argument("--no-decomposition", action="store_true", help="ablation: without PRT +/- decomposition")
@@ -201,6 +208,8 @@ def parse_args(argv=None, check_pack: bool = True):
         p.error("--warmup must be >= 0")
     if args.init and args.resume:
         p.error("--init and --resume exclude each other")
+    if args.depth_head and args.preset not in GEOMETRY_PRESETS:
+        p.error("--depth-head needs a geometry-first preset (--preset geo-small or geo-default)")
     if not (args.lr > 0 and math.isfinite(args.lr)):
         p.error("--lr must be a positive number")
     return args
@@ -248,7 +257,7 @@ def train(args) -> Path:
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
                      light_tint=args.light_tint, light_mix=args.light_mix, exposure_jitter=args.exposure_jitter,
                      capture=args.capture,
-                     lambertian=args.lambertian, body_prior=args.body_prior))
+                     lambertian=args.lambertian, body_prior=args.body_prior, depth=bool(args.depth_head)))
     if args.light_maps is not None:
         bank = [name for name, _ in preset_training_lights(args.order)] if not args.no_presets else []
         maps = first_maps(training_map_names(data.train_paths, bank), args.light_maps)
@@ -262,12 +271,8 @@ def train(args) -> Path:
     module = RelightModule(build_model_config(args), weights, args.lr, args.weight_decay,
                            args.lr_schedule, args.warmup, args.schedule_steps or args.steps,
                            frozen_norm=args.frozen_norm)
-    if args.init:
-        start = load_model(args.init)
-        if start.config() != module.model.config():
-            raise ValueError(f"--init {args.init}: its layout {start.config()} differs from this run's "
-                             f"{module.model.config()}")
-        module.model.load_state_dict(start.state_dict())
+    if args.init:  # the same layout, or the depth head added to it (checkpoint.init_weights)
+        init_weights(module.model, load_model(args.init), args.init)
     cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
     if args.device == "cuda" and not torch.cuda.is_available():
         raise ValueError("--device cuda: no CUDA device available")

@@ -64,7 +64,7 @@ class GeometryNet(nn.Module):
     def __init__(self, sh_order: int = 4, width: int = 12, depth: int = 4, decoder_width: int = 8,
                  full_res_convs: int = 1, ridge: float = 0.1, reliable: float = ALBEDO_RELIABLE,
                  fixed_level: bool = False, body_prior: bool = False, fit_stride: int = 1,
-                 front_facing: bool = False):
+                 front_facing: bool = False, depth_head: bool = False):
         super().__init__()
         if sh_order < 1 or width < 1 or depth < 1 or decoder_width < 1:
             raise ValueError(f"GeometryNet: need sh_order >= 1 and positive sizes (got {sh_order}, "
@@ -79,6 +79,7 @@ class GeometryNet(nn.Module):
             raise ValueError(f"GeometryNet: fit_stride must be 1..4, got {fit_stride!r}")
         self.fit_stride = fit_stride
         self.front_facing = bool(front_facing)
+        self.depth_head = bool(depth_head)
         # the fit's precision in training (the exported graph fits in float64); benchmarks set
         # float64 here to time what training was before (benchmarks/bench_train.py)
         self.train_fit_precision = torch.float32
@@ -93,7 +94,8 @@ class GeometryNet(nn.Module):
         gen = dict(batch_norm=True, dec_channels=dec, full_res_convs=self.full_res_convs)
         self.encoder = Encoder(channels, self.full_res_convs, in_channels=self.in_channels)
         self.geometry_res = ResidualBlock(c_bottle, batch_norm=True)
-        self.geometry_gen = Generator(channels, 5, **gen)          # normal xyz, visibility, alpha
+        # normal xyz, visibility, alpha (+ depth: one more channel of the same generator, nearly free)
+        self.geometry_gen = Generator(channels, 6 if self.depth_head else 5, **gen)
         self.albedo_res = ResidualBlock(c_bottle, batch_norm=True)
         self.albedo_gen = Generator(channels, 3, **gen)
         self.light_head = LightDecoder(3 * c_bottle, c_bottle, self.n, decomposition=False)
@@ -108,6 +110,8 @@ class GeometryNet(nn.Module):
             config["fit_stride"] = self.fit_stride
         if self.front_facing:
             config["front_facing"] = True
+        if self.depth_head:
+            config["depth_head"] = True
         return config
 
     def check_input(self, image: torch.Tensor) -> None:
@@ -156,12 +160,18 @@ class GeometryNet(nn.Module):
             light = light_fit * (REFERENCE_LUMINANCE / lum.clamp(min=0.02))[:, None, None]
         shading = torch.einsum("bnhw,bnc->bchw", transport, light)
         albedo = physics.photo_consistent_albedo(photo, shading, weight, self.reliable)
-        return {
+        out = {
             "albedo": albedo, "transport": transport, "residual": transport * 0.0,
             "light": light, "alpha": alpha,
             "normal": normal, "visibility": visibility, "albedo_prior": albedo_prior,
             "light_prior": light_prior, "light_fit": light_fit,
         }
+        if self.depth_head:
+            # about the person's own mean (alpha-weighted): a single image has no absolute depth
+            raw, a = geo[:, 5:6], alpha.detach()
+            mean = (raw * a).sum(dim=(2, 3), keepdim=True) / (a.sum(dim=(2, 3), keepdim=True) + 1e-6)
+            out["depth"] = raw - mean
+        return out
 
 
 def mean_luminance(light: torch.Tensor) -> torch.Tensor:
@@ -175,7 +185,8 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
 
 # Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).
 GEOMETRY_LOSS_WEIGHTS = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2,
-                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0}
+                         "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0,
+                         "depth": 1.0}
 FITTED_BANDS = 3  # light_fit compares bands 0-2: all a Lambertian lobe passes (band 3's A_l is 0, band 4's 0.04)
 
 
@@ -190,7 +201,9 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     against the target image under light b (through the fit: end to end);
     reconstruction: the same under the fitted light against the input image; light_fit: L1
     of the fitted light's bands 0-2 against the true input light's, in units of the true
-    DC's luminance (the fit's answer itself, which relighting divides by; off by default).
+    DC's luminance (the fit's answer itself, which relighting divides by; off by default);
+    depth (models with the depth head): model.training.depth_loss.ssi_depth_loss of the depth
+    against the farm's depth pass, over the person's interior pixels.
     """
     w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
     mask = batch["alpha"]
@@ -219,5 +232,12 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     terms["relight"] = masked_mean(torch.abs(relit - batch["target_image"]), interior)
     recon = pred["albedo"] * torch.einsum("bnhw,bnc->bchw", pred["transport"], pred["light"])
     terms["reconstruction"] = masked_mean(torch.abs(recon - batch["image"]), interior)
+    if "depth" in pred:
+        if "depth" not in batch:
+            raise ValueError("the model has a depth head but the batch carries no depth (scenes need the "
+                             "farm's depth pass; a pack made before issue 45's depth must be made again)")
+        from model.training.depth_loss import ssi_depth_loss
+
+        terms["depth"] = ssi_depth_loss(pred["depth"], batch["depth"], interior * (batch["depth"] > 0))
     terms["total"] = sum(w[k] * v for k, v in terms.items())
     return terms

@@ -23,7 +23,8 @@ model.samples.data_splits. Per training sample (draws: model.samples.data_augmen
     2^N(0, sigma^2) (exposure; the albedo target is unchanged);
   * with probability `flip_prob` a horizontal mirror (exact: mirror_signs);
   * with `body_prior`, the unclothed body's normal and coverage (the farm's body pass,
-    body_input's encoding) appended to the input's channels.
+    body_input's encoding) appended to the input's channels;
+  * with `depth`, the depth pass [1, S, S] as "depth" (the depth head's target; scene_depth).
 Splits: by body (validation bodies never train) and by light (held-out maps
 never reach training: asserted on every training sample).
 """
@@ -64,6 +65,14 @@ def body_input(scene: CroppedScene) -> np.ndarray:
     return out
 
 
+def scene_depth(scene: CroppedScene) -> np.ndarray:
+    """[1, S, S] the scene's depth pass (metres, 0 off the person): the depth head's target."""
+    if scene.depth is None:
+        raise ValueError(f"scene {scene.index} has no depth pass (the depth head needs the farm's depth; "
+                         "a pack made before issue 45's depth head must be made again)")
+    return scene.depth
+
+
 def network_input(linear_chw: np.ndarray, alpha: np.ndarray | None) -> np.ndarray:
     """relight.network.prt.to_network_input of a channels-first linear image, masked by alpha [1, H, W] when given."""
     hwc = linear_chw.transpose(1, 2, 0)
@@ -80,7 +89,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
                  body_prior: bool = False, light_mix: float = 0.0, light_maps: frozenset[str] | None = None,
-                 scenes=None):
+                 scenes=None, depth: bool = False):
         # `scenes`: scenes already cropped (model.samples.training_pack.PackScenes), json_paths then unused
         if not (json_paths or (scenes is not None and scenes.paths)):
             raise ValueError("no training scenes")
@@ -126,6 +135,7 @@ class TrainingScenes(torch.utils.data.Dataset):
         # (docs/EVALUATION.md, "Training people like the people in photos")
         self.capture = capture
         self.body_prior = bool(body_prior)
+        self.depth = bool(depth)  # samples carry the depth pass (model.train --depth-head)
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
@@ -226,8 +236,11 @@ class TrainingScenes(torch.utils.data.Dataset):
             "normal": scene.normal, "light": light_a, "target_light": light_b, "target_image": image_b,
             "light_name": name_a, "target_light_name": name_b,
         }
+        if self.depth:
+            sample["depth"] = scene_depth(scene)
         if rng.uniform() < self.flip_prob:  # horizontal mirror, exact for T and L (mirror_signs)
-            for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal"):
+            for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal") + (
+                    ("depth",) if self.depth else ()):
                 sample[key] = sample[key][..., ::-1]
             sample["transport"] = sample["transport"] * self.signs[:, None, None]
             sample["normal"] = sample["normal"] * MIRROR_X[:, None, None]
@@ -248,8 +261,8 @@ class EvaluationPairs(torch.utils.data.Dataset):
 
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
                  held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4,
-                 body_prior: bool = False):
-        self.size, self.order, self.body_prior = size, order, bool(body_prior)
+                 body_prior: bool = False, depth: bool = False):
+        self.size, self.order, self.body_prior, self.depth = size, order, bool(body_prior), bool(depth)
         self.held_out = held_out_light_names() if held_out is None else held_out
         self.load = functools.partial(load_cropped, size=size, order=order, padding=padding,
                                       held_out=self.held_out, verify_hash=True)
@@ -272,11 +285,11 @@ class EvaluationPairs(torch.utils.data.Dataset):
 
     @classmethod
     def from_scenes(cls, scenes: list[CroppedScene], size: int, order: int, *, max_pairs_per_scene: int = 4,
-                    body_prior: bool = False) -> "EvaluationPairs":
+                    body_prior: bool = False, depth: bool = False) -> "EvaluationPairs":
         """The pairs of scenes already cropped (a training pack's validation scenes), as the
         constructor makes them from scene files (every traced light as a target)."""
         self = cls.__new__(cls)
-        self.size, self.order, self.body_prior = size, order, bool(body_prior)
+        self.size, self.order, self.body_prior, self.depth = size, order, bool(body_prior), bool(depth)
         self.paths, self.pairs = None, []
         for s, scene in enumerate(scenes):
             traced = [k for k, image in enumerate(scene.images) if image is not None]
@@ -302,6 +315,8 @@ class EvaluationPairs(torch.utils.data.Dataset):
             "normal": scene.normal, "alpha": scene.alpha, "light": scene.lights[a], "target_light": scene.lights[b],
             "target_image": scene.images[b],
         }
+        if self.depth:
+            sample["depth"] = scene_depth(scene)
         out = _to_tensors(sample)
         out.update(scene_index=scene.index, light_a=scene.light_names[a], light_b=scene.light_names[b])
         return out

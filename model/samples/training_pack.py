@@ -43,8 +43,12 @@ def write_training_pack(json_paths, out, size: int, order: int, padding: int = D
     for i, path in enumerate(json_paths):
         path = Path(path)
         meta = read_sidecar(path)
-        maps, lights, record = scene_arrays(load_cropped(path, size, order, padding, held_out, verify_hash=True))
+        maps, lights, record, depth = scene_arrays(load_cropped(path, size, order, padding, held_out,
+                                                               verify_hash=True))
         arrays[f"s{i}"], arrays[f"l{i}"] = maps, lights
+        if depth is not None:  # the depth pass (issue 45's depth head), float32
+            arrays[f"d{i}"] = depth
+            record["depth_sha256"] = _sha256(depth)
         scenes.append({**record, "name": path.stem, "exr_sha256": meta["exr_sha256"], "body_key": body_key(meta),
                        "maps_sha256": _sha256(maps), "lights_sha256": _sha256(lights)})
     if not scenes:
@@ -113,9 +117,11 @@ def read_training_pack(path) -> TrainingPack:
             scenes = []
             for i, rec in enumerate(manifest["scenes"]):
                 maps, lights = z[f"s{i}"], z[f"l{i}"]
-                if _sha256(maps) != rec["maps_sha256"] or _sha256(lights) != rec["lights_sha256"]:
+                depth = z[f"d{i}"] if rec.get("depth") else None  # packs from before it have none
+                if _sha256(maps) != rec["maps_sha256"] or _sha256(lights) != rec["lights_sha256"] or (
+                        depth is not None and _sha256(depth) != rec.get("depth_sha256")):
                     raise ValueError(f"scene {rec['name']}: its arrays do not match the manifest's SHA-256")
-                scenes.append(scene_from_arrays(maps, lights, rec, manifest["order"]))
+                scenes.append(scene_from_arrays(maps, lights, rec, manifest["order"], depth))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable training pack ({exc})") from None
     return TrainingPack(path, manifest, scenes)

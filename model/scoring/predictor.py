@@ -52,6 +52,13 @@ class Predictor:
         return bool(getattr(self.model, "body_prior", False))
 
     @property
+    def has_depth(self) -> bool:
+        """Whether the model has the depth head (issue 45): its answers then carry "depth" [B, 1, H, W]."""
+        if self.model is not None:
+            return bool(getattr(self.model, "depth_head", False))
+        return "depth" in self.session.outputs
+
+    @property
     def order(self) -> int | None:
         return None if self.n_coeffs is None else int(round(self.n_coeffs ** 0.5)) - 1
 
@@ -63,12 +70,12 @@ class Predictor:
             self.model.check_input(x)
             with torch.no_grad():
                 out = self.model(x)
-            return {k: out[k].numpy() for k in OUTPUTS}
+            return {k: out[k].numpy() for k in OUTPUTS + (("depth",) if self.has_depth else ())}
         try:
             out = self.session.run(image)
         except Exception as exc:  # onnxruntime raises its own types (e.g. a size the graph rejects)
             raise ValueError(f"{self.path.name} failed on an input of shape {image.shape}: {exc}") from None
-        out = {k: out[k] for k in OUTPUTS}
+        out = {k: out[k] for k in OUTPUTS + (("depth",) if self.has_depth else ())}
         if self.level_prior is not None and not np.any(out["residual"]):
             out = _with_level_prior(self.level_prior, image, out)
         return out

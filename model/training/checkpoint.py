@@ -87,3 +87,24 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
         raise ValueError(f"{path}: weights do not match config (missing {missing[:3]}, "
                          f"unexpected {unexpected[:3]})")
     return model.to(device).eval()
+
+
+def init_weights(model: torch.nn.Module, start: torch.nn.Module, where) -> None:
+    """`model` given `start`'s weights (model.train --init): the same layout, or a geometry-first
+    layout that adds the depth head to `start`'s (issue 45: the head trained onto a shipped model);
+    then the geometry head's first five output channels come from `start` and the depth channel
+    keeps its fresh initialisation. Any other difference raises ValueError naming `where`."""
+    ours, theirs = model.config(), start.config()
+    if ours == theirs:
+        model.load_state_dict(start.state_dict())
+        return
+    if {**theirs, "depth_head": True} != ours:
+        raise ValueError(f"--init {where}: its layout {theirs} differs from this run's {ours}")
+    state = model.state_dict()
+    for name, value in start.state_dict().items():
+        if name.startswith("geometry_gen.head.") and value.shape[0] == state[name].shape[0] - 1:
+            state[name] = state[name].clone()
+            state[name][:-1] = value
+        else:
+            state[name] = value
+    model.load_state_dict(state)

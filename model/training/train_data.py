@@ -130,7 +130,8 @@ class SceneDataModule(L.LightningDataModule):
             try:
                 self.val_set = EvaluationPairs(self.val_paths, self.size, self.order, padding=self.padding,
                                                held_out=self.held_out,
-                                               body_prior=bool(self.augment.get("body_prior")))
+                                               body_prior=bool(self.augment.get("body_prior")),
+                                               depth=bool(self.augment.get("depth")))
             except ValueError as exc:  # validation scenes without two path-traced lights
                 print(f"model.train: no validation ({exc})", file=sys.stderr)
 
@@ -143,7 +144,8 @@ class SceneDataModule(L.LightningDataModule):
         if self.val_paths:
             try:
                 self.val_set = EvaluationPairs.from_scenes([pack.scenes[i] for i in self.val_paths], self.size,
-                                                           self.order, body_prior=bool(self.augment.get("body_prior")))
+                                                           self.order, body_prior=bool(self.augment.get("body_prior")),
+                                                           depth=bool(self.augment.get("depth")))
             except ValueError as exc:
                 print(f"model.train: no validation ({exc})", file=sys.stderr)
 

@@ -12,13 +12,21 @@ and the depth is the least-squares surface with those slopes over the matte (a P
 with free boundary, solved matrix-free by conjugate gradients: numpy only). It is a relief, not a
 measurement: depth jumps at silhouettes inside the person (an arm in front of the chest) are
 smoothed over, as the normals cannot tell them.
+
+A network's depth (the depth head, issue 45) keeps those jumps but has no scale: one photo gives
+depth only up to scale and shift. `scaled_to_normals` gives it the normals' scale: the factor s
+for which s times its differences between neighbouring pixels best match the slopes above (least
+squares over the neighbours whose normals are at most half as steep as MAX_SLOPE, so a clamped
+slope never sets it), the differences s makes steeper than MAX_SLOPE then taken as the depth jumps
+they are and left out, twice. Its unit is then the relief's (pixels of the grid: orthographic);
+metres would be pixels times the person's height in metres over their height in pixels.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_SLOPE", "depth_from_normals", "normals_from_transport"]
+__all__ = ["MAX_SLOPE", "depth_from_normals", "normals_from_transport", "scaled_to_normals"]
 
 MAX_SLOPE = 4.0   # a normal within ~14 degrees of grazing reads as this slope (its depth step per pixel)
 TIE = 1e-3        # weight of the pull of the depth toward 0: fixes each separate part's free constant
@@ -117,3 +125,38 @@ def depth_from_normals(normals: np.ndarray, inside: np.ndarray) -> np.ndarray:
         rz = rz_new
     depth[r0:r1, c0:c1] = np.where(m, x, 0.0)
     return depth.astype(np.float32)
+
+
+def scaled_to_normals(depth: np.ndarray, normals: np.ndarray, inside: np.ndarray) -> np.ndarray | None:
+    """`depth` [h, w] (any scale and offset, larger farther) in the relief's unit: times the factor
+    that fits its neighbour differences to the slopes of `normals` [h, w, 3] (module docstring),
+    less its mean over `inside` [h, w], 0 outside; float32. None when no neighbours fit or the
+    factor is not positive (a depth turned inside out against the normals): the caller integrates
+    the normals instead."""
+    depth = np.asarray(depth, np.float64)
+    inside = np.asarray(inside, bool)
+    if depth.shape != inside.shape or np.shape(normals) != (*inside.shape, 3):
+        raise ValueError(f"depth, inside [h, w] and normals [h, w, 3] must agree, got {depth.shape}, "
+                         f"{inside.shape}, {np.shape(normals)}")
+    if not inside.any() or not np.all(np.isfinite(depth[inside])):
+        return None
+    dc, dr = _slopes(np.asarray(normals))
+    gentle = inside & (np.abs(dc) <= MAX_SLOPE / 2) & (np.abs(dr) <= MAX_SLOPE / 2)
+    pairs = []  # (target slope, depth difference) of each pair of gentle neighbours
+    for g, (a, b) in ((dc, (np.s_[:, :-1], np.s_[:, 1:])), (dr, (np.s_[:-1, :], np.s_[1:, :]))):
+        both = gentle[a] & gentle[b]
+        pairs.append((0.5 * (g[a] + g[b])[both], (depth[b] - depth[a])[both]))
+    target = np.concatenate([t for t, _ in pairs])
+    step = np.concatenate([d for _, d in pairs])
+    keep = np.ones(step.shape, bool)
+    scale = 0.0
+    for _ in range(3):
+        energy = float((step[keep] ** 2).sum())
+        if energy <= 0.0:
+            return None
+        scale = float((target[keep] * step[keep]).sum()) / energy
+        if not scale > 0.0:
+            return None
+        keep = np.abs(scale * step) <= MAX_SLOPE   # steeper: a jump in depth, not a slope
+    out = np.where(inside, scale * (depth - depth[inside].mean()), 0.0)
+    return out.astype(np.float32)

@@ -36,6 +36,15 @@ METADATA_KEYS = (
 ONNX_FORMAT = "relight-onnx/1"
 OUTPUT_NAMES = ("albedo", "transport", "residual", "light", "alpha")
 INPUT_NAME = "image"
+# The optional sixth output of a model with a depth head (issue 45): [B, 1, H, W], the person's depth
+# along the view axis about its own mean, up to scale; its metadata key says what it is (JSON).
+DEPTH_OUTPUT = "depth"
+DEPTH_METADATA_KEY = "relight.depth"
+
+
+def output_names(has_depth: bool) -> tuple[str, ...]:
+    """The graph's outputs, in order: the five of every model, then `depth` when it has the head."""
+    return OUTPUT_NAMES + ((DEPTH_OUTPUT,) if has_depth else ())
 
 
 def sidecar_path(model_path: str | os.PathLike) -> Path:

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from relight.models import CONVENTION_VERSION, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES, REGISTRY_PATH, expected_digest
+from relight.models import (CONVENTION_VERSION, DEPTH_OUTPUT, INPUT_NAME, ONNX_FORMAT, OUTPUT_NAMES, REGISTRY_PATH,
+                            expected_digest, output_names)
 
 __all__ = ["ModelSession", "open_session", "cores_available"]
 
@@ -105,8 +106,9 @@ class ModelSession:
         self.network_config = config if isinstance(config, dict) else {}
         self.residual_is_zero = self.network_config.get("arch") in ZERO_RESIDUAL_ARCHS
         names = [o.name for o in self.session.get_outputs()]
-        if sorted(names) != sorted(OUTPUT_NAMES) or [i.name for i in self.session.get_inputs()] != [INPUT_NAME]:
-            raise ValueError(f"{where}: graph must map {INPUT_NAME!r} to {list(OUTPUT_NAMES)}, "
+        self.outputs = output_names(DEPTH_OUTPUT in names)  # + depth: a model with the depth head (issue 45)
+        if sorted(names) != sorted(self.outputs) or [i.name for i in self.session.get_inputs()] != [INPUT_NAME]:
+            raise ValueError(f"{where}: graph must map {INPUT_NAME!r} to {list(OUTPUT_NAMES)} (and {DEPTH_OUTPUT!r}), "
                              f"has {[i.name for i in self.session.get_inputs()]} -> {names}")
 
     def output_channels(self, name: str):
@@ -117,14 +119,15 @@ class ModelSession:
         raise KeyError(name)
 
     residual_is_zero = False  # set from the metadata (__init__)
+    outputs = OUTPUT_NAMES  # the graph's outputs in order (__init__: with depth when it has the head)
     run_options = None  # onnxruntime RunOptions every run uses (cancellable: relight.models.session.cancellable)
 
     def run(self, net_input: np.ndarray, run_options=None) -> dict[str, np.ndarray]:
         """Run the graph on [B, 3, H, W] float32 (H, W multiples of size_multiple), with
         `run_options` or else the session's own (`cancellable`)."""
         feed = {INPUT_NAME: np.ascontiguousarray(net_input, np.float32)}
-        values = self.session.run(list(OUTPUT_NAMES), feed, run_options or self.run_options)
-        return dict(zip(OUTPUT_NAMES, values))
+        values = self.session.run(list(self.outputs), feed, run_options or self.run_options)
+        return dict(zip(self.outputs, values))
 
 
 @contextlib.contextmanager

@@ -86,6 +86,7 @@ class Decomposition:
     person_matte: object = field(default=None, repr=False)  # relight.person.matte.PersonMatte when it gave the mask
     network_alpha: np.ndarray | None = field(default=None, repr=False)  # the alpha head's [h, w], as it came
     choices: dict = field(default_factory=dict)  # what the runtime decided for this photo (output metadata)
+    depth: np.ndarray | None = field(default=None, repr=False)  # the depth head's [h, w] (issue 45), or None
 
     def __post_init__(self):
         self.box = Box(*self.box)
@@ -111,7 +112,7 @@ class Decomposition:
         self._alpha_prepared = None
         self._smooth_prepared = None  # relight.network.foreground's smooth colours, prepared on demand
         self._exposed_last: tuple | None = None  # (light, exposure, exposed): _exposed's last answer
-        self.shadows = ShadowCaster(self.transport, self.alpha, self._matte)
+        self.shadows = ShadowCaster(self.transport, self.alpha, self._matte, self.depth)
         self._gather()
 
     def _gather(self) -> None:
@@ -146,7 +147,7 @@ class Decomposition:
         new.transport, new.light = transport, light
         new.albedo = consistent_albedo(self, transport, light, *(() if reliable is None else (reliable,)))
         if transport is not self.transport:
-            new.shadows = ShadowCaster(transport, self.alpha, self._matte)
+            new.shadows = ShadowCaster(transport, self.alpha, self._matte, self.depth)
         new.choices = dict(self.choices)
         new.last_stats = None
         new._gather()

@@ -234,7 +234,8 @@ class Relighter(ModelSession):
             light=np.asarray(out["light"], np.float32),
             alpha=np.ascontiguousarray(alpha, dtype=np.float32), box=box, working_size=(h, w),
             photo=photo, photo_working=crop, mask=mask, sh_order=self.sh_order, person_matte=found,
-            network_alpha=np.ascontiguousarray(out["alpha"][..., 0]))
+            network_alpha=np.ascontiguousarray(out["alpha"][..., 0]),
+            depth=np.ascontiguousarray(out["depth"][..., 0]) if "depth" in out else None)  # the depth head's
         choices = {"working_size": size, "network_input": [h, w], "person_px": max(y1 - y0, x1 - x0),
                    "matte": "mask" if found is None and mask is not None else
                    (f"person ({matte_method})" if found is not None else "network")}

@@ -2,7 +2,9 @@
 
 SH shading cannot cast a shadow: the light's directional part (relight.lighting.directional) is
 split off and its shading dimmed by the share of the lamp each pixel sees past the rest of the
-person (relight.geometry.shadows over the relief of relight.geometry.relief):
+person (relight.geometry.shadows over the network's depth when the model has the depth head, scaled
+to its normals' slopes by relight.geometry.relief.scaled_to_normals; else over the relief integrated
+from the normals, relight.geometry.relief.depth_from_normals):
 
     shading' = T . L' - (1 - V') max(T . K', 0)        K' the key's SH, V' its visibility
 
@@ -19,7 +21,7 @@ import math
 
 import numpy as np
 
-from relight.geometry.relief import depth_from_normals, normals_from_transport
+from relight.geometry.relief import depth_from_normals, normals_from_transport, scaled_to_normals
 from relight.geometry.shadows import cast_visibility
 from relight.lighting import sh
 from relight.lighting.directional import directional_part
@@ -40,19 +42,30 @@ class ShadowCaster:
     """A decomposition's cast shadows: its relief (made on first use) and visibilities per key.
 
     transport [h, w, n], alpha [h, w] at working resolution; `matte` the flat indices of the pixels
-    the relighting formula evaluates (Decomposition's)."""
+    the relighting formula evaluates (Decomposition's); `network_depth` [h, w] the depth head's
+    output (None: the model has none)."""
 
-    def __init__(self, transport: np.ndarray, alpha: np.ndarray, matte: np.ndarray):
+    def __init__(self, transport: np.ndarray, alpha: np.ndarray, matte: np.ndarray,
+                 network_depth: np.ndarray | None = None):
         self.transport, self.alpha, self.matte = transport, alpha, matte
+        self.network_depth = network_depth
         self._depth = None
+        self.depth_source = None  # "network" or "relief", once the depth is made
         self._visibility: dict = {}
 
     @property
     def depth(self) -> np.ndarray:
-        """The relief [h, w] (working pixels along +Y) of the person's normals (relight.geometry.relief)."""
+        """The depth [h, w] (working pixels along +Y) the shadows are cast over: the network's, scaled
+        to its normals' slopes, when it has one that fits them; else the relief integrated from the
+        normals (relight.geometry.relief)."""
         if self._depth is None:
             inside = self.alpha > 0
-            self._depth = depth_from_normals(normals_from_transport(self.transport), inside)
+            normals = normals_from_transport(self.transport)
+            depth = None
+            if self.network_depth is not None:
+                depth = scaled_to_normals(self.network_depth, normals, inside)
+            self.depth_source = "relief" if depth is None else "network"
+            self._depth = depth_from_normals(normals, inside) if depth is None else depth
             self._depth.setflags(write=False)
         return self._depth
 
