@@ -74,6 +74,23 @@ class LocalExecutor:
         worker.kill() if kill else worker.retire()
         self.retiring.append(worker)
 
+    def _reap(self, worker: _Worker) -> None:
+        """A dropped worker that closed its output: wait for it, delete its temp folder and close
+        its pipes now, so a long run keeps no exited processes, pipes or scratch of past workers
+        (one per `recycle` scenes) until it ends. One still running stays for the shutdown."""
+        try:
+            worker.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            return
+        worker.remove_tmp()
+        for stream in (worker.proc.stdin, worker.proc.stdout):
+            try:
+                stream.close()
+            except OSError:
+                pass
+        if worker in self.retiring:
+            self.retiring.remove(worker)
+
     def _busy(self) -> int:
         return sum(1 for w in self.slots if w is not None and w.task is not None)
 
@@ -122,7 +139,8 @@ class LocalExecutor:
 
     def _on_exit(self, worker: _Worker) -> None:
         if self.slots[worker.slot] is not worker:
-            return  # already retired or killed on purpose
+            self._reap(worker)  # retired or killed on purpose: its exit was expected
+            return
         self.slots[worker.slot] = None
         self.retiring.append(worker)
         how = worker.exit_description()

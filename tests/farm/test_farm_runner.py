@@ -131,12 +131,13 @@ def test_options_reach_scene_options_one_to_one():
                              "--samples", "8", "--no-denoise", "--order", "2", "--directions", "64",
                              "--passes", "prt", "--specular", "off", "--light-pool", "heldout",
                              "--denoise-prefilter", "accurate", "--framing", "face,waist-up", "--hard-lights", "0.25",
-                             "--people", "2-4"])
+                             "--people", "2-4", "--look-pool", "heldout"])
     assert config.scene.to_json() == {
         "resolution": 64, "lights": 2, "samples": 8, "denoise": False, "denoise_prefilter": "accurate",
         "sh_order": 2,
         "bake_directions": 64, "passes": ["prt"], "specular": "off", "light_pool": "heldout",
-        "framing": "face,waist-up", "hard_lights": 0.25, "people": "2-4"}
+        "framing": "face,waist-up", "hard_lights": 0.25, "people": "2-4",
+        "look_pool": "heldout"}
     assert list(config.indices) == [0, 1, 2]
     # The real SceneOptions accepts exactly these fields, and they survive the JSON trip.
     from farm import scene
@@ -145,8 +146,9 @@ def test_options_reach_scene_options_one_to_one():
     options.validate()
     assert (options.resolution, options.lights, options.samples, options.denoise, options.denoise_prefilter,
             options.sh_order, options.bake_directions, options.passes, options.specular, options.light_pool,
-            options.framing, options.hard_lights, options.people) == (
-        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout", "face,waist-up", 0.25, "2-4")
+            options.framing, options.hard_lights, options.people, options.look_pool) == (
+        64, 2, 8, False, "accurate", 2, 64, frozenset({"prt"}), "off", "heldout", "face,waist-up", 0.25, "2-4",
+        "heldout")
     assert set(config.scene.to_json()) == {f.name for f in dataclasses.fields(scene.SceneOptions)}
     # Raw float32 channels of a 64x64 prt-only scene: 12 geometry (the head mask included) + 9
     # transport + 2*3*2 per light + a mask for each of up to 4 people.
@@ -239,6 +241,23 @@ def test_workers_are_recycled_every_m_scenes(tmp_path):
     assert pids[0] == pids[1] != pids[2] == pids[3] != pids[4] and len(set(pids)) == 3
     run = run_log(out)["runs"][-1]
     assert run["workers_started"] == 3 and run["worker_notes"] == []
+
+
+def test_retired_workers_are_reaped_while_the_run_goes_on(tmp_path):
+    """A worker retired after `recycle` scenes is waited for when it exits, not at the end of the
+    run: a long campaign (one worker per 100 scenes) kept every past worker as a zombie, with its
+    pipes and its temp folder, until it ended."""
+    out = tmp_path / "out"
+    r = subprocess.run([PYTHON, "-m", "farm", "--out", str(out), "--scenes", "6", "--seed", "0",
+                        "--recycle", "1", "--lights", "1", "--job-module", FAULT_JOB, "--no-progress"],
+                       env=farm_env(tmp_path), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    unreaped = {i: n for e, i, n in events(tmp_path) if e == "unreaped"}
+    assert sorted(unreaped) == list(range(6))
+    # the worker retired just before may not have been waited for yet; none older
+    assert max(unreaped.values()) <= 1, unreaped
+    folders = {line.split()[1] for line in (tmp_path / "tmpdirs.log").read_text().splitlines()}
+    assert len(folders) == 6 and not any(Path(f).exists() for f in folders)
 
 
 def test_killed_worker_is_detected_and_scene_retried(tmp_path):

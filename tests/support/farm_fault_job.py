@@ -2,6 +2,7 @@
 
 Faults come from the environment, which workers inherit:
   FARM_FAULT_DIR   folder for the event log (one line per event: "start INDEX PID",
+                   "unreaped INDEX N" (the farm's exited workers not yet waited for),
                    "end INDEX PID"), tmpdirs.log ("PID TEMPDIR": every scene leaves a
                    scratch file in its temp folder) and once-only markers
   FARM_FAULTS      JSON {index: fault}; faults: "crash-once" (SIGKILL itself on the first
@@ -79,8 +80,22 @@ def _scratch(index: int) -> None:
         f.write(f"{os.getpid()} {folder}\n")
 
 
+def _exited_siblings() -> int:
+    """The farm's children that have exited but were not waited for (zombies), this one aside."""
+    count = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        count += fields[0] == "Z" and int(fields[1]) == os.getppid()
+    return count
+
+
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
     _log("start", index)
+    with open(Path(os.environ["FARM_FAULT_DIR"]) / "events.log", "a") as f:
+        f.write(f"unreaped {index} {_exited_siblings()}\n")
     _scratch(index)
     fault = json.loads(os.environ.get("FARM_FAULTS", "{}")).get(str(index))
     if fault == "crash-once" and _first_time(f"crash-{index}"):
