@@ -37,8 +37,8 @@ def _key(direction, half_angle_deg=2.0):
 
 def test_scaled_to_normals_recovers_the_scale_of_an_affine_copy():
     """The depth as a network gives it (any positive scale, any offset) comes back at the normals'
-    scale: the fit's factor is set by the pixels where the slopes are gentle (the plane and the
-    bump's top), where a central slope and a neighbour difference of a sphere agree to O(1/R^2)."""
+    scale: the fit's factor is the median ratio over the bump's neighbours sloping 0.3 to 2 (the plane
+    does not slope), where a mean slope and a neighbour difference of a sphere agree to O(1/R^2)."""
     truth, normals = _bump()
     inside = np.ones((H, W), bool)
     for a, b in ((0.013, 2.5), (40.0, -7.0)):
