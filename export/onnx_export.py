@@ -86,7 +86,7 @@ def build_metadata(net, training_data: str = DEFAULT_TRAINING_DATA, precision: s
         metadata["relight.input_spec"] = json.dumps(input_spec, sort_keys=True)
         metadata[DEPTH_METADATA_KEY] = json.dumps({
             "output": "depth", "axis": "camera +Y (larger is farther)", "offset": "the alpha-weighted mean is 0",
-            "scale": "arbitrary: trained scale-and-shift-invariant (model.training.depth_loss); the runtime "
+            "scale": "arbitrary: trained scale-and-shift-invariant (model.networks.depth_loss); the runtime "
                      "scales it to the normals' slopes (relight.geometry.relief.scaled_to_normals)"},
             sort_keys=True)
     return metadata

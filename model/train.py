@@ -168,7 +168,7 @@ def parse_args(argv=None, check_pack: bool = True):
     # with these (model.campaign.settle_settings), and an absent key reads as None
     p.add_argument("--depth-head", action="store_true", default=None,
                    help="geometry-first model: a depth output trained from the farm's depth pass "
-                        "(scale-and-shift-invariant; model.training.depth_loss)")
+                        "(scale-and-shift-invariant; model.networks.depth_loss)")
     p.add_argument("--loss-weight", action="append", metavar="NAME=VALUE")
     p.add_argument("--no-residual", action="store_true", help="ablation: without E")
     p.add_argument("--no-decomposition", action="store_true", help="ablation: without PRT +/- decomposition")

@@ -202,7 +202,7 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     reconstruction: the same under the fitted light against the input image; light_fit: L1
     of the fitted light's bands 0-2 against the true input light's, in units of the true
     DC's luminance (the fit's answer itself, which relighting divides by; off by default);
-    depth (models with the depth head): model.training.depth_loss.ssi_depth_loss of the depth
+    depth (models with the depth head): model.networks.depth_loss.ssi_depth_loss of the depth
     against the farm's depth pass, over the person's interior pixels.
     """
     w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
@@ -236,7 +236,7 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
         if "depth" not in batch:
             raise ValueError("the model has a depth head but the batch carries no depth (scenes need the "
                              "farm's depth pass; a pack made before issue 45's depth must be made again)")
-        from model.training.depth_loss import ssi_depth_loss
+        from model.networks.depth_loss import ssi_depth_loss
 
         terms["depth"] = ssi_depth_loss(pred["depth"], batch["depth"], interior * (batch["depth"] > 0))
     terms["total"] = sum(w[k] * v for k, v in terms.items())

@@ -11,7 +11,7 @@ from model.samples.data_crops import load_cropped
 from model.samples.synthetic import write_analytic_dataset
 from model.samples.training_pack import read_training_pack, write_training_pack
 from model.training.checkpoint import init_weights
-from model.training.depth_loss import EPS, ssi_depth_loss
+from model.networks.depth_loss import EPS, ssi_depth_loss
 from relight.lighting import presets
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
