@@ -82,12 +82,7 @@ class LocalExecutor:
             worker.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             return
-        worker.remove_tmp()
-        for stream in (worker.proc.stdin, worker.proc.stdout):
-            try:
-                stream.close()
-            except OSError:
-                pass
+        worker.release()
         if worker in self.retiring:
             self.retiring.remove(worker)
 
@@ -255,12 +250,7 @@ class LocalExecutor:
             except subprocess.TimeoutExpired:
                 worker.kill()
                 worker.proc.wait()
-            worker.remove_tmp()
-            for stream in (worker.proc.stdin, worker.proc.stdout):
-                try:
-                    stream.close()
-                except OSError:
-                    pass
+            worker.release()
 
 
 class _StopRequest:

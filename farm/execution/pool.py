@@ -150,6 +150,15 @@ class _Worker:
         """Delete the worker's temp folder (only once the process is gone)."""
         shutil.rmtree(self.tmp, ignore_errors=True)
 
+    def release(self) -> None:
+        """Once the process is gone: delete its temp folder and close its pipes."""
+        self.remove_tmp()
+        for stream in (self.proc.stdin, self.proc.stdout):
+            try:
+                stream.close()
+            except OSError:
+                pass
+
     def exit_description(self) -> str:
         try:
             code = self.proc.wait(timeout=10)
