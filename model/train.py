@@ -209,7 +209,7 @@ def parse_args(argv=None, check_pack: bool = True):
     if args.init and args.resume:
         p.error("--init and --resume exclude each other")
     if args.depth_head and args.preset not in GEOMETRY_PRESETS:
-        p.error("--depth-head needs a geometry-first preset (--preset geo-small or geo-default)")
+        p.error("--depth-head needs a geometry-first preset (--preset geo-small, geo-default or geo-large)")
     if not (args.lr > 0 and math.isfinite(args.lr)):
         p.error("--lr must be a positive number")
     return args

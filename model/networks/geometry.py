@@ -45,6 +45,7 @@ BODY_CHANNELS = 4  # the body prior's input channels: unit normal and coverage (
 GEOMETRY_PRESETS = {
     "geo-small": {"width": 8, "depth": 4, "decoder_width": 6},
     "geo-default": {"width": 12, "depth": 4, "decoder_width": 8},
+    "geo-large": {"width": 20, "depth": 4, "decoder_width": 12},  # issue 45's width curve: Best's candidate
 }
 
 

@@ -42,7 +42,7 @@ from model.samples.data_augment import (
     MIRROR_X, mirror_signs, random_background, random_light_tint, random_mixed_light, random_reference_light,
 )
 from model.samples.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
-from model.samples.data_splits import held_out_light_names, is_held_out, scene_map_lights
+from model.samples.data_splits import held_out_light_names, is_held_out, scene_map_lights, side_sun_pairs
 from model.networks.geometry import BODY_CHANNELS
 from relight.lighting import sh as sh_np
 from relight.files.dataset import read_sidecar, traced_lights
@@ -256,12 +256,14 @@ class EvaluationPairs(torch.utils.data.Dataset):
 
     Input: image under a over its rendered background, masked by the GT alpha;
     target: the path-traced image of the same scene under b. With
-    `held_out_only`, b is restricted to held-out lights when the scene has any.
+    `held_out_only`, b is restricted to held-out lights when the scene has any. With `side_sun`,
+    only a map -> a hard side sun (model.samples.data_splits.side_sun_pairs; issue 45), and scenes
+    without such a pair give none.
     """
 
     def __init__(self, json_paths: list[Path], size: int, order: int, *, padding: int = DEFAULT_PADDING,
                  held_out_only: bool = False, held_out: frozenset[str] | None = None, max_pairs_per_scene: int = 4,
-                 body_prior: bool = False, depth: bool = False):
+                 body_prior: bool = False, depth: bool = False, side_sun: bool = False):
         self.size, self.order, self.body_prior, self.depth = size, order, bool(body_prior), bool(depth)
         self.held_out = held_out_light_names() if held_out is None else held_out
         self.load = functools.partial(load_cropped, size=size, order=order, padding=padding,
@@ -278,9 +280,12 @@ class EvaluationPairs(torch.utils.data.Dataset):
                 held = [k for k in traced if is_held_out(meta["lights"][k], self.held_out)]
                 targets = held or traced
             pairs = [(s, a, b) for b in targets for a in traced if a != b]
+            if side_sun:
+                pairs = [(s, a, b) for a, b in side_sun_pairs(meta) if a in traced and b in traced]
             self.pairs += pairs[:max_pairs_per_scene]
         if not self.pairs:
-            raise ValueError("no evaluation pairs: scenes need at least two path-traced lights")
+            raise ValueError("no evaluation pairs: scenes need at least two path-traced lights"
+                             + (" and a map with a hard side sun" if side_sun else ""))
         self._cache = SceneCache(self.paths, self.load, capacity=8)
 
     @classmethod

@@ -99,3 +99,28 @@ def first_maps(names, count: int, seed: int = 0) -> frozenset[str]:
         raise ValueError(f"{count} maps asked for; the training data has {len(names)}")
     rank = lambda n: hashlib.sha256(f"{seed}:{n}".encode()).digest()
     return frozenset(sorted(names, key=rank)[:count])
+
+
+# issue 45: a hard sun this far off the camera's axis (degrees) lights the person from the side
+SIDE_SUN_DEG = (40.0, 140.0)
+
+
+def sun_off_axis_deg(light: dict) -> float | None:
+    """How far a hard sun is from the camera's axis (degrees between its camera-frame direction and
+    the direction toward the camera, -Y); None for any other light."""
+    import numpy as np
+
+    hard = light.get("hard")
+    if not hard or hard.get("kind") != "sun":
+        return None
+    toward = -float(np.asarray(hard["lobes"][0]["direction_camera"], np.float64)[1])
+    return float(np.degrees(np.arccos(np.clip(toward, -1.0, 1.0))))
+
+
+def side_sun_pairs(meta: dict, side_deg: tuple[float, float] = SIDE_SUN_DEG) -> list[tuple[int, int]]:
+    """(a, b) light indices of a scene's sidecar: a an HDR map (no hard light), b a sun `side_deg`
+    off the camera axis: a photo under a map relit to a hard side sun."""
+    lights = meta["lights"]
+    suns = [b for b, light in enumerate(lights)
+            if (angle := sun_off_axis_deg(light)) is not None and side_deg[0] <= angle <= side_deg[1]]
+    return [(a, b) for b in suns for a, light in enumerate(lights) if a != b and not light.get("hard")]

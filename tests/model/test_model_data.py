@@ -325,3 +325,27 @@ def test_body_prior_channels_follow_the_scene_and_mirror(tmp_path):
     no_body = write_analytic_dataset(tmp_path / "n", n_scenes=1, size=32, order=2, lights=("studio", "city"))
     with pytest.raises(ValueError, match="has no body pass"):
         data.TrainingScenes(no_body, 32, 2, **kw).item(0, 0)
+
+
+def _sun(deg: float) -> dict:
+    """A hard sun `deg` off the camera's axis (the camera looks along +Y: -Y is toward it)."""
+    t = np.radians(deg)
+    return {"hard": {"kind": "sun", "lobes": [{"direction_camera": [float(np.sin(t)), -float(np.cos(t)), 0.0]}]}}
+
+
+def test_side_sun_pairs_are_a_map_then_a_sun_off_the_axis():
+    lamp = {"hard": {"kind": "lamp", "lobes": [{"direction_camera": [1.0, 0.0, 0.0]}]}}
+    lights = [{"map": "a"}, _sun(90), _sun(10), _sun(165), lamp, {"map": "b"}, _sun(41), _sun(139),
+              _sun(39), _sun(141)]
+    assert data_splits.sun_off_axis_deg(_sun(90)) == pytest.approx(90.0, abs=1e-9)
+    assert data_splits.sun_off_axis_deg(lamp) is None and data_splits.sun_off_axis_deg({"map": "a"}) is None
+    # a photo under a map (0, 5), relit to a sun 40-140 degrees off the axis (1, 6, 7); never sun -> sun
+    assert data_splits.side_sun_pairs({"lights": lights}) == [(0, 1), (5, 1), (0, 6), (5, 6), (0, 7), (5, 7)]
+    assert data_splits.side_sun_pairs({"lights": lights}, side_deg=(0.0, 20.0)) == [(0, 2), (5, 2)]
+
+
+def test_side_sun_evaluation_pairs_need_a_map_and_a_side_sun(scenes):
+    # the analytic scenes are lit by maps only: no pair, and the message says what was missing
+    with pytest.raises(ValueError, match="hard side sun"):
+        data.EvaluationPairs(scenes[:2], 32, 4, padding=2, held_out=HELD_OUT, side_sun=True)
+    assert len(data.EvaluationPairs(scenes[:2], 32, 4, padding=2, held_out=HELD_OUT)) > 0

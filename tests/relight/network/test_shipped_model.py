@@ -63,6 +63,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from model.samples.data_splits import side_sun_pairs, sun_off_axis_deg
+
 ROOT = Path(__file__).resolve().parents[3]
 
 # The scenes: deterministic for a seed and index (same bodies, poses, lights, samples).
@@ -72,7 +74,7 @@ CLOSE_FRAMING, CLOSE_SEED, CLOSE_SCENES = "head-and-shoulders", 20251, 3
 # issue 45: head-and-shoulders photos under an HDR map relit to a hard sun 40-140 degrees off the camera
 # axis; the first SUN_SCENES indices of SUN_SEED whose two lights (half of them hard) are such a map and
 # such a sun, as the farm draws them (farm.scene.sample_scene: `main --find-sun-scenes` lists them again)
-SUN_SEED, SUN_HARD, SUN_SIDE_DEG = 20252, 0.5, (40.0, 140.0)
+SUN_SEED, SUN_HARD = 20252, 0.5  # the side: model.samples.data_splits.SIDE_SUN_DEG
 SUN_INDICES = (2, 39, 40, 42, 64, 68, 72, 91)
 CONFIDENCE = 0.95         # one-sided, over scenes (module docstring)
 BASELINES = ("identity", "exposure-matched")
@@ -268,24 +270,6 @@ def true_relight_pair(scene, a, b):
         alpha=scene.alpha[..., 0], box=(0, h, 0, w), working_size=(h, w), photo=scene.images[a],
         photo_working=scene.images[a], mask=scene.alpha[..., 0], sh_order=ORDER)
     return gt.relight(scene.lights[b]["sh"][:n])
-
-
-def sun_off_axis_deg(light: dict) -> float | None:
-    """How far a hard sun is from the camera's axis (degrees between its camera-frame direction and
-    the direction toward the camera, -Y); None for any other light."""
-    hard = light.get("hard")
-    if not hard or hard.get("kind") != "sun":
-        return None
-    toward = -float(np.asarray(hard["lobes"][0]["direction_camera"], np.float64)[1])
-    return float(np.degrees(np.arccos(np.clip(toward, -1.0, 1.0))))
-
-
-def side_sun_pairs(meta: dict) -> list[tuple[int, int]]:
-    """(a, b) of a scene: a an HDR map (no hard light), b a sun SUN_SIDE_DEG off the camera axis."""
-    lights = meta["lights"]
-    suns = [b for b, light in enumerate(lights)
-            if (angle := sun_off_axis_deg(light)) is not None and SUN_SIDE_DEG[0] <= angle <= SUN_SIDE_DEG[1]]
-    return [(a, b) for b in suns for a, light in enumerate(lights) if a != b and not light.get("hard")]
 
 
 def light_responses(relight_pair, scene_paths: list[Path]) -> list[dict]:
