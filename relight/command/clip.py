@@ -23,7 +23,8 @@ not change within a shot is held or smoothed over its frames:
   held state belongs to) holds more: the matte where the picture is still, the maps and the
   light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
   x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
-  keeps the previous grid (_on_held_grid). A still shot with sensor noise relit frame by frame
+  keeps the previous grid (_on_held_grid); a frame whose held matte reaches past its own crop
+  (the segmenter found only part of the person) is decomposed again around it (_on_matte). A still shot with sensor noise relit frame by frame
   moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
   (docs/video.md, "A still shot").
 
@@ -337,7 +338,7 @@ class ClipRelighter:
             if analysis.smooth_matte:
                 mattes = _shared([t.matte.update(d.mask, b, self.stillness.at)
                                   for d, (_, b, _), t in zip(ds, people, tracks)], boxes)
-                ds = [_with_mask(d, m) for d, m in zip(ds, mattes)]
+                ds = [self._on_matte(d, m, analysis.frame) for d, m in zip(ds, mattes)]
             # the light is the whole shot's: held only as far as everyone is still
             shot_light = self.shot_light.update(estimate, min(stills))
             # the network's answer at a pixel depends on the whole crop: its maps are held where the
@@ -381,6 +382,17 @@ class ClipRelighter:
             return still_weight(self.stillness.share(d.mask))
         grid = self.stillness.on_grid(d.box, d.working_size)  # the network's matte: on its grid
         return still_weight(float((grid * d.alpha).sum() / max(float(d.alpha.sum()), 1e-6)))
+
+    def _on_matte(self, d: Decomposition, matte: np.ndarray, frame: np.ndarray) -> Decomposition:
+        """`d` with the smoothed `matte`; decomposed again, cropped around that matte, when it reaches
+        past d's crop: a frame whose segmenter found only part of a person the held matte still has
+        (a crop holds only what its own matte found, so the rest could not be relit)."""
+        held = Box.around(matte, 0.5)
+        y0, y1, x0, x1 = d.box
+        if held is None or (held[0] >= y0 and held[1] <= y1 and held[2] >= x0 and held[3] <= x1):
+            return _with_mask(d, matte)
+        return self.relighter.decompose(frame, matte, self.working_size, matte=self.matte, person=self.person,
+                                        matte_method=self.matte_method, augment=self.augment)
 
     def _on_held_grid(self, d: Decomposition, matte_box, smoother: MapSmoother) -> Decomposition:
         """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter

@@ -12,7 +12,9 @@ import pytest
 from clip_support import background, person_clip, two_shots
 from relight.network import quality
 from relight.command.clip import LIGHT_WINDOW, ClipRelighter, CutDetector
-from relight.command.clip_maps import MATTE_AGREE_SCALE, MapSmoother, MatteSmoother, Stillness, history_weight
+from relight.command.clip_maps import (
+    MATTE_AGREE_SCALE, MATTE_AREA_AGREE, MapSmoother, MatteSmoother, Stillness, history_weight,
+)
 from relight.lighting.light import sh_light
 from relight.network.runtime import Relighter
 
@@ -259,6 +261,34 @@ def test_matte_smoother_damps_jitter_and_keeps_exact_background():
     # a real change (0.5 -> 1): k = history exp(-4) < 0.015, the matte moves almost all the way at once
     moved = smoother.update(np.where(frames[-1] > 0, np.float32(1.0), np.float32(0.0)))
     assert moved[4, 4] > 0.99
+
+
+def test_matte_smoother_holds_a_lost_person_and_takes_a_found_one_where_the_picture_is_still():
+    """Issue 45: a segmenter that finds part of a person in one frame: in a still picture the person
+    is still there, so the lost part is held; a matte that grows by more than MATTE_AREA_AGREE found
+    what was missed before, and is taken at once."""
+    history, hold = history_weight(9.0), 0.99
+    still = lambda rows, cols: np.ones(len(rows), np.float32)  # the picture is still everywhere
+    full = np.zeros((20, 20), np.float32)
+    full[2:18, 4:16] = 1.0
+    part = np.where(np.arange(20)[:, None] < 10, full, np.float32(0.0))  # the top half: 50 % less
+    smoother = MatteSmoother(history, hold)
+    smoother.update(full, still=still)
+    lost = smoother.update(part, still=still)
+    assert np.all(lost[10:18, 4:16] >= hold - 1e-6) and np.array_equal(lost[2:10], part[2:10])
+    smoother = MatteSmoother(history, hold)
+    smoother.update(part, still=still)
+    found = smoother.update(full, still=still)
+    # k = history exp(-(1 / MATTE_AGREE_SCALE)^2) where the matte changed by 1: the current matte at once
+    assert np.all(found[10:18, 4:16] >= 1.0 - history * np.exp(-(1.0 / MATTE_AGREE_SCALE) ** 2) - 1e-6)
+    # growth within MATTE_AREA_AGREE is the segmenter's edge jitter: held where the picture is still
+    grown = full.copy()
+    grown[18, 4:16] = 1.0  # one more row: 12 of 192 pixels, 6 % < MATTE_AREA_AGREE
+    assert 12 / 204 < MATTE_AREA_AGREE
+    smoother = MatteSmoother(history, hold)
+    smoother.update(full, still=still)
+    jitter = smoother.update(grown, still=still)
+    assert np.all(jitter[18, 4:16] <= 1.0 - hold + 1e-6)
 
 
 @pytest.fixture(scope="module")

@@ -41,18 +41,21 @@ def test_flicker_and_jitter_measure_change_relative_to_the_clip():
     assert jitter(blink, alpha) == pytest.approx(0.1 / 0.6)
 
 
-def test_the_stabilised_clip_flickers_a_third_as_much_at_the_same_accuracy(clip):
-    # 96 px, where this clip's per-frame decompositions flicker (the stabiliser's job): measured with
-    # the level prior, per-frame +18.4% of the image and 21.82 dB, stabilised +4.5% and 22.30 dB. At
-    # 112 px (Draft's size for a day) the frames hardly flicker (+2.1%, 26.63 dB) and stabilising
-    # costs 0.32 dB (0.35 without the prior): docs/video.md
-    relighter = Relighter(quality.model_path("draft"), threads=1, working_size=96)
+@pytest.mark.parametrize("working_size", [96, 128])
+def test_the_stabilised_clip_flickers_a_third_as_much_at_the_same_accuracy(clip, working_size):
+    # 96 px, where this clip's per-frame decompositions flicker (the stabiliser's job), and 128 px,
+    # Balanced's size. The person segmenter finds only 550 of the person's ~1,400 pixels in 4 of the 12
+    # frames: held into the other frames, or a frame cropped around its partial matte, the
+    # stabilised clip lost 1.7-2.4 dB against the frames relit one by one (issue 45). Measured with
+    # the release of 2026-11-28: per-frame +20.1% / +19.0% of the image, 25.13 / 25.45 dB; stabilised
+    # +4.4% / +3.6%, 26.32 / 26.50 dB (docs/video.md)
+    relighter = Relighter(quality.model_path("draft"), threads=1, working_size=working_size)
     per_frame = evaluate_clip(clip, relight_clip(clip, relighter, 0.0, "ema", "person")[0])
     stable = evaluate_clip(clip, relight_clip(clip, relighter, 0.5, "ema", "person")[0])
     assert per_frame["flicker_excess"] > 0.02
     assert stable["flicker_excess"] <= per_frame["flicker_excess"] / 3
     assert stable["jitter_excess"] <= per_frame["jitter_excess"] / 3
-    # the issue's accuracy goal: within 0.3 dB of the stills (measured: +0.5 dB)
+    # the issue's accuracy goal: within 0.3 dB of the stills (measured: +1.2 / +1.1 dB)
     assert stable["psnr"] >= per_frame["psnr"] - 0.3
 
 

@@ -31,21 +31,22 @@ What it guarantees (one-sided 95 %):
   the true one (model.scoring.metrics.light_response: the per-scene slope and correlation of the
   relit log-luminance change against the truth's, each bounded above 0, which is the untouched
   photo's and any exposure change's), and the relit photo is better than the untouched one.
-  Measured (geometry.onnx sha256 caa9df63d60f): slope 0.30 +- 0.14 (bound +0.21), correlation
-  0.37 +- 0.14 (bound +0.28), relit 26.07 dB, +9.65 +- 5.97 over identity (bound +5.65); not
-  claimed over exposure-matched (+2.24 +- 5.02, bound -1.13). The true decomposition: slope 0.77,
-  correlation 0.58; a random-weight network fails on the slope (bound -0.15).
+  Measured (geometry.onnx sha256 b25ddc831627, the release of 2026-11-28): slope 0.31 +- 0.18
+  (bound +0.19), correlation 0.41 +- 0.16 (bound +0.30), relit 26.65 dB, +10.22 +- 5.39 over identity
+  (bound +6.61); not claimed over exposure-matched (+2.81 +- 4.22, bound -0.01). The model before
+  (caa9df63d60f): 0.30 / 0.37, 26.07 dB. The true decomposition: slope 0.77, correlation 0.58; a
+  random-weight network fails on the slope (bound -0.15).
 What it does not claim: that the model relights head-and-shoulders better than identity or an
-exposure change. Measured (issue 48, geometry.onnx sha256 caa9df63d60f, Balanced, 8 scenes of
-seed 20251, 16 pairs): relit 23.32 dB, identity 22.27, exposure-matched 24.11; per scene
-+1.05 +- 4.97 dB over identity (bound -2.27) and -0.79 +- 3.29 over exposure-matched (bound
--2.99): worse than an exposure change, and within its spread of identity (a map against itself
-turned 60 degrees scores 33.4 dB as it is). On the guard's 3 of them: +2.23 / -1.09 dB.
-Full-body, 8 scenes of seed 20250: relit 20.76, identity 17.42, exposure-matched 18.43; per
-scene +3.34 +- 2.49 (bound +1.68) and +2.33 +- 2.72 (bound +0.50); on the first 3 scenes alone
-the exposure-matched bound is -1.25 dB, hence 8. Normals, per scene, the flat person's error
-less the model's: full-body +15.9 +- 1.9 deg (8 scenes; model 19.0, flat 34.8), head-and-shoulders
-+15.6 +- 4.5 (3 scenes, bound +8.1; model 18.6, flat 34.2).
+exposure change. Measured (geometry.onnx sha256 b25ddc831627, Balanced, 8 scenes of seed 20251,
+16 pairs): relit 23.21 dB, identity 22.27, exposure-matched 24.11; per scene +0.93 +- 5.10 dB over
+identity (bound -2.48) and -0.91 +- 4.08 over exposure-matched (bound -3.64): worse than an
+exposure change, and within its spread of identity (a map against itself turned 60 degrees scores
+33.4 dB as it is); the model before: 23.32 dB. On the guard's 3 of them: +1.57 / -1.76 dB.
+Full-body, 8 scenes of seed 20250: relit 21.02 (before 20.76), identity 17.42, exposure-matched
+18.43; per scene +3.61 +- 2.24 (bound +2.10) and +2.59 +- 2.74 (bound +0.75); on the first 3
+scenes alone the exposure-matched bound is negative, hence 8. Normals, per scene, the flat
+person's error less the model's: full-body +15.7 +- 1.3 deg (8 scenes, bound +14.8; model 19.2,
+flat 34.8), head-and-shoulders +19.2 +- 4.7 (3 scenes, bound +11.2; model 15.0, flat 34.2).
 
 No registered default model: the guard FAILS. To measure (prints the per-pair table, the
 per-scene differences and their bounds):
