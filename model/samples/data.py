@@ -279,9 +279,10 @@ class EvaluationPairs(torch.utils.data.Dataset):
             if held_out_only:
                 held = [k for k in traced if is_held_out(meta["lights"][k], self.held_out)]
                 targets = held or traced
-            pairs = [(s, a, b) for b in targets for a in traced if a != b]
             if side_sun:
                 pairs = [(s, a, b) for a, b in side_sun_pairs(meta) if a in traced and b in traced]
+            else:
+                pairs = [(s, a, b) for b in targets for a in traced if a != b]
             self.pairs += pairs[:max_pairs_per_scene]
         if not self.pairs:
             raise ValueError("no evaluation pairs: scenes need at least two path-traced lights"

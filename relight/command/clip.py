@@ -24,8 +24,8 @@ not change within a shot is held or smoothed over its frames:
   light as far as the whole person is (still_weight), with the window 1 + (STILL_WINDOW - 1)
   x stability; and a crop box that differs from the previous frame's by the segmenter's jitter
   keeps the previous grid (_on_held_grid); a frame whose held matte reaches past its own crop
-  (the segmenter found only part of the person) is decomposed again around it (_on_matte). A still shot with sensor noise relit frame by frame
-  moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
+  (the segmenter found only part of the person) is decomposed again around it (_on_matte). A
+  still shot with sensor noise relit frame by frame moved 12-32x as much as it came, 4.5-18x stabilised; these bring it to 1.2-1.6x
   (docs/video.md, "A still shot").
 
 * **everyone**: without --person, everyone the segmenter finds is relit, each tracked over the
@@ -271,9 +271,12 @@ class ClipRelighter:
             except NoPersonError:
                 return Analysis(frame, histogram, None)
             mask, smooth_matte, matte_box = found.alpha, self.stability > 0, found.box
-        d = self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person,
-                                     matte_method=self.matte_method, augment=self.augment)
-        return Analysis(frame, histogram, d, smooth_matte, matte_box)
+        return Analysis(frame, histogram, self._decompose(frame, mask), smooth_matte, matte_box)
+
+    def _decompose(self, frame: np.ndarray, mask: np.ndarray | None) -> Decomposition:
+        """The network's decomposition of `frame` under this clip's settings, cropped around `mask`."""
+        return self.relighter.decompose(frame, mask, self.working_size, matte=self.matte, person=self.person,
+                                        matte_method=self.matte_method, augment=self.augment)
 
     def _everyone(self, frame: np.ndarray, histogram: np.ndarray) -> "Analysis":
         """analyse() of everyone the segmenter finds, each decomposed at their own crop (as
@@ -388,11 +391,9 @@ class ClipRelighter:
         past d's crop: a frame whose segmenter found only part of a person the held matte still has
         (a crop holds only what its own matte found, so the rest could not be relit)."""
         held = Box.around(matte, 0.5)
-        y0, y1, x0, x1 = d.box
-        if held is None or (held[0] >= y0 and held[1] <= y1 and held[2] >= x0 and held[3] <= x1):
+        if held is None or d.box.contains(held):
             return _with_mask(d, matte)
-        return self.relighter.decompose(frame, matte, self.working_size, matte=self.matte, person=self.person,
-                                        matte_method=self.matte_method, augment=self.augment)
+        return self._decompose(frame, matte)
 
     def _on_held_grid(self, d: Decomposition, matte_box, smoother: MapSmoother) -> Decomposition:
         """`d` on the previous frame's grid when its crop differs from it by the segmenter's jitter
@@ -412,8 +413,7 @@ class ClipRelighter:
             return d
         pad = int(np.ceil(CROP_MARGIN * max(person.height, person.width)))
         outer = d.box.grown(pad, *d.size)
-        inside = lambda a, b: a[0] >= b[0] and a[1] <= b[1] and a[2] >= b[2] and a[3] <= b[3]
-        if not (inside(person, box) and inside(box, outer)):
+        if not (box.contains(person) and outer.contains(box)):
             return d
         return _regridded(d, box, held["size"])
 

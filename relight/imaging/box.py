@@ -68,6 +68,11 @@ class Box(NamedTuple):
         (h0, w0), (h1, w1) = size_from, size_to
         return Box(self.y0 * h1 // h0, -(-self.y1 * h1 // h0), self.x0 * w1 // w0, -(-self.x1 * w1 // w0))
 
+    def contains(self, other) -> bool:
+        """Whether `other` (a Box or (y0, y1, x0, x1)) lies within this box."""
+        y0, y1, x0, x1 = other
+        return y0 >= self.y0 and y1 <= self.y1 and x0 >= self.x0 and x1 <= self.x1
+
     def union(self, other: "Box | None") -> "Box":
         """The smallest box holding both (this one when `other` is None)."""
         if other is None:

@@ -43,6 +43,8 @@ def test_grown_scaled_union_stay_in_the_image():
         assert s.y0 * H <= big.y0 * h < (s.y0 + 1) * H and (s.y1 - 1) * H < big.y1 * h <= s.y1 * H
         assert s.x0 * W <= big.x0 * w < (s.x0 + 1) * W and (s.x1 - 1) * W < big.x1 * w <= s.x1 * W
     assert b.union(Box(0, 3, 6, 12)) == (0, 5, 3, 12) and b.union(None) is b
+    assert b.contains(b) and b.contains((3, 5, 3, 8)) and not b.contains(Box(1, 5, 3, 9))
+    assert not b.contains((2, 6, 3, 9)) and not b.contains((2, 5, 2, 9)) and not b.contains((2, 5, 3, 10))
     assert Box.whole(4, 6) == (0, 4, 0, 6)
     y0, y1, x0, x1 = b  # a tuple in this order: saved files write list(box)
     assert [y0, y1, x0, x1] == list(b) == [2, 5, 3, 9]
