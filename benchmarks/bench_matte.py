@@ -42,11 +42,12 @@ def stage_times(photo: np.ndarray, threads: int, repeats: int) -> dict[str, floa
     out["selfie network"] = median_wall_cpu(lambda: matte._selfie(selfie, grid), repeats)[0]
     detector = matte._session("detector", threads)
     keypoints = pose_people.detect(detector, small_srgb)
+    square = pose_people.roi(keypoints[0])
     out["pose detector + NMS"] = median_wall_cpu(lambda: pose_people.detect(detector, small_srgb), repeats)[0]
     pose = matte._session("pose", threads)
     k = max(1, max(small.shape[:2]) // matte.NET_SIDE)
     out["pose segmentation (1 person)"] = median_wall_cpu(
-        lambda: pose_people.pose_mask(pose, small_srgb, keypoints[0], grid.shape[:2], k), repeats)[0]
+        lambda: pose_people.pose_mask(pose, small_srgb, square, grid.shape[:2], k), repeats)[0]
     people = matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH)
     out["people (all networks + combination)"] = median_wall_cpu(
         lambda: matte._people(small_srgb, grid, "ensemble", threads, matte.REGISTRY_PATH), repeats)[0]

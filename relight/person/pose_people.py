@@ -4,8 +4,9 @@ in a rotated square around the body that the detection gives, 256 x 256).
 
 The detector answers for about one person a picture (two portraits side by side: one; a row of five
 leaves each a few of its pixels), so `pose_people` asks it again: over square windows of the picture
-at two sizes, and with each person it found painted out, until it finds nobody new. relight.person.matte
-combines these masks with its selfie segmentation into each person's matte. numpy and the sessions only.
+at two sizes, then of the whole picture with each person it found painted out, until it finds nobody
+new. relight.person.matte combines these masks with its selfie segmentation into each person's matte.
+numpy and the sessions only.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 from relight.person.mask_ops import dilate
 from relight.imaging.resample import bilinear_rows, resize_linear, sample_points
 
-__all__ = ["DETECT_SIDE", "POSE_SIDE", "SAME_PERSON", "detect", "nchw", "pose_mask", "pose_people", "roi"]
+__all__ = ["DETECT_SIDE", "POSE_SIDE", "SAME_PERSON", "candidates", "detect", "nchw", "pose_mask", "pose_people", "roi",
+           "same_square"]
 
 POSE_SIDE = 256                         # the landmark model's input side
 DETECT_SIDE = 224
@@ -31,6 +33,9 @@ REDETECT_AGREED = 0.6                   # ... taken from this score where the se
 WINDOWS_ASPECT = 1.3                    # an image this much wider (or taller) than square is also searched in windows
 WINDOW_SCALES = (1.0, 0.6)              # the windows' sides, of the image's shorter side
 SAME_PERSON = 0.5                       # a new detection's mask this much inside a found person's (grown) is that person
+SAME_SQUARE_SHIFT = 0.05                # two landmark squares whose centres are this share of the smaller side apart,
+SAME_SQUARE_SCALE = 1.15                # ... whose sides differ by less than this factor
+SAME_SQUARE_TURN = math.radians(10.0)   # ... and whose turns by less than this give one mask (the windows' repeats)
 
 def nchw(srgb: np.ndarray) -> np.ndarray:
     """An sRGB image [h, w, 3] as the networks' input [1, 3, h, w] float32."""
@@ -113,11 +118,11 @@ def roi(keypoints: np.ndarray) -> tuple[float, float, float, float]:
     return x0, y0, side, rotation
 
 
-def pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k: int) -> np.ndarray:
-    """The pose landmark model's segmentation of one detected person (keypoints in pixels of
-    `image`, sRGB), resampled onto the grid [h, w] whose pixels are k x k pixels of `image`."""
+def pose_mask(session, image: np.ndarray, square: tuple[float, float, float, float], grid_shape, k: int) -> np.ndarray:
+    """The pose landmark model's segmentation of one detected person (`square`: their landmark square,
+    `roi`, in pixels of `image`, sRGB), resampled onto the grid [h, w] whose pixels are k x k pixels of `image`."""
     h, w = grid_shape
-    cx, cy, side, rotation = roi(keypoints)
+    cx, cy, side, rotation = square
     c, s = math.cos(rotation), math.sin(rotation)
     # the rotated square sampled into the network's 256 x 256 (pixel centres)
     t = ((np.arange(POSE_SIDE, dtype=np.float64) + 0.5) / POSE_SIDE - 0.5) * side
@@ -142,23 +147,33 @@ def pose_mask(session, image: np.ndarray, keypoints: np.ndarray, grid_shape, k: 
 def pose_people(detector, pose_session, small: np.ndarray, grid_shape, k: int, floor: float, threshold: float,
                 keep_radius: int, selfie: np.ndarray | None = None) -> list[np.ndarray]:
     """Each detected person's pose mask on the grid. MediaPipe's detector answers for about one person
-    a picture (two portraits side by side: one), so it is asked again with each person it found painted
-    out (mid-grey), at a higher score (REDETECT_SCORE; from REDETECT_AGREED when the selfie mask sees a
-    person there too), until it finds nobody new or MAX_PEOPLE. `small` is the photo (sRGB), the grid
-    [h, w] = grid_shape has k x k of its pixels each; a mask is a person above `threshold`, grown by
-    `keep_radius` where it is compared; `floor` is the fewest grid pixels a person has."""
+    a picture (two portraits side by side: one), so the first look also searches windows (`candidates`)
+    and the whole picture is asked again with each person found painted out (mid-grey), at a higher
+    score (REDETECT_SCORE; from REDETECT_AGREED when the selfie mask sees a person there too), until it
+    finds nobody new or MAX_PEOPLE. The later looks skip the windows: on 60 pasted groups
+    (benchmarks/bench_groups.py) they found one person after the first look, a false one, and cost
+    9 of a portrait's 20 detections. A detection whose landmark square repeats one already segmented
+    (`same_square`: the windows find the same person 3-9 times) takes that mask. `small` is the photo
+    (sRGB), the grid [h, w] = grid_shape has k x k of its pixels each; a mask is a person above
+    `threshold`, grown by `keep_radius` where it is compared; `floor` is the fewest grid pixels a person has."""
     h, w = grid_shape
     image = small
     poses: list[np.ndarray] = []
     known: list[np.ndarray] = []  # each found person's mask, grown: made once, compared with every candidate
+    segmented: list[tuple[tuple, np.ndarray]] = []  # (square, mask) of each detection segmented so far
     for _ in range(MAX_PEOPLE):
         fresh = []
-        for keypoints, score in candidates(detector, image, DETECT_SCORE if not poses else REDETECT_AGREED):
-            mask = pose_mask(pose_session, small, keypoints, (h, w), k)
+        first = not poses
+        for keypoints, score in candidates(detector, image, DETECT_SCORE if first else REDETECT_AGREED, windows=first):
+            square = roi(keypoints)
+            mask = next((m for sq, m in segmented if same_square(sq, square)), None)
+            if mask is None:
+                mask = pose_mask(pose_session, small, square, (h, w), k)
+                segmented.append((square, mask))
             inside = mask > threshold
             if np.count_nonzero(inside) < floor:
                 continue
-            if poses and score < REDETECT_SCORE and (selfie is None or selfie[inside].mean() < threshold):
+            if not first and score < REDETECT_SCORE and (selfie is None or selfie[inside].mean() < threshold):
                 continue  # a weak second look (people painted out) that the selfie model does not back
             if max((np.count_nonzero(inside & m) / np.count_nonzero(inside) for m in known), default=0.0) < SAME_PERSON:
                 fresh.append(mask)  # mostly outside everyone found: someone new
@@ -172,14 +187,26 @@ def pose_people(detector, pose_session, small: np.ndarray, grid_shape, k: int, f
     return poses
 
 
-def candidates(detector, image: np.ndarray, min_score: float) -> list[tuple[np.ndarray, float]]:
+def same_square(a: tuple, b: tuple) -> bool:
+    """Whether two landmark squares (`roi`: centre x, centre y, side, turn) frame the same person alike:
+    the pose model's masks of the two, resampled onto the grid, then differ at the edges only."""
+    side = min(a[2], b[2])
+    turn = abs(a[3] - b[3]) % (2 * math.pi)
+    return (math.hypot(a[0] - b[0], a[1] - b[1]) <= SAME_SQUARE_SHIFT * side
+            and max(a[2], b[2]) < SAME_SQUARE_SCALE * side
+            and min(turn, 2 * math.pi - turn) < SAME_SQUARE_TURN)
+
+
+def candidates(detector, image: np.ndarray, min_score: float, windows: bool = True) -> list[tuple[np.ndarray, float]]:
     """(keypoints in the image's pixels, score) of the people the detector sees in the whole
-    image (at min_score) and in square windows half a side apart, WINDOW_SCALES of its shorter side (at
-    REDETECT_AGREED at least): letterboxed whole, a row of five people leaves each a few detector
-    pixels, and a small person beside a tall one is missed. The whole image's first, then by score."""
+    image (at min_score) and, when `windows`, in square windows half a side apart, WINDOW_SCALES of its
+    shorter side (at REDETECT_AGREED at least): letterboxed whole, a row of five people leaves each a few
+    detector pixels, and a small person beside a tall one is missed. The whole image's first, then by score."""
     scores: list[float] = []
     found = detect(detector, image, min_score, scores)
     whole = len(found)
+    if not windows:
+        return list(zip(found, scores))
     h, w = image.shape[:2]
     for scale in WINDOW_SCALES:
         side = round(scale * min(h, w))

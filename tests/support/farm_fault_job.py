@@ -31,9 +31,10 @@ import numpy as np
 from farm.synthesis.scene_options import SceneOptions  # the real options: same fields, same JSON
 
 
-def _log(event: str, index: int) -> None:
+def _log(event: str, index: int, value: int | None = None) -> None:
+    """One line "EVENT INDEX VALUE" of the events log; VALUE is this worker's pid unless given."""
     with open(Path(os.environ["FARM_FAULT_DIR"]) / "events.log", "a") as f:
-        f.write(f"{event} {index} {os.getpid()}\n")
+        f.write(f"{event} {index} {os.getpid() if value is None else value}\n")
         f.flush()
 
 
@@ -94,8 +95,7 @@ def _exited_siblings() -> int:
 
 def render_scene(index: int, seed: int, options: SceneOptions, out_dir: Path) -> Path:
     _log("start", index)
-    with open(Path(os.environ["FARM_FAULT_DIR"]) / "events.log", "a") as f:
-        f.write(f"unreaped {index} {_exited_siblings()}\n")
+    _log("unreaped", index, _exited_siblings())
     _scratch(index)
     fault = json.loads(os.environ.get("FARM_FAULTS", "{}")).get(str(index))
     if fault == "crash-once" and _first_time(f"crash-{index}"):
