@@ -6,12 +6,13 @@
 # Usage: tools/release_scale45.sh OUT_DIR PRESET SCENES [REGISTER_AS [--default]]
 #   e.g. tools/release_scale45.sh runs/r45 geo-default 1320 geometry --default
 #        tools/release_scale45.sh runs/r45s geo-small 1320 geometry-small
-# env: STEPS (6000), BATCH (8), THREADS (2), DEVICE (auto), PY
+# env: STEPS (6000), BATCH (8), THREADS (2), DEVICE (auto), PY; MORE_STEPS (0): trains on from the
+#   first run's weights for this many steps more (a warm restart: lr 5e-4 cosine, seed 2)
 # The farm's scenes are made here, on the CPU; a GPU trains from the pack (model.train --device cuda).
 set -euo pipefail
 out=$1; preset=$2; scenes=$3; name=${4:-}; default=${5:-}
 py=${PY:-.venv/bin/python}
-STEPS=${STEPS:-6000}; BATCH=${BATCH:-8}; THREADS=${THREADS:-2}; DEVICE=${DEVICE:-auto}
+STEPS=${STEPS:-6000}; BATCH=${BATCH:-8}; THREADS=${THREADS:-2}; DEVICE=${DEVICE:-auto}; MORE_STEPS=${MORE_STEPS:-0}
 campaign=${RELIGHT_CAMPAIGNS:-$HOME/.cache/relight/campaigns}/scale45
 mkdir -p "$out"
 
@@ -37,16 +38,26 @@ resume() { [[ -f "$1/checkpoints/last.ckpt" ]] && echo --resume || true; }
     --fit-stride 2 --front-facing --threads "$THREADS" --seed 1 --val-every 100000 --ckpt-every 250 \
     --pack "$out/pack.npz" --device "$DEVICE" --quiet $(resume "$out/run") > "$out/train.log" 2>&1
 
+weights="$out/run/model.safetensors"; how="from scratch"
+if (( MORE_STEPS > 0 )); then
+    "$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --out "$out/run_more" --preset "$preset" \
+        --size 128 --steps "$MORE_STEPS" --batch "$BATCH" --lr 5e-4 --lr-schedule cosine --warmup 200 \
+        --light-tint 0.15 --fit-stride 2 --front-facing --threads "$THREADS" --seed 2 --val-every 100000 \
+        --ckpt-every 250 --pack "$out/pack.npz" --device "$DEVICE" --quiet --init "$weights" \
+        $(resume "$out/run_more") > "$out/train_more.log" 2>&1
+    weights="$out/run_more/model.safetensors"
+    how="from scratch, then $MORE_STEPS steps more from those weights (lr 5e-4 cosine, seed 2)"
+fi
 onnx="$out/model.onnx"
 register=()
 if [[ -n "$name" ]]; then
     onnx="relight/models/${name//-/_}.onnx"
     register=(--register "$name" $default)
 fi
-"$py" -m export "$out/run/model.safetensors" --out "$onnx" "${register[@]}" --training-data "relight farm: \
+"$py" -m export "$weights" --out "$onnx" "${register[@]}" --training-data "relight farm: \
 the first $scenes scenes of the scale45 campaign (every framing, 30 % hard lights, 2 lights, 16 spp, 128 px, \
 seed 4500); GeometryNet $preset, $STEPS steps of batch $BATCH on 128 px crops, lr 1e-3 cosine, light tint 0.15, \
-fit stride 2, front-facing, from scratch (tools/release_scale45.sh)"
+fit stride 2, front-facing, $how (tools/release_scale45.sh)"
 "$py" -m export.level_prior "$onnx" --data "$out/calib45" --mixed-lights --write
 for look in train heldout; do
     "$py" -m model.evaluate "$onnx" --data "$out/look_$look" --size 128 --out "$out/eval_$look"
