@@ -33,17 +33,15 @@ done
     --resume --no-progress
 
 resume() { [[ -f "$1/checkpoints/last.ckpt" ]] && echo --resume || true; }
-"$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --out "$out/run" --preset "$preset" \
-    --size 128 --steps "$STEPS" --batch "$BATCH" --lr 1e-3 --lr-schedule cosine --warmup 200 --light-tint 0.15 \
-    --fit-stride 2 --front-facing --threads "$THREADS" --seed 1 --val-every 100000 --ckpt-every 250 \
-    --pack "$out/pack.npz" --device "$DEVICE" --quiet $(resume "$out/run") > "$out/train.log" 2>&1
+# what both trainings share: the scenes, the pack, the network and the recipe but for steps, lr and seed
+train=("$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --pack "$out/pack.npz" --preset "$preset"
+       --size 128 --batch "$BATCH" --lr-schedule cosine --warmup 200 --light-tint 0.15 --fit-stride 2 --front-facing
+       --threads "$THREADS" --val-every 100000 --ckpt-every 250 --device "$DEVICE" --quiet)
+"${train[@]}" --out "$out/run" --steps "$STEPS" --lr 1e-3 --seed 1 $(resume "$out/run") > "$out/train.log" 2>&1
 
 weights="$out/run/model.safetensors"; how="from scratch"
 if (( MORE_STEPS > 0 )); then
-    "$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --out "$out/run_more" --preset "$preset" \
-        --size 128 --steps "$MORE_STEPS" --batch "$BATCH" --lr 5e-4 --lr-schedule cosine --warmup 200 \
-        --light-tint 0.15 --fit-stride 2 --front-facing --threads "$THREADS" --seed 2 --val-every 100000 \
-        --ckpt-every 250 --pack "$out/pack.npz" --device "$DEVICE" --quiet --init "$weights" \
+    "${train[@]}" --out "$out/run_more" --steps "$MORE_STEPS" --lr 5e-4 --seed 2 --init "$weights" \
         $(resume "$out/run_more") > "$out/train_more.log" 2>&1
     weights="$out/run_more/model.safetensors"
     how="from scratch, then $MORE_STEPS steps more from those weights (lr 5e-4 cosine, seed 2)"

@@ -153,7 +153,7 @@ def pose_people(detector, pose_session, small: np.ndarray, grid_shape, k: int, f
     finds nobody new or MAX_PEOPLE. The later looks skip the windows: on 60 pasted groups
     (benchmarks/bench_groups.py) they found one person after the first look, a false one, and cost
     9 of a portrait's 20 detections. A detection whose landmark square repeats one already segmented
-    (`same_square`: the windows find the same person 3-9 times) takes that mask. `small` is the photo
+    (`same_square`: the windows find the same person 5-9 times) takes that mask. `small` is the photo
     (sRGB), the grid [h, w] = grid_shape has k x k of its pixels each; a mask is a person above
     `threshold`, grown by `keep_radius` where it is compared; `floor` is the fewest grid pixels a person has."""
     h, w = grid_shape
