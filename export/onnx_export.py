@@ -213,8 +213,13 @@ def parity_inputs(size_multiple: int, seed: int = 0) -> list[np.ndarray]:
 
 
 def fp32_parity(net, model_path: str | os.PathLike) -> float:
-    """Max |torch - onnxruntime| over the five outputs and parity_inputs: compare with PARITY_TOLERANCE."""
+    """Max |torch - onnxruntime| over the outputs and parity_inputs, each output's in units of its own
+    size max(1, max |torch value|): compare with PARITY_TOLERANCE. Rounding grows with a value's size,
+    and the light (a least-squares solve) reaches 8 on the noise inputs, where albedo, alpha and
+    transport stay within 1 (their differences count as they are)."""
     worst = 0.0
     for x in parity_inputs(int(net.size_multiple)):
-        worst = max(worst, max(max_abs_diff(torch_outputs(net, x), onnx_outputs(model_path, x)).values()))
+        ours = torch_outputs(net, x)
+        diff = max_abs_diff(ours, onnx_outputs(model_path, x))
+        worst = max(worst, max(d / max(1.0, float(np.max(np.abs(ours[k])))) for k, d in diff.items()))
     return worst

@@ -156,6 +156,31 @@ def test_export_command(tmp_path, capsys):
     assert len(err) == 2 and all(line.startswith("export: error:") for line in err)
 
 
+def test_parity_counts_each_output_in_units_of_its_size_and_a_failed_export_leaves_nothing(
+        tmp_path, monkeypatch, capsys):
+    """fp32_parity divides an output's difference by max(1, its largest |value|): a light of 8 may
+    differ by 8x what an albedo may. An export that fails it leaves neither the file nor its hash."""
+    import export.__main__ as export_main
+    from export import onnx_export
+    from model.training.checkpoint import save_model
+
+    net = random_relightnet(seed=1, **CONFIG)
+    ours = {"albedo": np.zeros((1, 1)), "light": np.full((1, 1), 8.0)}
+    theirs = {"albedo": np.full((1, 1), 2e-5), "light": np.full((1, 1), 8.0 + 4e-4)}
+    monkeypatch.setattr(onnx_export, "parity_inputs", lambda m: [None])
+    monkeypatch.setattr(onnx_export, "torch_outputs", lambda n, x: ours)
+    monkeypatch.setattr(onnx_export, "onnx_outputs", lambda p, x: theirs)
+    assert onnx_export.fp32_parity(net, "unused.onnx") == pytest.approx(4e-4 / 8.0, rel=1e-9)
+    monkeypatch.undo()
+
+    weights = save_model(net, tmp_path / "w.safetensors")
+    out = tmp_path / "m.onnx"
+    monkeypatch.setattr(onnx_export, "fp32_parity", lambda n, p: 1.0)
+    assert export_main.main([str(weights), "--out", str(out)]) == 1
+    assert not out.exists() and not models.sidecar_path(out).exists()
+    assert "removed the file and its .sha256" in capsys.readouterr().err
+
+
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_cli_registers_fp32_and_fp16_and_sets_the_default(tmp_path, monkeypatch, capsys):
     from export.__main__ import main
