@@ -37,7 +37,8 @@ from model.scoring.face_region import FaceRows
 from model.samples.data_splits import find_scenes, held_out_light_names
 from relight.files.dataset import read_sidecar
 from model.scoring.geometry_diagnostics import (
-    TRUE_LIGHT_ROW, error_breakdown, geometry_metrics, geometry_table, parametric_transport_error, transport_normal,
+    TRUE_LIGHT_ROW, breakdown_images, error_breakdown, geometry_metrics, geometry_table, parametric_transport_error,
+    transport_normal,
 )
 from model.scoring.pair_metrics import (
     MAPS, MASK_MODES, INTERIOR_ALPHA, baseline_identity, channels_last, evaluate_prediction, gain_fitted, oracle_prt,
@@ -142,7 +143,12 @@ def framing_of(json_path) -> str:
 def pair_light_response(sample: dict, pred: dict, tstar: bool) -> dict:
     """The relit PSNR and the light's response (model.scoring.metrics.light_response: slope and
     correlation of the relit log-luminance change against the true one) of one pair."""
-    relit = render_np(pred, sample["target_light"], tstar)
+    return relit_light_response(sample, render_np(pred, sample["target_light"], tstar))
+
+
+def relit_light_response(sample: dict, relit: np.ndarray) -> dict:
+    """pair_light_response's figures of a relit image [H, W, 3] of the pair made any way (the
+    breakdown's rows: parts of the prediction swapped for the truth)."""
     target, weight = channels_last(sample["target_image"]), channels_last(sample["metric_weight"])
     response = light_response(channels_last(sample["input_linear"]), relit, target, weight)
     return {"psnr": psnr(relit, target, weight), "slope": response.slope, "correlation": response.correlation}
@@ -167,7 +173,8 @@ def light_response_markdown(table: dict) -> str:
     lines = ["\n## The light's response, per framing\n",
              "Relit log-luminance change (relit / photo) against the true change (truth under b / photo), "
              "means removed, over the same pixels: least-squares slope and correlation (1 and 1 = physics; "
-             "identity 0; model.scoring.metrics.light_response).\n",
+             "identity 0; model.scoring.metrics.light_response). The rows of \"Where the error is\" follow "
+             "ours: with a part swapped for the truth, how much of the response comes back.\n",
              "| method | framing | pairs | relit PSNR | slope | correlation |", "|---|---|---|---|---|---|"]
     for method, by_framing in table.items():
         for framing, v in by_framing.items():
@@ -239,14 +246,17 @@ def evaluate(model_path, data, out, *, size: int = 256, baseline=None, held_out_
         rows[ORACLE_ROW].append(oracle_prt(sample))
         rows[GAIN_ROW].append(gain_fitted(pred, sample, ours.tstar))
         pair_geometry, pair_breakdown = None, None
+        response = pair_light_response(sample, pred, ours.tstar)
+        responses["ours"][framing].append(response)
         if "normal" in sample and not ours.tstar:
-            pair_geometry, pair_breakdown = geometry_metrics(pred, sample), error_breakdown(pred, sample, order)
+            images = breakdown_images(pred, sample, order)
+            pair_geometry, pair_breakdown = geometry_metrics(pred, sample), error_breakdown(pred, sample, order, images)
             geometry["ours"].append(pair_geometry)
             for name, value in pair_breakdown.items():
                 breakdown[name].append(value)
+                # where the light's response is lost: the same swaps' slope and correlation
+                responses[name][framing].append(relit_light_response(sample, images[name]))
             transport_err.append(parametric_transport_error(sample, order))
-        response = pair_light_response(sample, pred, ours.tstar)
-        responses["ours"][framing].append(response)
         pair_depth = pair_depth_rows(pred, sample, sample["metric_weight"][0])
         if pair_depth is not None:
             depths[framing].append(pair_depth)

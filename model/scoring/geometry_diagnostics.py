@@ -110,9 +110,10 @@ BREAKDOWN_ROWS = (
 )
 
 
-def error_breakdown(pred: dict, sample: dict, order: int) -> dict[str, dict[str, float]]:
-    """Relit-image metrics with parts of the prediction replaced by the truth, and the
-    physics ceilings (rows of docs/EVALUATION.md's breakdown table):
+def breakdown_images(pred: dict, sample: dict, order: int) -> dict[str, np.ndarray]:
+    """The relit images [H, W, 3] of BREAKDOWN_ROWS, made once for error_breakdown's metrics and
+    model.evaluate's light response (parts of the prediction replaced by the truth, and the
+    physics ceilings):
 
     * true albedo x our shading; our albedo x true shading (T_gt . L_b);
     * ours with the true input light: quotient photo * (T . L_b) / (T . L_a,true);
@@ -123,7 +124,6 @@ def error_breakdown(pred: dict, sample: dict, order: int) -> dict[str, dict[str,
     from relight.network.prt import lambert_transport
 
     mask = channels_last(metric_weight(sample))
-    gt = channels_last(sample["target_image"])
     photo = channels_last(sample["input_linear"])
     la, lb = sample["light"], sample["target_light"]
     albedo_gt = channels_last(sample["albedo"])
@@ -149,8 +149,17 @@ def error_breakdown(pred: dict, sample: dict, order: int) -> dict[str, dict[str,
         albedo_gt * shading_np(lambert, lb, False),
         albedo_gt * shading_np(lobe, lb, False),
     )
-    return {name: {"relighting/image": metrics.all_metrics(img, gt, mask)}
-            for name, img in zip(BREAKDOWN_ROWS, images)}
+    return dict(zip(BREAKDOWN_ROWS, images))
+
+
+def error_breakdown(pred: dict, sample: dict, order: int,
+                    images: dict | None = None) -> dict[str, dict[str, float]]:
+    """Relit-image metrics of breakdown_images (`images`: its answer for this pair, when made
+    already), the rows of docs/EVALUATION.md's breakdown table."""
+    images = breakdown_images(pred, sample, order) if images is None else images
+    mask = channels_last(metric_weight(sample))
+    gt = channels_last(sample["target_image"])
+    return {name: {"relighting/image": metrics.all_metrics(img, gt, mask)} for name, img in images.items()}
 
 
 def parametric_transport_error(sample: dict, order: int) -> float:

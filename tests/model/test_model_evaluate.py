@@ -163,7 +163,12 @@ def test_several_baselines_share_one_table(tmp_path, capsys, one_thread):
     # the light's response beside the relit PSNR, per framing (analytic scenes record none: "-"),
     # for ours and every baseline; its means are the per-pair records'
     response = record["light_response"]
-    assert set(response) == {"ours", "small", ke_name} and set(response["ours"]) == {"-"}
+    assert set(response) == {"ours", "small", ke_name, *geometry_diagnostics.BREAKDOWN_ROWS}
+    assert set(response["ours"]) == {"-"}
+    # the breakdown's swaps respond too (where the response is lost), from the very images scored above
+    for name in geometry_diagnostics.BREAKDOWN_ROWS:
+        assert response[name]["-"]["psnr"] == pytest.approx(record["breakdown"][name]["relighting/image"]["psnr"],
+                                                            rel=1e-12), name
     ours_response = response["ours"]["-"]
     assert ours_response["pairs"] == record["pairs"]
     assert ours_response["psnr"] == pytest.approx(ours_relit["psnr"], rel=1e-12)
