@@ -250,6 +250,7 @@ def train(args) -> Path:
         from model.samples.training_pack import read_training_pack
 
         training_pack = read_training_pack(args.from_pack)
+    weights = loss_weights_from_args(args)
     data = SceneDataModule(
         args.data, training_pack=training_pack, size=args.size, order=args.order, batch=args.batch, seed=args.seed, max_scenes=args.max_scenes,
         val_fraction=args.val_fraction, padding=args.padding, workers=args.workers, cache_scenes=args.cache_scenes,
@@ -257,7 +258,8 @@ def train(args) -> Path:
         augment=dict(extra_light_prob=args.extra_light_prob, mask_prob=args.mask_prob, flip_prob=args.flip_prob,
                      light_tint=args.light_tint, light_mix=args.light_mix, exposure_jitter=args.exposure_jitter,
                      capture=args.capture,
-                     lambertian=args.lambertian, body_prior=args.body_prior, depth=bool(args.depth_head)))
+                     lambertian=args.lambertian, body_prior=args.body_prior, depth=bool(args.depth_head),
+                     sun_light=weights.get("sun_response", 0.0) > 0))
     if args.light_maps is not None:
         bank = [name for name, _ in preset_training_lights(args.order)] if not args.no_presets else []
         maps = first_maps(training_map_names(data.train_paths, bank), args.light_maps)
@@ -267,7 +269,6 @@ def train(args) -> Path:
     data.prepare_data()
     data.setup("fit")
 
-    weights = loss_weights_from_args(args)
     module = RelightModule(build_model_config(args), weights, args.lr, args.weight_decay,
                            args.lr_schedule, args.warmup, args.schedule_steps or args.steps,
                            frozen_norm=args.frozen_norm)

@@ -7,7 +7,8 @@
 #   e.g. tools/release_scale45.sh runs/r45 geo-default 1320 geometry --default
 #        tools/release_scale45.sh runs/r45s geo-small 1320 geometry-small
 # env: STEPS (6000), BATCH (8), THREADS (2), DEVICE (auto), PY; MORE_STEPS (0): trains on from the
-#   first run's weights for this many steps more (a warm restart: lr 5e-4 cosine, seed 2)
+#   first run's weights for this many steps more (a warm restart: lr 5e-4 cosine, seed 2);
+#   TRAIN_FLAGS: more model.train options for both, e.g. "--loss-weight sun_response=1"
 # The farm's scenes are made here, on the CPU; a GPU trains from the pack (model.train --device cuda).
 set -euo pipefail
 out=$1; preset=$2; scenes=$3; name=${4:-}; default=${5:-}
@@ -36,7 +37,7 @@ resume() { [[ -f "$1/checkpoints/last.ckpt" ]] && echo --resume || true; }
 # what both trainings share: the scenes, the pack, the network and the recipe but for steps, lr and seed
 train=("$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --pack "$out/pack.npz" --preset "$preset"
        --size 128 --batch "$BATCH" --lr-schedule cosine --warmup 200 --light-tint 0.15 --fit-stride 2 --front-facing
-       --threads "$THREADS" --val-every 100000 --ckpt-every 250 --device "$DEVICE" --quiet)
+       --threads "$THREADS" --val-every 100000 --ckpt-every 250 --device "$DEVICE" --quiet ${TRAIN_FLAGS:-})
 "${train[@]}" --out "$out/run" --steps "$STEPS" --lr 1e-3 --seed 1 $(resume "$out/run") > "$out/train.log" 2>&1
 
 weights="$out/run/model.safetensors"; how="from scratch"
@@ -55,7 +56,7 @@ fi
 "$py" -m export "$weights" --out "$onnx" "${register[@]}" --training-data "relight farm: \
 the first $scenes scenes of the scale45 campaign (every framing, 30 % hard lights, 2 lights, 16 spp, 128 px, \
 seed 4500); GeometryNet $preset, $STEPS steps of batch $BATCH on 128 px crops, lr 1e-3 cosine, light tint 0.15, \
-fit stride 2, front-facing, $how (tools/release_scale45.sh)"
+fit stride 2, front-facing${TRAIN_FLAGS:+, $TRAIN_FLAGS}, $how (tools/release_scale45.sh)"
 "$py" -m export.level_prior "$onnx" --data "$out/calib45" --mixed-lights --write
 for look in train heldout; do
     "$py" -m model.evaluate "$onnx" --data "$out/look_$look" --size 128 --out "$out/eval_$look"

@@ -187,7 +187,7 @@ def mean_luminance(light: torch.Tensor) -> torch.Tensor:
 # Loss weights of geometry_losses (model.train --loss-weight NAME=VALUE changes one).
 GEOMETRY_LOSS_WEIGHTS = {"normal": 1.0, "visibility": 1.0, "albedo": 1.0, "alpha": 1.0, "light": 0.2,
                          "transport": 1.0, "relight": 1.0, "reconstruction": 0.5, "light_fit": 0.0,
-                         "depth": 1.0}
+                         "depth": 1.0, "sun_response": 0.0}
 FITTED_BANDS = 3  # light_fit compares bands 0-2: all a Lambertian lobe passes (band 3's A_l is 0, band 4's 0.04)
 
 
@@ -204,7 +204,9 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
     of the fitted light's bands 0-2 against the true input light's, in units of the true
     DC's luminance (the fit's answer itself, which relighting divides by; off by default);
     depth (models with the depth head): model.networks.depth_loss.ssi_depth_loss of the depth
-    against the farm's depth pass, over the person's interior pixels.
+    against the farm's depth pass, over the person's interior pixels; sun_response (off by
+    default): model.networks.response_loss.sun_response_loss of the relit person under the batch's
+    hard sun ("sun_light", drawn by the data when the weight is set) against the truth by PRT.
     """
     w = {**GEOMETRY_LOSS_WEIGHTS, **(weights or {})}
     mask = batch["alpha"]
@@ -240,5 +242,15 @@ def geometry_losses(pred: dict, batch: dict, weights: dict | None = None) -> dic
         from model.networks.depth_loss import ssi_depth_loss
 
         terms["depth"] = ssi_depth_loss(pred["depth"], batch["depth"], interior * (batch["depth"] > 0))
+    if w["sun_response"]:
+        if "sun_light" not in batch:
+            raise ValueError("the sun_response loss needs the batch's sun_light (model.train draws it "
+                             "when --loss-weight sun_response=W is above 0)")
+        from model.networks.response_loss import sun_response_loss
+
+        sun = batch["sun_light"]
+        relit_sun = pred["albedo"] * torch.einsum("bnhw,bnc->bchw", pred["transport"], sun)
+        truth_sun = gt_albedo * torch.einsum("bnhw,bnc->bchw", batch["transport"], sun)
+        terms["sun_response"] = sun_response_loss(relit_sun, truth_sun, interior)
     terms["total"] = sum(w[k] * v for k, v in terms.items())
     return terms

@@ -40,6 +40,7 @@ import torch
 
 from model.samples.data_augment import (
     MIRROR_X, mirror_signs, random_background, random_light_tint, random_mixed_light, random_reference_light,
+    random_sun_light,
 )
 from model.samples.data_crops import DEFAULT_PADDING, CroppedScene, PackedScenes, SceneCache, load_cropped
 from model.samples.data_splits import held_out_light_names, is_held_out, scene_map_lights, side_sun_pairs
@@ -89,7 +90,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                  cache_size: int = 64, held_out: frozenset[str] | None = None, light_tint: float = 0.0,
                  pack: Path | None = None, exposure_jitter: float = 0.0, capture: bool = False,
                  body_prior: bool = False, light_mix: float = 0.0, light_maps: frozenset[str] | None = None,
-                 scenes=None, depth: bool = False):
+                 scenes=None, depth: bool = False, sun_light: bool = False):
         # `scenes`: scenes already cropped (model.samples.training_pack.PackScenes), json_paths then unused
         if not (json_paths or (scenes is not None and scenes.paths)):
             raise ValueError("no training scenes")
@@ -136,6 +137,9 @@ class TrainingScenes(torch.utils.data.Dataset):
         self.capture = capture
         self.body_prior = bool(body_prior)
         self.depth = bool(depth)  # samples carry the depth pass (model.train --depth-head)
+        # samples carry a hard sun for the sun-response loss (--loss-weight sun_response=W), drawn
+        # from its own stream so that every other draw stays as it was
+        self.sun_light = bool(sun_light)
         self.signs = mirror_signs(order)
         self.lambertian = lambertian  # Kanamori-Endo-style baseline: PRT images only, no path tracing
         self.seed = seed
@@ -238,6 +242,8 @@ class TrainingScenes(torch.utils.data.Dataset):
         }
         if self.depth:
             sample["depth"] = scene_depth(scene)
+        if self.sun_light:
+            sample["sun_light"] = random_sun_light(np.random.default_rng([self.seed, epoch, i, 30]), self.order)
         if rng.uniform() < self.flip_prob:  # horizontal mirror, exact for T and L (mirror_signs)
             for key in ("input", "image", "albedo", "transport", "alpha", "target_image", "normal") + (
                     ("depth",) if self.depth else ()):
@@ -248,6 +254,8 @@ class TrainingScenes(torch.utils.data.Dataset):
                 sample["input"] = sample["input"] * np.array([1, 1, 1, -1, 1, 1, 1], np.float32)[:, None, None]
             sample["light"] = sample["light"] * self.signs[:, None]
             sample["target_light"] = sample["target_light"] * self.signs[:, None]
+            if self.sun_light:
+                sample["sun_light"] = sample["sun_light"] * self.signs[:, None]
         return _to_tensors(sample)
 
 

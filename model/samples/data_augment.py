@@ -1,6 +1,6 @@
 """Random draws of the training augmentation (model.samples.data.TrainingScenes): backgrounds,
-extra lights at a reference radiance, mixed and tilted lights, light tints, and the signs of
-a mirrored photo's SH.
+extra lights at a reference radiance, mixed and tilted lights, light tints, the sun-response
+loss's suns, and the signs of a mirrored photo's SH.
 Every draw comes from the Generator passed in."""
 
 from __future__ import annotations
@@ -16,6 +16,11 @@ from relight.imaging.colour import luminance, srgb_decode
 from relight.lighting.light import SHLight
 
 REFERENCE_RADIANCE = (0.7, 0.9)  # paper: lights scaled to a reference radiance in this range
+# the sun-response loss's suns (random_sun_light): further than this off the camera's axis a sun
+# lights little of what the camera sees; elevations from a little below the horizon to high
+SUN_MAX_OFF_AXIS_DEG = 150.0
+SUN_ELEVATION_DEG = (-20.0, 70.0)
+SUN_MAX_ANGLE_DEG = 10.0  # full angle of its disc: a point to a hazy sun
 
 
 MIRROR_X = np.array([-1.0, 1.0, 1.0], dtype=np.float32)  # a mirrored photo's normals: x flips
@@ -83,6 +88,19 @@ def random_mixed_light(first: np.ndarray, second: np.ndarray, rng: np.random.Gen
     R = np.eye(3) + math.sin(tilt) * K + (1.0 - math.cos(tilt)) * (K @ K)  # Rodrigues
     mixed = rotate(w * a + (1.0 - w) * b, R)
     return SHLight(mixed, rng.uniform(*REFERENCE_RADIANCE)).at(0.0).astype(np.float32)
+
+
+def random_sun_light(rng: np.random.Generator, order: int) -> np.ndarray:
+    """A hard white sun [n, 3] (relight.lighting.lamps.sun_light, with its ambient) from a random
+    direction at most SUN_MAX_OFF_AXIS_DEG off the camera's axis (camera frame), for the
+    sun-response loss (model.networks.response_loss); its level is arbitrary (that loss ignores it)."""
+    from relight.lighting.lamps import sun_light
+
+    while True:
+        azimuth, elevation = rng.uniform(-180.0, 180.0), rng.uniform(*SUN_ELEVATION_DEG)
+        toward_camera = math.cos(math.radians(azimuth)) * math.cos(math.radians(elevation))
+        if toward_camera >= math.cos(math.radians(SUN_MAX_OFF_AXIS_DEG)):
+            return sun_light(azimuth, elevation, rng.uniform(0.0, SUN_MAX_ANGLE_DEG), order).astype(np.float32)
 
 
 def random_light_tint(rng: np.random.Generator, sigma: float) -> np.ndarray:
