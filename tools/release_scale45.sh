@@ -8,7 +8,13 @@
 #        tools/release_scale45.sh runs/r45s geo-small 1320 geometry-small
 # env: STEPS (6000), BATCH (8), THREADS (2), DEVICE (auto), PY; MORE_STEPS (0): trains on from the
 #   first run's weights for this many steps more (a warm restart: lr 5e-4 cosine, seed 2);
-#   TRAIN_FLAGS: more model.train options for both, e.g. "--loss-weight sun_response=1"
+#   TRAIN_FLAGS: more model.train options for both, e.g. "--loss-weight sun_response=1";
+#   MORE_FLAGS: more options for the warm restart alone (after the others: they override them);
+#   AVERAGE (unset): ships the weights this share of the way from the first run's to the restart's
+#   (python -m model.average; needs MORE_STEPS).
+# The shipped model of 2026-11-28 (evening): MORE_STEPS=3000 AVERAGE=0.5 THREADS=1
+#   MORE_FLAGS="--loss-weight sun_response=1 --seed 3 --warmup 100" tools/release_scale45.sh runs/r45 \
+#   geo-default 2640 geometry --default
 # The farm's scenes are made here, on the CPU; a GPU trains from the pack (model.train --device cuda).
 set -euo pipefail
 out=$1; preset=$2; scenes=$3; name=${4:-}; default=${5:-}
@@ -43,9 +49,16 @@ train=("$py" -m model.train --data "$campaign/farm" --max-scenes "$scenes" --pac
 weights="$out/run/model.safetensors"; how="from scratch"
 if (( MORE_STEPS > 0 )); then
     "${train[@]}" --out "$out/run_more" --steps "$MORE_STEPS" --lr 5e-4 --seed 2 --init "$weights" \
-        $(resume "$out/run_more") > "$out/train_more.log" 2>&1
-    weights="$out/run_more/model.safetensors"
-    how="from scratch, then $MORE_STEPS steps more from those weights (lr 5e-4 cosine, seed 2)"
+        $(resume "$out/run_more") ${MORE_FLAGS:-} > "$out/train_more.log" 2>&1
+    how="from scratch, then $MORE_STEPS steps more from those weights (lr 5e-4 cosine, seed 2${MORE_FLAGS:+, $MORE_FLAGS})"
+    if [[ -n "${AVERAGE:-}" ]]; then
+        "$py" -m model.average "$weights" "$out/run_more/model.safetensors" --weight "$AVERAGE" \
+            --out "$out/run_average/model.safetensors"
+        weights="$out/run_average/model.safetensors"
+        how="$how, the weights $AVERAGE of the way from the first's to those (python -m model.average)"
+    else
+        weights="$out/run_more/model.safetensors"
+    fi
 fi
 onnx="$out/model.onnx"
 register=()

@@ -108,3 +108,38 @@ def init_weights(model: torch.nn.Module, start: torch.nn.Module, where) -> None:
         else:
             state[name] = value
     model.load_state_dict(state)
+
+
+def interpolate_models(start_path, end_path, weight: float) -> tuple[torch.nn.Module, dict]:
+    """The network whose every float weight and BatchNorm statistic is (1 - weight) * start's +
+    weight * end's (integer buffers, BatchNorm's batch count, end's), with the metadata to save it
+    under: end's, plus where it came from. Both checkpoints must have one config (a fine-tune and
+    the weights it started from: issue 45's warm restarts lie on a path along which the relit
+    error changes smoothly, docs/EVALUATION.md). ValueError naming the files otherwise."""
+    weight = float(weight)
+    if not 0.0 <= weight <= 1.0:
+        raise ValueError(f"the weight of {end_path} must be in [0, 1], got {weight}")
+    start, end = load_model(start_path), load_model(end_path)
+    if start.config() != end.config():
+        raise ValueError(f"{start_path} and {end_path} have different configs: {start.config()} against "
+                         f"{end.config()}")
+    ends = end.state_dict()
+    mixed = {name: (torch.lerp(value, ends[name], weight) if value.is_floating_point() else ends[name])
+             for name, value in start.state_dict().items()}
+    end.load_state_dict(mixed)
+    meta = read_metadata(end_path)
+    meta.pop("format", None)
+    meta.pop("config", None)
+    meta["interpolated"] = {"start": str(start_path), "end": str(end_path), "end_weight": weight,
+                            "start_sha256": _file_sha256(start_path), "end_sha256": _file_sha256(end_path)}
+    return end.eval(), meta
+
+
+def _file_sha256(path) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

@@ -31,22 +31,24 @@ What it guarantees (one-sided 95 %):
   the true one (model.scoring.metrics.light_response: the per-scene slope and correlation of the
   relit log-luminance change against the truth's, each bounded above 0, which is the untouched
   photo's and any exposure change's), and the relit photo is better than the untouched one.
-  Measured (geometry.onnx sha256 b25ddc831627, the release of 2026-11-28): slope 0.31 +- 0.18
-  (bound +0.19), correlation 0.41 +- 0.16 (bound +0.30), relit 26.65 dB, +10.22 +- 5.39 over identity
-  (bound +6.61); not claimed over exposure-matched (+2.81 +- 4.22, bound -0.01). The model before
-  (caa9df63d60f): 0.30 / 0.37, 26.07 dB. The true decomposition: slope 0.77, correlation 0.58; a
+  Measured (geometry.onnx sha256 2ba8009b936e, the release of 2026-11-28 half-way to its sun-response
+  restart): slope 0.37 +- 0.16 (bound +0.27), correlation 0.48 +- 0.12 (bound +0.40), relit 26.99 dB,
+  +10.57 +- 5.41 over identity (bound +6.94); not claimed over exposure-matched (+3.16 +- 4.20, bound
+  +0.34, above 0 for the first time, not yet asserted). Before: b25ddc831627 0.31 / 0.41, 26.65 dB;
+  caa9df63d60f 0.30 / 0.37, 26.07 dB. The true decomposition: slope 0.77, correlation 0.58; a
   random-weight network fails on the slope (bound -0.15).
 What it does not claim: that the model relights head-and-shoulders better than identity or an
-exposure change. Measured (geometry.onnx sha256 b25ddc831627, Balanced, 8 scenes of seed 20251,
-16 pairs): relit 23.21 dB, identity 22.27, exposure-matched 24.11; per scene +0.93 +- 5.10 dB over
-identity (bound -2.48) and -0.91 +- 4.08 over exposure-matched (bound -3.64): worse than an
+exposure change. Measured (geometry.onnx sha256 2ba8009b936e, Balanced, 8 scenes of seed 20251,
+16 pairs): relit 23.48 dB, identity 22.27, exposure-matched 24.11; per scene +1.20 +- 5.24 dB over
+identity (bound -2.31) and -0.64 +- 4.23 over exposure-matched (bound -3.47): worse than an
 exposure change, and within its spread of identity (a map against itself turned 60 degrees scores
-33.4 dB as it is); the model before: 23.32 dB. On the guard's 3 of them: +1.57 / -1.76 dB.
-Full-body, 8 scenes of seed 20250: relit 21.02 (before 20.76), identity 17.42, exposure-matched
-18.43; per scene +3.61 +- 2.24 (bound +2.10) and +2.59 +- 2.74 (bound +0.75); on the first 3
+33.4 dB as it is); the models before: 23.21 (b25ddc831627), 23.32 dB. On the guard's 3 of them:
++1.83 / -1.49 dB.
+Full-body, 8 scenes of seed 20250: relit 21.21 (before 21.02, 20.76), identity 17.42, exposure-matched
+18.43; per scene +3.79 +- 2.24 (bound +2.29) and +2.78 +- 2.77 (bound +0.92); on the first 3
 scenes alone the exposure-matched bound is negative, hence 8. Normals, per scene, the flat
-person's error less the model's: full-body +15.7 +- 1.3 deg (8 scenes, bound +14.8; model 19.2,
-flat 34.8), head-and-shoulders +19.2 +- 4.7 (3 scenes, bound +11.2; model 15.0, flat 34.2).
+person's error less the model's: full-body +15.8 +- 1.1 deg (8 scenes, bound +15.1; model 19.0,
+flat 34.8), head-and-shoulders +19.5 +- 4.9 (3 scenes, bound +11.3; model 14.7, flat 34.2).
 
 No registered default model: the guard FAILS. To measure (prints the per-pair table, the
 per-scene differences and their bounds):
