@@ -15,7 +15,7 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 
 from model.networks.network import RelightNet
-from relight.files.fileio import atomic_path, atomic_write_text
+from relight.files.fileio import atomic_path, atomic_write_text, file_sha256
 
 FORMAT = "relightnet/1"
 CONFIG_KEYS = ("sh_order", "width", "depth", "with_residual", "with_matte", "decomposition", "tstar",
@@ -131,15 +131,6 @@ def interpolate_models(start_path, end_path, weight: float) -> tuple[torch.nn.Mo
     meta.pop("format", None)
     meta.pop("config", None)
     meta["interpolated"] = {"start": str(start_path), "end": str(end_path), "end_weight": weight,
-                            "start_sha256": _file_sha256(start_path), "end_sha256": _file_sha256(end_path)}
+                            "start_sha256": file_sha256(start_path), "end_sha256": file_sha256(end_path)}
     return end.eval(), meta
 
-
-def _file_sha256(path) -> str:
-    import hashlib
-
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
