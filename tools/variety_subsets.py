@@ -14,10 +14,11 @@ what is missing. docs/EVALUATION.md, "The curve in variety".
 from __future__ import annotations
 
 import argparse
-import json
 import random
 import sys
 from pathlib import Path
+
+from relight.files.dataset import read_sidecar
 
 NARROW_PATTERNS = frozenset({"none", "denim"})
 NARROW_HAIR = frozenset({"short", "long", "medium", "bald"})
@@ -35,11 +36,11 @@ def subsets(farm: Path, exclude: tuple[int, int] | None = None, seed: int = 45) 
     for path in sorted(farm.glob("scene_*.json")):
         if not path.with_suffix(".exr").is_file():
             continue
+        meta = read_sidecar(path)  # ValueError naming the file when it is not a finished scene's
         try:
-            meta = json.loads(path.read_text())
             index, look = int(meta["index"]), is_narrow(meta["appearance"])
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"{path}: not a farm scene sidecar ({exc})") from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: no look in the sidecar ({exc!r})") from None
         if exclude and exclude[0] <= index < exclude[1]:
             continue
         pool.append(path)

@@ -133,4 +133,3 @@ def interpolate_models(start_path, end_path, weight: float) -> tuple[torch.nn.Mo
     meta["interpolated"] = {"start": str(start_path), "end": str(end_path), "end_weight": weight,
                             "start_sha256": file_sha256(start_path), "end_sha256": file_sha256(end_path)}
     return end.eval(), meta
-

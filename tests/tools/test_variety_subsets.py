@@ -4,6 +4,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+from relight.files.dataset import FORMAT
+
 TOOL = Path(__file__).resolve().parents[2] / "tools" / "variety_subsets.py"
 spec = importlib.util.spec_from_file_location("variety_subsets", TOOL)
 variety = importlib.util.module_from_spec(spec)
@@ -21,7 +23,9 @@ def _farm(folder: Path, n: int = 24) -> dict[int, bool]:
         hair = HAIR[i % 6]
         look = {"garments": {"top": {"material": {"pattern": top}}, "bottom": {"material": {"pattern": bottom}}},
                 "hair": {"style": hair}}
-        (folder / f"scene_{i:06d}.json").write_text(json.dumps({"index": i, "appearance": look}))
+        meta = {"format": FORMAT, "index": i, "sh_order": 2, "lights": [], "resolution": [8, 8], "channels": [],
+                "exr_sha256": "0" * 64, "appearance": look}
+        (folder / f"scene_{i:06d}.json").write_text(json.dumps(meta))
         if i != 5:
             (folder / f"scene_{i:06d}.exr").write_bytes(b"")
             narrow[i] = top in ("none", "denim") and hair in ("short", "long", "bald", "medium")
@@ -57,3 +61,7 @@ def test_a_broken_sidecar_is_named(tmp_path, capsys):
     (tmp_path / "scene_000001.json").write_text("{")
     assert variety.main([str(tmp_path), str(tmp_path / "out")]) == 1
     assert "scene_000001.json" in capsys.readouterr().err
+    (tmp_path / "scene_000001.json").write_text(json.dumps({"format": FORMAT, "index": 1}))
+    assert variety.main([str(tmp_path), str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "scene_000001.json" in err and "lacks" in err and not (tmp_path / "out" / "narrow").exists()
