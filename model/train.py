@@ -92,8 +92,9 @@ def parse_args(argv=None, check_pack: bool = True):
     p = argparse.ArgumentParser(prog="python -m model.train", description=__doc__.splitlines()[0])
     p.add_argument("--data", nargs="+",
                    help="dataset folder(s) of scene_NNNNNN.exr/.json (farm runs with different --first)")
-    p.add_argument("--from-pack", default=None, metavar="PACK.npz",
-                   help="train from a training pack instead of --data (model.samples.training_pack: no scene "
+    p.add_argument("--from-pack", nargs="+", default=None, metavar="PACK.npz",
+                   help="train from training packs instead of --data, their scenes one after another "
+                        "(model.samples.training_pack, or compact ones: no scene "
                         "files, no Blender; --size and --order default to the pack's)")
     p.add_argument("--max-scenes", type=int, default=None, metavar="N",
                    help="use only the first N scenes of --data (folders in order, scenes by index): "
@@ -188,7 +189,7 @@ def parse_args(argv=None, check_pack: bool = True):
         from model.samples.training_pack import read_manifest
 
         try:
-            packed = read_manifest(args.from_pack)
+            packed = read_manifest(args.from_pack[0])
         except ValueError as exc:
             p.error(str(exc))
     if args.from_pack is not None and args.pack is not None:
@@ -247,9 +248,9 @@ def train(args) -> Path:
 
     training_pack = None
     if args.from_pack is not None:
-        from model.samples.training_pack import read_training_pack
+        from model.samples.packs import read_training_packs
 
-        training_pack = read_training_pack(args.from_pack)
+        training_pack = read_training_packs(args.from_pack, args.max_scenes)
     weights = loss_weights_from_args(args)
     data = SceneDataModule(
         args.data, training_pack=training_pack, size=args.size, order=args.order, batch=args.batch, seed=args.seed, max_scenes=args.max_scenes,
@@ -304,7 +305,7 @@ def train(args) -> Path:
 
     record = {"seed": args.seed, "steps": int(trainer.global_step),
               "loss_weights": weights,
-              "data": [str(d) for d in args.data] if args.data else [str(args.from_pack)],
+              "data": [str(d) for d in args.data] if args.data else [str(p) for p in args.from_pack],
               "pack_source": training_pack.manifest["source"] if training_pack is not None else None,
               "train_scenes": len(data.train_paths),
               "val_scenes": len(data.val_paths), "lambertian": args.lambertian,

@@ -27,6 +27,7 @@ from relight.files.dataset import read_sidecar
 from relight.files.fileio import atomic_path
 
 FORMAT = "relight-training-pack/1"
+COMPACT_FORMAT = "relight-training-pack-compact/1"  # model.samples.compact_pack's lossy coding
 
 
 def _sha256(a: np.ndarray) -> str:
@@ -66,7 +67,8 @@ def write_training_pack(json_paths, out, size: int, order: int, padding: int = D
 
 @dataclass
 class TrainingPack:
-    """A pack read back: its manifest and its scenes (CroppedScene, float32 as the loader gives)."""
+    """A pack read back: its manifest and its scenes (CroppedScene, float32 as the loader gives;
+    the manifest's first len(scenes) records when it was read in part)."""
 
     path: Path
     manifest: dict
@@ -82,11 +84,11 @@ class TrainingPack:
 
     @property
     def body_keys(self) -> list[str]:
-        return [s["body_key"] for s in self.manifest["scenes"]]
+        return [s["body_key"] for s in self.manifest["scenes"][:len(self.scenes)]]
 
     @property
     def names(self) -> list[str]:
-        return [s["name"] for s in self.manifest["scenes"]]
+        return [s["name"] for s in self.manifest["scenes"][:len(self.scenes)]]
 
 
 def read_manifest(path) -> dict:
@@ -101,30 +103,41 @@ def read_manifest(path) -> dict:
 
 def _manifest(z, path: Path) -> dict:
     manifest = json.loads(bytes(z["manifest"]).decode())
-    if manifest.get("format") != FORMAT:
-        raise ValueError(f"unknown format {manifest.get('format')!r} (expected {FORMAT})")
+    if manifest.get("format") not in (FORMAT, COMPACT_FORMAT):
+        raise ValueError(f"unknown format {manifest.get('format')!r} (expected {FORMAT} or {COMPACT_FORMAT})")
     return manifest
 
 
-def read_training_pack(path) -> TrainingPack:
-    """The pack at `path`, every array checked against its recorded SHA-256."""
+def read_training_pack(path, max_scenes: int | None = None) -> TrainingPack:
+    """The exact pack at `path` (its first `max_scenes` scenes only, when given), every array
+    checked against its recorded SHA-256 (model.samples.packs reads compact ones and parts too)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"training pack not found: {path}")
+    manifest = read_manifest(path)
+    return TrainingPack(path, manifest, [scene for scene, _ in iter_training_pack(path, max_scenes)])
+
+
+def iter_training_pack(path, max_scenes: int | None = None, first: int = 0):
+    """(CroppedScene, its manifest record) of an exact pack, one at a time and checked as read,
+    from scene `first` on: a pack larger than memory (the campaign's 5,000 scenes are 14 GB as
+    float32) streams."""
+    path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             manifest = _manifest(z, path)
-            scenes = []
-            for i, rec in enumerate(manifest["scenes"]):
+            if manifest["format"] != FORMAT:
+                raise ValueError(f"a {manifest['format']} pack, not an exact one ({FORMAT})")
+            last = None if max_scenes is None else first + max_scenes
+            for i, rec in enumerate(manifest["scenes"][first:last], start=first):
                 maps, lights = z[f"s{i}"], z[f"l{i}"]
                 depth = z[f"d{i}"] if rec.get("depth") else None  # packs from before it have none
                 if _sha256(maps) != rec["maps_sha256"] or _sha256(lights) != rec["lights_sha256"] or (
                         depth is not None and _sha256(depth) != rec.get("depth_sha256")):
                     raise ValueError(f"scene {rec['name']}: its arrays do not match the manifest's SHA-256")
-                scenes.append(scene_from_arrays(maps, lights, rec, manifest["order"], depth))
+                yield scene_from_arrays(maps, lights, rec, manifest["order"], depth), rec
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable training pack ({exc})") from None
-    return TrainingPack(path, manifest, scenes)
 
 
 class PackScenes:
