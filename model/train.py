@@ -24,7 +24,6 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger
 
 from model.training.checkpoint import init_weights, load_model, read_metadata, save_model
-from model.samples.data_augment import preset_training_lights
 from model.samples.data_crops import DEFAULT_PADDING
 from model.samples.data_splits import first_maps, training_map_names
 from model.networks.geometry import ARCH as GEOMETRY, GEOMETRY_LOSS_WEIGHTS, GEOMETRY_PRESETS
@@ -97,7 +96,7 @@ def parse_args(argv=None, check_pack: bool = True):
                         "(model.samples.training_pack, or compact ones: no scene "
                         "files, no Blender; --size and --order default to the pack's)")
     p.add_argument("--max-scenes", type=int, default=None, metavar="N",
-                   help="use only the first N scenes of --data (folders in order, scenes by index): "
+                   help="use only the first N scenes of --data (folders in order, scenes by index) or of the packs: "
                         "data-size curves without copying data")
     p.add_argument("--out", required=True, help="output folder (checkpoints, final weights, logs)")
     p.add_argument("--steps", type=int, default=10000)
@@ -262,7 +261,7 @@ def train(args) -> Path:
                      lambertian=args.lambertian, body_prior=args.body_prior, depth=bool(args.depth_head),
                      sun_light=weights.get("sun_response", 0.0) > 0))
     if args.light_maps is not None:
-        bank = [name for name, _ in preset_training_lights(args.order)] if not args.no_presets else []
+        bank = [name for name, _ in data.preset_lights()]
         maps = first_maps(training_map_names(data.train_paths, bank), args.light_maps)
         data.augment["light_maps"] = maps
         print(f"model.train: {len(maps)} training maps: {', '.join(sorted(maps))}", file=sys.stderr)

@@ -10,7 +10,9 @@ pack (format 1, exact float16) into three image streams and a few floats:
   error is a fraction of the value in shadow as in sun);
 - one 8-bit PNG of the masks (alpha and body coverage): they decide what is person;
 - one 16-bit PNG of the depth pass over the person's own depth range (0 off the person);
-- float32: the lights (exact), the PCA's mean and basis, and each plane's code range.
+- float32: the lights (exact), the PCA's mean and basis, and each plane's code range;
+and once per pack the bundled HDR presets' SH (the extra training lights), so that training from it
+reads no EXR (a GPU machine has no OpenEXR).
 The JPEG tiles are 128 x 128 and its blocks 8 x 8, so no block spans two planes.
 `read_compact_pack(path)` decodes every scene to the CroppedScene the exact pack gives, within the
 code's error (docs/model.md, "A compact training pack for a GPU machine", measures it and what
@@ -30,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from model.samples.data_augment import preset_training_lights
 from model.samples.data_crops import CroppedScene
 from model.samples.training_pack import COMPACT_FORMAT, TrainingPack, iter_training_pack, read_manifest
 from relight.files.fileio import atomic_path
@@ -252,7 +255,10 @@ def write_compact_pack(pack, out, quality: int = 90, rank: int = 25, max_scenes:
                        "blob_sha256": _sha256(blob), "floats_sha256": _sha256(floats.tobytes())})
     if not scenes:
         raise ValueError(f"{pack}: no scene to code")
-    manifest.update(format=FORMAT, scenes=scenes, coding={"quality": quality, "rank": rank,
+    # the bundled maps' SH, the extra training lights: a GPU machine without OpenEXR reads no map
+    presets = preset_training_lights(manifest["order"])
+    arrays["presets"] = np.stack([sh for _, sh in presets]).astype(np.float32)
+    manifest.update(format=FORMAT, scenes=scenes, presets=[name for name, _ in presets], coding={"quality": quality, "rank": rank,
                                                          "without": sorted(without), "from": Path(pack).name,
                                                          "first": first})
     arrays["manifest"] = np.frombuffer(json.dumps(manifest, sort_keys=True).encode(), dtype=np.uint8)
@@ -279,9 +285,10 @@ def read_compact_pack(path, max_scenes: int | None = None) -> TrainingPack:
                 if _sha256(blob) != rec["blob_sha256"] or _sha256(floats.tobytes()) != rec["floats_sha256"]:
                     raise ValueError(f"scene {rec['name']}: its bytes do not match the manifest's SHA-256")
                 scenes.append(decode_scene(blob, floats, rec))
+            presets = list(zip(manifest["presets"], z["presets"]))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable compact training pack ({exc})") from None
-    return TrainingPack(path, manifest, scenes)
+    return TrainingPack(path, manifest, scenes, presets)
 
 
 def main(argv=None) -> int:

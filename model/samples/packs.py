@@ -38,4 +38,4 @@ def read_training_packs(paths, max_scenes: int | None = None) -> TrainingPack:
         return packs[0]
     manifest = {**packs[0].manifest, "scenes": [rec for p in packs for rec in p.manifest["scenes"][:len(p.scenes)]],
                 "parts": [str(p.path) for p in packs]}
-    return TrainingPack(paths[0], manifest, [s for p in packs for s in p.scenes])
+    return TrainingPack(paths[0], manifest, [s for p in packs for s in p.scenes], packs[0].presets)

@@ -73,6 +73,7 @@ class TrainingPack:
     path: Path
     manifest: dict
     scenes: list[CroppedScene]
+    presets: list[tuple[str, np.ndarray]] | None = None  # the bundled maps' SH, when the pack carries them
 
     @property
     def size(self) -> int:

@@ -116,10 +116,19 @@ class SceneDataModule(L.LightningDataModule):
         except (OSError, ValueError, KeyError):  # missing, stale or unreadable: make it again
             pack_scenes(self.train_paths, self.pack, self.size, self.order, self.padding, self.held_out)
 
+    def preset_lights(self) -> list[tuple[str, np.ndarray]]:
+        """The bundled HDR presets' SH as extra training lights: the pack's own when it carries
+        them (a compact pack: no EXR read), else projected from the maps; none with presets off."""
+        if not self.presets:
+            return []
+        if self.training_pack is not None and self.training_pack.presets is not None:
+            return self.training_pack.presets
+        return preset_training_lights(self.order)
+
     def setup(self, stage: str | None = None) -> None:
         if self.train_set is not None:  # set up already (see prepare_data)
             return
-        extra = preset_training_lights(self.order) if self.presets else []
+        extra = self.preset_lights()
         if self.training_pack is not None:
             self._setup_from_pack(extra)
             return

@@ -11,6 +11,7 @@ from model import train
 from model.samples import compact_pack
 from model.samples.compact_pack import (LOG_STOPS, decode_scene, encode_scene, fill_outside, from_octahedral,
                                         octahedral, read_compact_pack, write_compact_pack)
+from model.samples.data_augment import preset_training_lights
 from model.samples.data_crops import CroppedScene
 from model.samples.synthetic import write_analytic_dataset
 from model.samples.packs import read_training_packs
@@ -190,6 +191,25 @@ def test_a_damaged_compact_pack_is_refused_naming_the_file(exact_pack, tmp_path)
         assert str(tmp_path / name) in str(err.value)
     with pytest.raises(ValueError, match="not an exact one"):  # the exact reader names what it got
         read_training_pack(path)
+
+
+def test_a_compact_pack_carries_the_preset_lights_and_trains_without_reading_a_map(exact_pack, tmp_path,
+                                                                                    monkeypatch):
+    """The extra training lights (the bundled maps' SH) travel in the pack: a GPU machine has no
+    OpenEXR to read the maps with, so training from the pack must not project them."""
+    path = write_compact_pack(exact_pack, tmp_path / "c.npz")
+    pack = read_training_packs([path])
+    want = preset_training_lights(2)
+    assert [name for name, _ in pack.presets] == [name for name, _ in want]
+    assert all(np.array_equal(got, sh) for (_, got), (_, sh) in zip(pack.presets, want))
+
+    def no_maps(order):
+        raise AssertionError("training from a compact pack projected the preset maps")
+
+    monkeypatch.setattr("model.training.train_data.preset_training_lights", no_maps)
+    argv = ["--from-pack", str(path), "--out", str(tmp_path / "run"), "--steps", "1", "--batch", "2",
+            "--width", "4", "--depth", "2", "--padding", "1", "--val-fraction", "0.25", "--quiet"]
+    assert train.main(argv) == 0
 
 
 def test_the_command_writes_a_compact_pack_and_model_train_trains_from_it(exact_pack, tmp_path, capsys):
