@@ -13,11 +13,12 @@ pack (format 1, exact float16) into three image streams and a few floats:
 - float32: the lights (exact), the PCA's mean and basis, and each plane's code range;
 and once per pack the bundled HDR presets' SH (the extra training lights), so that training from it
 reads no EXR (a GPU machine has no OpenEXR).
-The JPEG tiles are 128 x 128 and its blocks 8 x 8, so no block spans two planes.
+The JPEG's tiles are the crop's size (128 for the release: a multiple of 8), so no 8 x 8 block
+spans two planes.
 `read_compact_pack(path)` decodes every scene to the CroppedScene the exact pack gives, within the
 code's error (docs/model.md, "A compact training pack for a GPU machine", measures it and what
-training on it costs). Every scene's bytes are checked against the manifest's SHA-256 before they are decoded;
-nothing is pickled.
+training on it costs). Every scene's bytes and the presets are checked against the manifest's
+SHA-256 before they are used; nothing is pickled.
 """
 
 from __future__ import annotations
@@ -258,7 +259,8 @@ def write_compact_pack(pack, out, quality: int = 90, rank: int = 25, max_scenes:
     # the bundled maps' SH, the extra training lights: a GPU machine without OpenEXR reads no map
     presets = preset_training_lights(manifest["order"])
     arrays["presets"] = np.stack([sh for _, sh in presets]).astype(np.float32)
-    manifest.update(format=FORMAT, scenes=scenes, presets=[name for name, _ in presets], coding={"quality": quality, "rank": rank,
+    manifest.update(format=FORMAT, scenes=scenes, presets=[name for name, _ in presets],
+                    presets_sha256=_sha256(arrays["presets"].tobytes()), coding={"quality": quality, "rank": rank,
                                                          "without": sorted(without), "from": Path(pack).name,
                                                          "first": first})
     arrays["manifest"] = np.frombuffer(json.dumps(manifest, sort_keys=True).encode(), dtype=np.uint8)
@@ -285,6 +287,8 @@ def read_compact_pack(path, max_scenes: int | None = None) -> TrainingPack:
                 if _sha256(blob) != rec["blob_sha256"] or _sha256(floats.tobytes()) != rec["floats_sha256"]:
                     raise ValueError(f"scene {rec['name']}: its bytes do not match the manifest's SHA-256")
                 scenes.append(decode_scene(blob, floats, rec))
+            if _sha256(z["presets"].tobytes()) != manifest["presets_sha256"]:
+                raise ValueError("its preset lights do not match the manifest's SHA-256")
             presets = list(zip(manifest["presets"], z["presets"]))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable compact training pack ({exc})") from None

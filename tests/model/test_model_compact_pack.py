@@ -185,7 +185,12 @@ def test_a_damaged_compact_pack_is_refused_naming_the_file(exact_pack, tmp_path)
     arrays["b1"][-10] ^= 1  # one bit of one scene's bytes: only the manifest's hash can tell
     with open(tmp_path / "flipped.npz", "wb") as f:
         np.savez(f, **arrays)
-    for name, why in (("cut.npz", "not a readable"), ("flipped.npz", "do not match")):
+    arrays["b1"] = np.load(path)["b1"]
+    arrays["presets"] = arrays["presets"] * np.float32(2)  # brighter extra lights
+    with open(tmp_path / "presets.npz", "wb") as f:
+        np.savez(f, **arrays)
+    for name, why in (("cut.npz", "not a readable"), ("flipped.npz", "do not match"),
+                      ("presets.npz", "preset lights do not match")):
         with pytest.raises(ValueError, match=why) as err:
             read_training_packs([tmp_path / name])
         assert str(tmp_path / name) in str(err.value)
