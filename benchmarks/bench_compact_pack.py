@@ -20,8 +20,8 @@ import sys
 import numpy as np
 
 from model.samples.compact_pack import decode_scene, encode_scene
+from model.samples.data import scene_prt
 from model.samples.training_pack import iter_training_pack, read_manifest
-from relight.network.prt import render
 
 
 def psnr_display(want: np.ndarray, got: np.ndarray, mask: np.ndarray) -> float:
@@ -32,11 +32,6 @@ def psnr_display(want: np.ndarray, got: np.ndarray, mask: np.ndarray) -> float:
     return 10 * np.log10(1 / max(err, 1e-20))
 
 
-def prt(scene, light) -> np.ndarray:
-    chw = lambda a: np.moveaxis(a, 0, -1)
-    return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
-
-
 def scene_errors(exact, coded) -> dict:
     mask = exact.alpha[0] > 0.5
     cos = np.clip((exact.normal * coded.normal).sum(axis=0)[mask], -1, 1)
@@ -44,7 +39,7 @@ def scene_errors(exact, coded) -> dict:
     dt = np.linalg.norm(coded.transport - exact.transport, axis=0)[mask]
     return {"image": np.mean([psnr_display(a, b, mask) for a, b in zip(exact.images, coded.images)
                               if a is not None]),
-            "prt": np.mean([psnr_display(prt(exact, light), prt(coded, light), mask) for light in exact.lights]),
+            "prt": np.mean([psnr_display(scene_prt(exact, light), scene_prt(coded, light), mask) for light in exact.lights]),
             "albedo": psnr_display(exact.albedo, coded.albedo, mask),
             "normal_median": float(np.median(angles)), "normal_p95": float(np.percentile(angles, 95)),
             "transport": float(np.sqrt((dt ** 2).mean() / (np.linalg.norm(exact.transport, axis=0)[mask] ** 2).mean()))}

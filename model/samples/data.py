@@ -81,6 +81,12 @@ def network_input(linear_chw: np.ndarray, alpha: np.ndarray | None) -> np.ndarra
     return to_network_input(hwc, mask).transpose(2, 0, 1)
 
 
+def scene_prt(scene: CroppedScene, light: np.ndarray) -> np.ndarray:
+    """A cropped scene's albedo * (T . L) under `light`, channels first (relight.network.prt.render)."""
+    chw = lambda a: np.moveaxis(a, 0, -1)
+    return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
+
+
 class TrainingScenes(torch.utils.data.Dataset):
     """Random training samples (see module docstring); one item per scene per epoch."""
 
@@ -177,10 +183,6 @@ class TrainingScenes(torch.utils.data.Dataset):
             return f"{name}+{other}", random_mixed_light(base.astype(np.float64), second.astype(np.float64), rng)
         return name, random_reference_light(base.astype(np.float64), rng)
 
-    def _prt(self, scene: CroppedScene, light: np.ndarray) -> np.ndarray:
-        """albedo * (T . L), channels first (relight.network.prt.render)."""
-        chw = lambda a: np.moveaxis(a, 0, -1)
-        return np.moveaxis(render(chw(scene.albedo), chw(scene.transport), None, light), -1, 0)
 
     def __getitem__(self, i: int) -> dict:
         """Sample i of epoch 0; training takes other epochs through model.training.train_data.EpochIndexed."""
@@ -201,7 +203,7 @@ class TrainingScenes(torch.utils.data.Dataset):
                 k = options[rng.integers(len(options))]
                 return k, scene.light_names[k], scene.lights[k], scene.images[k], True
             name, light = self._bank_light(scene, rng)
-            return None, name, light, self._prt(scene, light), False
+            return None, name, light, scene_prt(scene, light), False
 
         k_a, name_a, light_a, image_a, traced_a = pick(None)
         _, name_b, light_b, image_b, _ = pick(k_a)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -115,30 +116,41 @@ def read_training_pack(path, max_scenes: int | None = None) -> TrainingPack:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"training pack not found: {path}")
-    manifest = read_manifest(path)
-    return TrainingPack(path, manifest, [scene for scene, _ in iter_training_pack(path, max_scenes)])
+    with _exact_pack(path) as (z, manifest):
+        scenes = [scene for scene, _ in _checked_scenes(z, manifest, max_scenes, 0)]
+    return TrainingPack(path, manifest, scenes)
 
 
 def iter_training_pack(path, max_scenes: int | None = None, first: int = 0):
     """(CroppedScene, its manifest record) of an exact pack, one at a time and checked as read,
     from scene `first` on: a pack larger than memory (the campaign's 5,000 scenes are 14 GB as
     float32) streams."""
-    path = Path(path)
+    with _exact_pack(Path(path)) as (z, manifest):
+        yield from _checked_scenes(z, manifest, max_scenes, first)
+
+
+@contextmanager
+def _exact_pack(path: Path):
+    """The open exact pack and its manifest, read once; any failure inside is one ValueError naming it."""
     try:
         with np.load(path, allow_pickle=False) as z:
             manifest = _manifest(z, path)
             if manifest["format"] != FORMAT:
                 raise ValueError(f"a {manifest['format']} pack, not an exact one ({FORMAT})")
-            last = None if max_scenes is None else first + max_scenes
-            for i, rec in enumerate(manifest["scenes"][first:last], start=first):
-                maps, lights = z[f"s{i}"], z[f"l{i}"]
-                depth = z[f"d{i}"] if rec.get("depth") else None  # packs from before it have none
-                if _sha256(maps) != rec["maps_sha256"] or _sha256(lights) != rec["lights_sha256"] or (
-                        depth is not None and _sha256(depth) != rec.get("depth_sha256")):
-                    raise ValueError(f"scene {rec['name']}: its arrays do not match the manifest's SHA-256")
-                yield scene_from_arrays(maps, lights, rec, manifest["order"], depth), rec
+            yield z, manifest
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable training pack ({exc})") from None
+
+
+def _checked_scenes(z, manifest: dict, max_scenes: int | None, first: int):
+    last = None if max_scenes is None else first + max_scenes
+    for i, rec in enumerate(manifest["scenes"][first:last], start=first):
+        maps, lights = z[f"s{i}"], z[f"l{i}"]
+        depth = z[f"d{i}"] if rec.get("depth") else None  # packs from before it have none
+        if _sha256(maps) != rec["maps_sha256"] or _sha256(lights) != rec["lights_sha256"] or (
+                depth is not None and _sha256(depth) != rec.get("depth_sha256")):
+            raise ValueError(f"scene {rec['name']}: its arrays do not match the manifest's SHA-256")
+        yield scene_from_arrays(maps, lights, rec, manifest["order"], depth), rec
 
 
 class PackScenes:
